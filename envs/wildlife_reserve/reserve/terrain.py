@@ -1,0 +1,177 @@
+"""Terrain, risk hotspots and region presets of the wildlife reserve.
+
+The regions are stylised presets (terrain proportions and hotspot counts), not maps of real
+places. A terrain is an integer array of shape ``(height, width)`` with values
+:data:`OPEN`, :data:`FOREST` and :data:`MOUNTAIN`; the risk map is a float array in [0, 1].
+Everything here is vectorised over cells (no Python loop over cells).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+OPEN, FOREST, MOUNTAIN = 0, 1, 2
+TERRAIN_NAMES = ("open", "forest", "mountain")
+#: Share of the visual signal lost to each terrain type (what the occlusion channel shows).
+VISUAL_OCCLUSION = np.array([0.0, 0.6, 0.8], dtype=np.float32)
+#: Share of the thermal signal lost to each terrain type (canopy hides less heat than rock).
+THERMAL_OCCLUSION = np.array([0.0, 0.3, 0.7], dtype=np.float32)
+#: Cells with a risk at or above this value are "high-risk" (coverage efficiency counts them).
+HIGH_RISK_THRESHOLD = 0.5
+
+
+@dataclass(frozen=True)
+class RegionPreset:
+    """A stylised reserve: terrain proportions and hotspot counts.
+
+    :param forest: share of cells that are forest
+    :param mountain: share of cells that are mountain
+    :param n_dens: leopard dens (risk 1.0 at the centre)
+    :param n_waterholes: water holes (risk 0.8)
+    :param n_roads: roads entering from the edge (risk 0.6 along them)
+    :param smoothness: spatial scale of the terrain patches, as a fraction of the grid side
+    """
+
+    forest: float
+    mountain: float
+    n_dens: int
+    n_waterholes: int
+    n_roads: int
+    smoothness: float = 0.08
+
+
+REGIONS: dict[str, RegionPreset] = {
+    # Mixed woodland and open valleys, the default reserve.
+    "mixed": RegionPreset(forest=0.35, mountain=0.15, n_dens=4, n_waterholes=3, n_roads=2),
+    # Dense Hyrcanian-style forest: heavy occlusion everywhere.
+    "forest": RegionPreset(forest=0.70, mountain=0.10, n_dens=4, n_waterholes=2, n_roads=1),
+    # Rugged mountain steppe: rock occludes, few roads.
+    "mountain": RegionPreset(forest=0.15, mountain=0.50, n_dens=3, n_waterholes=2, n_roads=1, smoothness=0.12),
+    # Open plains: little cover, many water holes and roads.
+    "steppe": RegionPreset(forest=0.08, mountain=0.05, n_dens=3, n_waterholes=5, n_roads=3, smoothness=0.05),
+}
+
+
+def generate_terrain(rng: np.random.Generator, shape: tuple[int, int], preset: RegionPreset) -> np.ndarray:
+    """Draw a terrain from smoothed noise, thresholded to the preset's proportions.
+
+    :param rng: random generator
+    :param shape: ``(height, width)``
+    :param preset: the region preset
+    :return: int8 array of terrain types
+    """
+    height, width = shape
+    sigma = max(1.0, preset.smoothness * max(height, width))
+    elevation = ndimage.gaussian_filter(rng.standard_normal(shape), sigma=sigma, mode="wrap")
+    vegetation = ndimage.gaussian_filter(rng.standard_normal(shape), sigma=sigma, mode="wrap")
+    terrain = np.full(shape, OPEN, dtype=np.int8)
+    # Mountains take the highest ground; forest the greenest of the rest.
+    mountain = elevation >= np.quantile(elevation, 1.0 - preset.mountain) if preset.mountain > 0 else np.zeros(shape, bool)
+    terrain[mountain] = MOUNTAIN
+    rest = ~mountain
+    n_forest = round(preset.forest * height * width)
+    if n_forest > 0 and rest.any():
+        order = np.argsort(-vegetation[rest], kind="stable")[:n_forest]
+        idx = np.flatnonzero(rest)[order]
+        terrain.flat[idx] = FOREST
+    return terrain
+
+
+def _sample_cells(rng: np.random.Generator, weights: np.ndarray, count: int, min_dist: float) -> np.ndarray:
+    """Sample ``count`` cells with probability proportional to ``weights``, spaced when possible."""
+    height, width = weights.shape
+    flat = weights.ravel().astype(np.float64)
+    chosen: list[np.ndarray] = []
+    rows, cols = np.divmod(np.arange(flat.size), width)
+    for _ in range(count):
+        p = flat / flat.sum()
+        cell = rng.choice(flat.size, p=p)
+        chosen.append(np.array([rows[cell], cols[cell]]))
+        near = (np.abs(rows - rows[cell]) < min_dist) & (np.abs(cols - cols[cell]) < min_dist)
+        spaced = np.where(near, 0.0, flat)
+        if spaced.sum() > 0:
+            flat = spaced
+        elif flat.sum() > flat[cell]:
+            flat[cell] = 0.0
+    return np.array(chosen, dtype=np.int64).reshape(count, 2)
+
+
+@dataclass
+class Hotspots:
+    """Where the risk comes from: leopard dens, water holes and road cells (``(k, 2)`` int arrays)."""
+
+    dens: np.ndarray
+    waterholes: np.ndarray
+    roads: np.ndarray
+
+
+def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: RegionPreset) -> Hotspots:
+    """Place dens (in cover, away from the edge), water holes (in the open) and roads (from an edge inward).
+
+    :param rng: random generator
+    :param terrain: terrain array
+    :param preset: the region preset (hotspot counts)
+    """
+    height, width = terrain.shape
+    rows, cols = np.indices(terrain.shape)
+    edge_dist = np.minimum.reduce([rows, cols, height - 1 - rows, width - 1 - cols]).astype(np.float64)
+    inner = np.clip(edge_dist / max(1.0, 0.15 * min(height, width)), 0.0, 1.0) + 1e-3
+    spacing = max(2.0, 0.2 * min(height, width))
+    den_weight = inner * np.where(terrain == OPEN, 0.2, 1.0)
+    dens = _sample_cells(rng, den_weight, max(1, preset.n_dens), spacing)
+    water_weight = inner * np.where(terrain == OPEN, 1.0, 0.1)
+    waterholes = _sample_cells(rng, water_weight, preset.n_waterholes, spacing / 2)
+    road_cells = []
+    for _ in range(preset.n_roads):
+        side = rng.integers(4)
+        start = _edge_point(rng, side, height, width)
+        end = np.array([rng.integers(height // 4, max(height // 4 + 1, 3 * height // 4)),
+                        rng.integers(width // 4, max(width // 4 + 1, 3 * width // 4))])
+        n = int(np.abs(end - start).max()) + 1
+        line = np.rint(np.linspace(start, end, n)).astype(np.int64)
+        road_cells.append(line)
+    roads = np.concatenate(road_cells) if road_cells else np.zeros((0, 2), dtype=np.int64)
+    return Hotspots(dens=dens, waterholes=waterholes, roads=roads)
+
+
+def _edge_point(rng: np.random.Generator, side: int, height: int, width: int) -> np.ndarray:
+    """A random cell on side 0 (north), 1 (south), 2 (west) or 3 (east)."""
+    if side == 0:
+        return np.array([0, rng.integers(width)])
+    if side == 1:
+        return np.array([height - 1, rng.integers(width)])
+    if side == 2:
+        return np.array([rng.integers(height), 0])
+    return np.array([rng.integers(height), width - 1])
+
+
+def risk_map(shape: tuple[int, int], hotspots: Hotspots) -> np.ndarray:
+    """Risk in [0, 1]: the maximum of Gaussian bumps at dens (1.0) and water holes (0.8), and 0.6 along roads.
+
+    :param shape: ``(height, width)``
+    :param hotspots: the hotspots
+    :return: float32 risk array
+    """
+    height, width = shape
+    scale = max(1.5, 0.04 * min(height, width))
+    rows, cols = np.indices(shape, dtype=np.float64)
+    risk = np.zeros(shape)
+    for centres, peak in ((hotspots.dens, 1.0), (hotspots.waterholes, 0.8)):
+        for r, c in centres:
+            bump = peak * np.exp(-((rows - r) ** 2 + (cols - c) ** 2) / (2 * scale**2))
+            np.maximum(risk, bump, out=risk)
+    if len(hotspots.roads):
+        on_road = np.zeros(shape, dtype=bool)
+        on_road[hotspots.roads[:, 0], hotspots.roads[:, 1]] = True
+        near_road = ndimage.binary_dilation(on_road, iterations=1)
+        np.maximum(risk, np.where(near_road, 0.6, 0.0), out=risk)
+    return risk.astype(np.float32)
+
+
+def dens_from_risk(rng: np.random.Generator, risk: np.ndarray, count: int) -> np.ndarray:
+    """Pick leopard dens among the riskiest cells of a user-supplied risk map."""
+    spacing = max(2.0, 0.2 * min(risk.shape))
+    return _sample_cells(rng, risk.astype(np.float64) ** 4 + 1e-9, max(1, count), spacing)
