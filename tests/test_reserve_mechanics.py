@@ -220,7 +220,7 @@ def test_an_empty_battery_grounds_a_uav_and_it_stays_an_agent():
     env.reset(seed=0, options={"uav_positions": [[3, 3], [10, 10]]})
     env.battery[0] = 1e-4
     start = env.uav_pos[0].copy()
-    _, _, terms, truncs, _ = env.step({"uav_0": RIGHT, "uav_1": RIGHT})
+    _, _, terms, _, _ = env.step({"uav_0": RIGHT, "uav_1": RIGHT})
     assert env.grounded.tolist() == [True, False]
     assert env.agents == ["uav_0", "uav_1"] and not any(terms.values())
     assert env.uav_pos[0].tolist() == (start + [0, 2]).tolist()  # the last move the battery paid for

@@ -156,7 +156,8 @@ class ReserveConfig:
         if self.mode_prior is not None:
             prior = np.asarray(self.mode_prior, dtype=np.float64)
             if prior.shape != (N_MODES,) or not np.all(np.isfinite(prior)) or prior.min() < 0 or prior.sum() <= 0:
-                raise ValueError(f"mode_prior must be {N_MODES} non-negative weights with a positive sum, got {self.mode_prior!r}")
+                raise ValueError(f"mode_prior must be {N_MODES} non-negative weights with a positive sum, "
+                                 f"got {self.mode_prior!r}")
             self.mode_prior = prior / prior.sum()
         self.sensor_noise = check_float("sensor_noise", self.sensor_noise, 0.0, 1.0)
         self.comm_loss = check_float("comm_loss", self.comm_loss, 0.0, 1.0)

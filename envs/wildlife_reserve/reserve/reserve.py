@@ -1,4 +1,3 @@
-# noqa: D205,D400
 """
 # Wildlife Reserve
 
@@ -138,18 +137,19 @@ class ReserveParallelEnv(ParallelEnv):
         self.np_random: np.random.Generator | None = None
         self._static_map = None
         if cfg.terrain_seed is not None:
-            self._static_map = self._build_map(np.random.default_rng([cfg.terrain_seed, sorted(terrain_lib.REGIONS).index(cfg.region)]))
+            region_index = sorted(terrain_lib.REGIONS).index(cfg.region)
+            self._static_map = self._build_map(np.random.default_rng([cfg.terrain_seed, region_index]))
         self._renderer = None
         self._upper = np.array([self.height, self.width]) - 1e-6
         self._inv_scale = 1.0 / np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
         self.t = 0
 
     # ------------------------------------------------------------------ spaces
-    @functools.lru_cache(maxsize=None)  # noqa: B019 (one space object per agent, as PettingZoo requires)
+    @functools.cache  # noqa: B019 (one space object per agent, as PettingZoo requires)
     def observation_space(self, agent: str) -> spaces.Box:
         return spaces.Box(low=-1.0, high=1.0, shape=(self.obs_dim,), dtype=np.float32)
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019
+    @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Space:
         if self.config.continuous_actions:
             return spaces.Box(low=-1.0, high=1.0, shape=(3,), dtype=np.float32)
@@ -240,7 +240,8 @@ class ReserveParallelEnv(ParallelEnv):
         # The same per block of the coarse maps (the block under the UAV).
         self._block_stamps = np.empty((2, self.n, cfg.belief_size**2), dtype=np.float32)
         self._block_stamps[0], self._block_stamps[1] = NEVER, -NEVER
-        self.knowledge = np.full((self.n, self.n), NEVER, dtype=np.float32)  # knowledge[r, s]: r knows s's history up to this time
+        # knowledge[r, s]: r knows s's visits and readings up to this time
+        self.knowledge = np.full((self.n, self.n), NEVER, dtype=np.float32)
         self.beacons = np.zeros((self.n, self.n), dtype=bool)  # beacons[s, r]: r heard s's position this step
         self.comm_links = np.zeros((self.n, self.n), dtype=bool)  # comm_links[s, r]: s's knowledge reached r
         self._events = np.zeros((0, 3))  # (time, detecting UAV, belief block) of known poacher readings
@@ -289,7 +290,7 @@ class ReserveParallelEnv(ParallelEnv):
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
 
     # ------------------------------------------------------------------ step
-    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:  # noqa: C901
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         """Advance every UAV, poacher and leopard one step.
 
         :param actions: one action per live agent
@@ -354,7 +355,8 @@ class ReserveParallelEnv(ParallelEnv):
         if n_detected and self.first_detection_time is None:
             self.first_detection_time = self.t
         pairs = np.argwhere(seen)  # (uav, poacher) pairs become (uav, row, col) readings
-        readings = [np.column_stack([pairs[:, 0], self.poacher_pos[pairs[:, 1]]]), self._false_alarms(cells, airborne, signals[:, 0])]
+        readings = [np.column_stack([pairs[:, 0], self.poacher_pos[pairs[:, 1]]]),
+                    self._false_alarms(cells, airborne, signals[:, 0])]
 
         # Poaching: an undetected poacher next to a live leopard for poaching_time steps.
         active = self.poacher_status == POACHER_ACTIVE
@@ -372,10 +374,10 @@ class ReserveParallelEnv(ParallelEnv):
                 poaching_events = len(victims)
 
         # Coverage of high-risk cells, own visits and communication.
-        before = np.count_nonzero(self.visited.ravel()[self._high_risk_flat])
+        before = self._covered()
         self._stale_window, self._stale_blocks = self._staleness()  # as known on arrival, before this step's look
         own_new = self._mark_own_visits(airborne)
-        new_cells = np.count_nonzero(self.visited.ravel()[self._high_risk_flat]) - before
+        new_cells = self._covered() - before
         self._communicate(comm, airborne)
         self.detections = np.concatenate(readings).astype(np.int64)
         if len(self.detections):
@@ -500,6 +502,10 @@ class ReserveParallelEnv(ParallelEnv):
         channel[uav, offsets[:, 0] + self.r, offsets[:, 1] + self.r] = 1.0
         self.metrics["false_alarms"] += len(uav)
         return np.column_stack([uav, where[keep]])
+
+    def _covered(self) -> int:
+        """High-risk cells seen so far this episode."""
+        return int(np.count_nonzero(self.visited.ravel()[self._high_risk_flat]))
 
     def _mark_own_visits(self, airborne: np.ndarray) -> np.ndarray:
         """Record what each airborne UAV sees now: the team's coverage and each UAV's own visit history.
@@ -667,7 +673,8 @@ class ReserveParallelEnv(ParallelEnv):
     def split_observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:
         """Split flat observations ``(..., obs_dim)`` into their named parts (see :attr:`observation_layout`)."""
         obs = np.asarray(obs)
-        return {name: obs[..., part].reshape(*obs.shape[:-1], *shape) for name, (part, shape) in self.observation_layout.items()}
+        layout = self.observation_layout
+        return {name: obs[..., part].reshape(*obs.shape[:-1], *shape) for name, (part, shape) in layout.items()}
 
     def episode_metrics(self) -> dict[str, float]:
         """The episode's metrics so far (what ``infos[agent]["metrics"]`` holds at the end).
@@ -684,7 +691,7 @@ class ReserveParallelEnv(ParallelEnv):
             ttfd = (self.first_detection_time if self.first_detection_time is not None else self.t) - self.first_entry_time
         return {
             "team_reward": float(m["team_reward"]),
-            "coverage_efficiency": float(np.count_nonzero(self.visited.ravel()[self._high_risk_flat]) / max(self.n_high_risk, 1)),
+            "coverage_efficiency": float(self._covered() / max(self.n_high_risk, 1)),
             "detection_rate": float(m["poachers_detected"] / entered) if entered else 0.0,
             "false_alarms": int(m["false_alarms"]),
             "poaching_events": int(m["poaching_events"]),

@@ -82,7 +82,7 @@ def generate_terrain(rng: np.random.Generator, shape: tuple[int, int], preset: R
 
 def _sample_cells(rng: np.random.Generator, weights: np.ndarray, count: int, min_dist: float) -> np.ndarray:
     """Sample ``count`` cells with probability proportional to ``weights``, spaced when possible."""
-    height, width = weights.shape
+    width = weights.shape[1]
     flat = weights.ravel().astype(np.float64)
     chosen: list[np.ndarray] = []
     rows, cols = np.divmod(np.arange(flat.size), width)

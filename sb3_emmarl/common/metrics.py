@@ -1,0 +1,42 @@
+"""Summaries of per-episode team metrics (mean and standard deviation over episodes)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+#: The reserve's episode metrics in the order tables show them.
+TEAM_METRICS: tuple[str, ...] = (
+    "team_reward",
+    "coverage_efficiency",
+    "detection_rate",
+    "false_alarms",
+    "poaching_events",
+    "collisions",
+    "energy",
+    "time_to_first_detection",
+)
+
+
+def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] = TEAM_METRICS) -> dict[str, tuple[float, float]]:
+    """Mean and (population) standard deviation of each metric over episodes.
+
+    :param records: one metrics dict per episode
+    :param keys: which metrics to summarise
+    :return: ``{metric: (mean, std)}``
+    """
+    if not records:
+        raise ValueError("summarize needs at least one episode record")
+    missing = [k for k in keys if k not in records[0]]
+    if missing:
+        raise ValueError(f"episode records lack the metrics {missing}; they have {sorted(records[0])}")
+    return {k: (float(np.mean([r[k] for r in records])), float(np.std([r[k] for r in records]))) for k in keys}
+
+
+def format_summary(summary: dict[str, tuple[float, float]], title: str = "") -> str:
+    """A plain-text table of ``summarize``'s output, one metric per line."""
+    width = max(len(k) for k in summary)
+    lines = [title] if title else []
+    lines += [f"{k:<{width}}  {mean:10.3f} +- {std:.3f}" for k, (mean, std) in summary.items()]
+    return "\n".join(lines)
