@@ -132,3 +132,15 @@ def test_no_single_observation_reveals_the_mode(random_patrol_episodes):
         assert accuracy < 0.3 and accuracy < history_accuracy - 0.2, (step, accuracy, history_accuracy)
         assert nearest_centroid_accuracy(single, modes // len(WEATHERS)) < 0.4
         assert nearest_centroid_accuracy(single, modes % len(WEATHERS)) < 0.7
+
+
+def test_the_card_states_each_strategy_as_the_code_has_it():
+    from pathlib import Path
+
+    card = (Path(__file__).resolve().parents[1] / "docs" / "env.md").read_text().splitlines()
+    for strategy in STRATEGIES:
+        row = next(line for line in card if f"`{strategy.name}`" in line and line.startswith("|"))
+        low, high = strategy.entry_window
+        assert f"| {low:g}-{high:g} (" in row, row
+        wait = 1.0 - strategy.move_prob - strategy.wander_prob
+        assert f"| {strategy.move_prob:.2f} / {strategy.wander_prob:.2f} / {wait:.2f} | {strategy.evasion_prob:g} |" in row, row
