@@ -24,8 +24,9 @@ Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window of si
 (visual occlusion, risk, time since the team last saw the cell as far as this UAV knows,
 poacher signals, leopard signals, other UAVs), then own position, velocity, battery, episode
 progress, the relative positions of up to `max_neighbors` UAVs within `R_c` (padded, with a
-presence flag) and a `belief_size x belief_size` map of poacher activity built from the
-detections this UAV knows of (its own and those shared with it).
+presence flag), and two `belief_size x belief_size` maps built from what this UAV knows (its own
+history and what was shared with it): time since each block was flown over, and poacher activity.
+`env.split_observation(obs)` names the parts.
 
 ### Actions
 Discrete: `move + 5 * comm`, with move in {stay, up, down, left, right} and comm in {none,
