@@ -143,4 +143,5 @@ def test_the_card_states_each_strategy_as_the_code_has_it():
         low, high = strategy.entry_window
         assert f"| {low:g}-{high:g} (" in row, row
         wait = 1.0 - strategy.move_prob - strategy.wander_prob
-        assert f"| {strategy.move_prob:.2f} / {strategy.wander_prob:.2f} / {wait:.2f} | {strategy.evasion_prob:g} |" in row, row
+        probabilities = f"| {strategy.move_prob:.2f} / {strategy.wander_prob:.2f} / {wait:.2f} | {strategy.evasion_prob:g} |"
+        assert probabilities in row, row

@@ -1,0 +1,134 @@
+"""The single-agent (centralised) view of the wildlife reserve, used by the Centralized PPO baseline.
+
+One policy sees the global state and picks the joint action of every UAV at once, so any
+single-agent Stable-Baselines3 algorithm can train on the reserve:
+
+.. code-block:: python
+
+    from stable_baselines3 import PPO
+
+    from sb3_emmarl.common.centralized import CentralizedReserveEnv
+
+    model = PPO("MlpPolicy", CentralizedReserveEnv(n_uavs=3, grid_size=20)).learn(10_000)
+
+:func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v0", **env_kwargs)``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from wildlife_reserve import reserve_v0
+from wildlife_reserve.reserve.reserve import N_COMMS, N_MOVES, ReserveParallelEnv
+
+#: The Gymnasium id of :class:`CentralizedReserveEnv` (see :func:`register_envs`).
+ENV_ID = "WildlifeReserve-v0"
+#: Values of one UAV's continuous action: ``(d_row, d_col, comm)``.
+CONTINUOUS_ACTION_DIM = 3
+
+
+class CentralizedReserveEnv(gymnasium.Env):
+    """The wildlife reserve as one single-agent Gymnasium environment (the Centralized PPO baseline).
+
+    A central controller with one policy over the global state and the joint action: it observes
+    ``state()`` of a :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv`, acts for every
+    UAV at once and receives the team reward.
+
+    - Observation: the global state, ``Box(-1, 1, (4 n_uavs + 4 n_poachers + 3 n_leopards + belief_size^2 + 1,))``.
+    - Action: ``MultiDiscrete([15] * n_uavs)`` (``move + 5 * comm`` per UAV, in agent order), or with
+      ``continuous_actions=True`` a ``Box(-1, 1, (3 * n_uavs,))`` read as ``(d_row, d_col, comm)`` per UAV.
+    - Reward: the mean of the agents' rewards, i.e. the team reward when ``shaping=0`` (the default).
+    - ``terminated`` / ``truncated``: the parallel env's (every UAV ends at the same step).
+    - Info: the info of agent ``uav_0``: ``"mode"`` (the hidden scenario mode, for evaluation only)
+      every step and ``"metrics"`` (:meth:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv.episode_metrics`)
+      on the last step.
+
+    :param env_kwargs: arguments of ``reserve_v0.parallel_env`` (see
+        :class:`~wildlife_reserve.reserve.config.ReserveConfig`), ``render_mode`` included
+    """
+
+    metadata = {
+        "render_modes": list(ReserveParallelEnv.metadata["render_modes"]),
+        "render_fps": ReserveParallelEnv.metadata["render_fps"],
+    }
+
+    def __init__(self, **env_kwargs: Any) -> None:
+        super().__init__()
+        self.parallel_env: ReserveParallelEnv = reserve_v0.parallel_env(**env_kwargs)
+        self.possible_agents = list(self.parallel_env.possible_agents)
+        self.n_uavs = len(self.possible_agents)
+        self.continuous_actions = self.parallel_env.config.continuous_actions
+        self.render_mode = self.parallel_env.render_mode
+        self.observation_space = self.parallel_env.state_space
+        if self.continuous_actions:
+            self.action_space = spaces.Box(low=-1.0, high=1.0, shape=(CONTINUOUS_ACTION_DIM * self.n_uavs,), dtype=np.float32)
+        else:
+            self.action_space = spaces.MultiDiscrete([N_MOVES * N_COMMS] * self.n_uavs)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        """Start an episode of the parallel env.
+
+        :param seed: passed to the parallel env (seeds the episode and later unseeded resets)
+        :param options: passed to the parallel env, e.g. ``{"mode": int}`` or ``{"uav_positions": array (n, 2)}``
+        :return: the global state and agent ``uav_0``'s info
+        """
+        super().reset(seed=seed)
+        _, infos = self.parallel_env.reset(seed=seed, options=options)
+        return self.parallel_env.state(), dict(infos[self.possible_agents[0]])
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Apply the joint action to every UAV.
+
+        :param action: the joint action, of shape ``action_space.shape``
+        :return: the global state, the (mean) team reward, terminated, truncated and agent ``uav_0``'s info
+        """
+        actions = self._split_action(action)
+        _, rewards, terminations, truncations, infos = self.parallel_env.step(actions)
+        values = np.array([rewards[agent] for agent in self.possible_agents])
+        # Identical rewards (shaping=0) are returned as they are: their float mean can be off in the last bit.
+        reward = float(values[0]) if np.all(values == values[0]) else float(values.mean())
+        terminated = any(terminations[agent] for agent in self.possible_agents)
+        truncated = any(truncations[agent] for agent in self.possible_agents)
+        info = dict(infos[self.possible_agents[0]])
+        return self.parallel_env.state(), reward, bool(terminated), bool(truncated), info
+
+    def _split_action(self, action: np.ndarray) -> dict[str, Any]:
+        """Split the joint action into the parallel env's ``{agent: action}`` dict.
+
+        :param action: the joint action, of shape ``action_space.shape``
+        :return: one action per UAV
+        """
+        joint = np.asarray(action)
+        expected = self.action_space.shape
+        if joint.shape != expected:
+            raise ValueError(f"the joint action must have shape {expected} ({self.action_space}), got shape {joint.shape}")
+        if self.continuous_actions:
+            per_uav = joint.astype(np.float32).reshape(self.n_uavs, CONTINUOUS_ACTION_DIM)
+            return {agent: per_uav[i] for i, agent in enumerate(self.possible_agents)}
+        if not np.issubdtype(joint.dtype, np.integer):
+            if not (np.issubdtype(joint.dtype, np.number) and np.all(np.mod(joint, 1) == 0)):
+                raise ValueError(f"the joint action must hold integers in [0, {N_MOVES * N_COMMS - 1}], got {joint!r}")
+        return {agent: int(joint[i]) for i, agent in enumerate(self.possible_agents)}
+
+    def render(self) -> np.ndarray | None:
+        """Render the parallel env (an RGB array in ``"rgb_array"`` mode, a window in ``"human"`` mode)."""
+        return self.parallel_env.render()
+
+    def close(self) -> None:
+        """Close the parallel env (and its renderer)."""
+        self.parallel_env.close()
+        super().close()
+
+
+def register_envs() -> None:
+    """Register :class:`CentralizedReserveEnv` with Gymnasium as ``"WildlifeReserve-v0"``.
+
+    Idempotent: calling it again does nothing. There is no ``max_episode_steps``: the environment
+    truncates itself after ``max_cycles`` steps.
+    """
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="sb3_emmarl.common.centralized:CentralizedReserveEnv")

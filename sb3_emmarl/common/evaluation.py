@@ -1,0 +1,129 @@
+"""Team evaluation: deterministic episodes on a seed, one record per episode, ready for tables."""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
+
+from sb3_emmarl.common.vec_env import make_vec_env
+from wildlife_reserve import reserve_v0
+
+
+class Predictor(Protocol):
+    """Anything with SB3's ``predict`` signature (an algorithm, a policy, :class:`RandomPolicy`)."""
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, Any]: ...
+
+
+class RandomPolicy:
+    """Uniform random actions with SB3's ``predict`` signature: the reference every table compares against.
+
+    :param action_space: the (per-entry) action space
+    :param seed: seed of the draws
+    """
+
+    def __init__(self, action_space: spaces.Space, seed: int | None = None) -> None:
+        self.action_space = action_space
+        self.rng = np.random.default_rng(seed)
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, None]:
+        n = len(observation)
+        if isinstance(self.action_space, spaces.Discrete):
+            return self.rng.integers(0, self.action_space.n, size=n), None
+        if isinstance(self.action_space, spaces.MultiDiscrete):
+            return self.rng.integers(0, self.action_space.nvec, size=(n, *self.action_space.nvec.shape)), None
+        if isinstance(self.action_space, spaces.Box):
+            low, high = self.action_space.low, self.action_space.high
+            return self.rng.uniform(low, high, size=(n, *self.action_space.shape)).astype(self.action_space.dtype), None
+        raise ValueError(f"RandomPolicy supports Discrete, MultiDiscrete and Box action spaces, not {self.action_space}")
+
+
+def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centralized: bool = False,
+                  vec_normalize_path: str | None = None) -> VecEnv:
+    """One reserve for evaluation: the parameter-sharing view, or the centralised one.
+
+    :param seed: seed of the first episode (later episodes follow from it)
+    :param env_kwargs: the reserve's arguments
+    :param centralized: the single-agent view over the global state and the joint action
+    :param vec_normalize_path: ``VecNormalize`` statistics saved in training (applied frozen)
+    """
+    env_kwargs = dict(env_kwargs or {})
+    if centralized:
+        from sb3_emmarl.common.centralized import CentralizedReserveEnv
+
+        venv: VecEnv = VecMonitor(DummyVecEnv([lambda: CentralizedReserveEnv(**env_kwargs)]))
+        venv.seed(seed)
+    else:
+        venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs)
+    if vec_normalize_path is not None:
+        venv = VecNormalize.load(vec_normalize_path, venv)
+        venv.training = False
+        venv.norm_reward = False
+    return venv
+
+
+def is_centralized(model: Predictor, env_kwargs: dict[str, Any] | None = None) -> bool:
+    """Whether a model acts on the global state (the centralised view) rather than on one UAV's observation."""
+    space = getattr(model, "observation_space", None)
+    if space is None:
+        return False
+    prototype = reserve_v0.parallel_env(**dict(env_kwargs or {}))
+    return space.shape == prototype.state_space.shape and space.shape != prototype.observation_space("uav_0").shape
+
+
+def evaluate_team(
+    model: Predictor,
+    n_episodes: int = 10,
+    seed: int = 0,
+    env_kwargs: dict[str, Any] | None = None,
+    deterministic: bool = False,
+    vec_env: VecEnv | None = None,
+    vec_normalize_path: str | None = None,
+) -> list[dict[str, Any]]:
+    """Play ``n_episodes`` evaluation episodes and return each one's team metrics and true mode.
+
+    Episodes run one after another on one reserve seeded with ``seed``; the reserve draws each
+    episode's map, mode and poacher plan at its reset from that seed alone, so two policies
+    evaluated on the same seed face the same sequence of episodes. The evaluation is deterministic
+    given the seed: sampled actions come from torch's generator seeded with ``seed`` (the caller's
+    generator state is restored afterwards).
+
+    Actions are sampled from the policy by default: with one policy shared by identical UAVs, the
+    most likely action is the same for two UAVs that see the same thing, so two UAVs in one cell
+    stay together for good (a collision every step) under ``deterministic=True``.
+
+    :param model: an SB3 algorithm (or anything with its ``predict``), recurrent ones included
+    :param n_episodes: episodes to play
+    :param seed: evaluation seed
+    :param env_kwargs: the reserve's arguments (as in training)
+    :param deterministic: the most likely actions instead of sampled ones
+    :param vec_env: evaluate on this vector environment instead (one reserve copy; its seed is yours)
+    :param vec_normalize_path: ``VecNormalize`` statistics saved in training, if the model used them
+    :return: one dict per episode: every metric of the episode, ``mode``, ``episode`` and ``seed``
+    """
+    if n_episodes < 1:
+        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    own_env = vec_env is None
+    if own_env:
+        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path)
+    per_copy = int(getattr(vec_env, "agents_per_copy", 1))
+    records: list[dict[str, Any]] = []
+    with th.random.fork_rng():
+        th.manual_seed(seed)
+        observations = vec_env.reset()
+        state, starts = None, np.ones(vec_env.num_envs, dtype=bool)
+        while len(records) < n_episodes:
+            actions, state = model.predict(observations, state=state, episode_start=starts, deterministic=deterministic)
+            observations, _, starts, infos = vec_env.step(actions)
+            for i in np.flatnonzero(starts):
+                if i % per_copy == 0 and "metrics" in infos[i]:
+                    records.append({**infos[i]["metrics"], "episode": len(records), "seed": seed})
+    if own_env:
+        vec_env.close()
+    return records[:n_episodes]

@@ -1,0 +1,192 @@
+"""Parameter-sharing vector environment: SuperSuit flattens the agents, a thin adapter of ours talks to SB3.
+
+``make_vec_env(n_copies, seed, env_kwargs)`` builds ``n_copies`` independent reserves. SuperSuit's
+``pettingzoo_env_to_vec_env_v1`` (``MarkovVectorEnv``) turns each reserve's agents into vector
+entries and its ``ConcatVecEnv`` / ``ProcConcatVec`` concatenates the copies; :class:`SharedPolicyVecEnv`
+then presents them to Stable-Baselines3. Vector index ``i`` belongs to reserve copy
+``i // agents_per_copy`` and to agent ``possible_agents[i % agents_per_copy]`` of that copy (e.g. with
+10 UAVs, indices 0-9 are ``uav_0`` ... ``uav_9`` of copy 0, indices 10-19 those of copy 1).
+
+The adapter replaces SuperSuit's ``SB3VecEnvWrapper`` and mends its faults:
+
+- ``seed()`` exists (``PPO(..., seed=s)`` and ``reset()`` after ``seed(s)`` work): copy ``c`` gets
+  seed ``s + c``, delivered through ``reset`` options so that it holds in- and multi-process alike
+  (SuperSuit offsets seeds by process *and* by copy, so copies in different processes collided);
+- every copy is built fresh (not cloned) and an unseeded first reset draws one fresh base seed, so
+  copies never replay the same episode;
+- an episode cut at ``max_cycles`` sets ``infos[i]["TimeLimit.truncated"]`` (SB3 then bootstraps);
+- ``dones`` are booleans, and ``get_attr`` / ``set_attr`` / ``env_method`` reach the reserves.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import Any
+
+import numpy as np
+from pettingzoo import ParallelEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecMonitor
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv
+
+from wildlife_reserve import reserve_v0
+
+#: Key of the ``reset`` options that carries one seed per reserve copy.
+COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
+
+
+class _ReserveCopy(MarkovVectorEnv):
+    """SuperSuit's ``MarkovVectorEnv`` for one reserve copy, which takes its seed from the reset options."""
+
+    def __init__(self, par_env: ParallelEnv, copy_index: int) -> None:
+        super().__init__(par_env)
+        self.copy_index = copy_index
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        options = dict(options or {})
+        seeds = options.pop(COPY_SEEDS_KEY, None)
+        if seeds is not None:
+            seed = seeds[self.copy_index]
+        return super().reset(seed=seed, options=options or None)
+
+
+def _build_copy(env_fn: Callable[[], ParallelEnv], copy_index: int) -> _ReserveCopy:
+    return _ReserveCopy(env_fn(), copy_index)
+
+
+class SharedPolicyVecEnv(VecEnv):
+    """SB3 ``VecEnv`` over ``n_copies`` parallel PettingZoo environments, one entry per (copy, agent).
+
+    :param env_fn: builds one parallel environment (all agents with the same spaces; none leaves early)
+    :param n_copies: number of independent copies
+    :param num_cpus: worker processes (0 or 1: all copies in this process)
+    """
+
+    def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, num_cpus: int = 0) -> None:
+        if isinstance(n_copies, bool) or not isinstance(n_copies, (int, np.integer)) or n_copies < 1:
+            raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
+        if isinstance(num_cpus, bool) or not isinstance(num_cpus, (int, np.integer)) or num_cpus < 0:
+            raise ValueError(f"num_cpus must be an int >= 0, got {num_cpus!r}")
+        self.prototype = env_fn()  # also validates the environment's arguments, here and now
+        self.possible_agents = list(self.prototype.possible_agents)
+        self.agents_per_copy = len(self.possible_agents)
+        self.n_copies = int(n_copies)
+        self.multiprocess = min(num_cpus, n_copies) > 1
+        agent = self.possible_agents[0]
+        observation_space = self.prototype.observation_space(agent)
+        action_space = self.prototype.action_space(agent)
+        builders = [partial(_build_copy, env_fn, c) for c in range(self.n_copies)]
+        if self.multiprocess:
+            self.venv = MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
+        else:
+            self.venv = ConcatVecEnv(builders, observation_space, action_space)
+        super().__init__(self.n_copies * self.agents_per_copy, observation_space, action_space)
+        self._copy_seeds: list[int] | None = None
+        self._never_reset = True
+
+    # -------------------------------------------------------------- seeding and reset
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed the next reset: copy ``c`` gets ``seed + c`` (a fresh random ``seed`` if None).
+
+        :return: the seed of each vector entry (entries of one copy share it)
+        """
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy % 2**31)
+        self._copy_seeds = [int(seed) + c for c in range(self.n_copies)]
+        return [s for s in self._copy_seeds for _ in range(self.agents_per_copy)]
+
+    def reset(self) -> VecEnvObs:
+        if self._copy_seeds is None and self._never_reset:
+            self.seed(None)  # unseeded: still a different episode in every copy
+        options = dict(self._options[0]) if self._options and self._options[0] else {}
+        if self._copy_seeds is not None:
+            options[COPY_SEEDS_KEY] = self._copy_seeds
+        observations, infos = self.venv.reset(options=options or None)
+        self.reset_infos = list(infos)
+        self._copy_seeds = None
+        self._never_reset = False
+        self._reset_options()
+        return observations
+
+    # -------------------------------------------------------------- stepping
+    def step_async(self, actions: np.ndarray) -> None:
+        self.venv.step_async(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        observations, rewards, terminations, truncations, infos = self.venv.step_wait()
+        terminations = np.asarray(terminations, dtype=bool)
+        truncations = np.asarray(truncations, dtype=bool)
+        dones = terminations | truncations
+        infos = list(infos)
+        for i in np.flatnonzero(dones):
+            infos[i] = dict(infos[i])
+            infos[i]["TimeLimit.truncated"] = bool(truncations[i] and not terminations[i])
+        return observations, np.asarray(rewards, dtype=np.float32), dones, infos
+
+    def close(self) -> None:
+        self.venv.close()
+        self.prototype.close()
+
+    # -------------------------------------------------------------- access to the copies
+    def _copies(self, indices: VecEnvIndices) -> list[ParallelEnv]:
+        if self.multiprocess:
+            raise NotImplementedError(
+                "the environments live in worker processes (num_cpus > 1); get_attr reads the local prototype, "
+                "set_attr and env_method need num_cpus <= 1"
+            )
+        return [self.venv.vec_envs[i // self.agents_per_copy].par_env for i in self._get_indices(indices)]
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """Attribute of the reserve copy behind each index (of the local prototype when ``num_cpus > 1``)."""
+        if self.multiprocess:
+            return [getattr(self.prototype, attr_name) for _ in self._get_indices(indices)]
+        return [getattr(env, attr_name) for env in self._copies(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set an attribute on the reserve copy behind each index."""
+        for env in self._copies(indices):
+            setattr(env, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
+        """Call a method of the reserve copy behind each index (once per index)."""
+        return [getattr(env, method_name)(*method_args, **method_kwargs) for env in self._copies(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [self.venv.render()]
+
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """Render reserve copy 0 (its ``render_mode`` is set when the environment is built)."""
+        return self.venv.render()
+
+
+def make_vec_env(
+    n_copies: int = 1,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    num_cpus: int = 0,
+    monitor_dir: str | None = None,
+    vec_env_wrapper: Callable[[VecEnv], VecEnvWrapper] | None = None,
+    env_fn: Callable[..., ParallelEnv] = reserve_v0.parallel_env,
+) -> VecEnv:
+    """The parameter-sharing vector environment: ``n_copies`` reserves, one vector entry per UAV.
+
+    :param n_copies: independent reserve copies (rl-zoo's ``n_envs``)
+    :param seed: seeds the first reset (copy ``c`` gets ``seed + c``); None draws a fresh seed
+    :param env_kwargs: keyword arguments of the environment (validated here, before anything runs)
+    :param num_cpus: worker processes for the copies (0 or 1: in this process)
+    :param monitor_dir: folder for ``VecMonitor``'s ``monitor.csv`` (one row per agent-episode); None: no file
+    :param vec_env_wrapper: optional wrapper applied last (e.g. the EM history wrapper)
+    :param env_fn: environment constructor taking ``env_kwargs`` (default: the reserve)
+    :return: ``VecMonitor(SharedPolicyVecEnv)``, wrapped by ``vec_env_wrapper`` if given
+    """
+    env_kwargs = dict(env_kwargs or {})
+    venv: VecEnv = SharedPolicyVecEnv(partial(env_fn, **env_kwargs), n_copies=n_copies, num_cpus=num_cpus)
+    venv = VecMonitor(venv, filename=monitor_dir)
+    if vec_env_wrapper is not None:
+        venv = vec_env_wrapper(venv)
+    venv.seed(seed)
+    return venv

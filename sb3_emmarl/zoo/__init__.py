@@ -1,0 +1,1 @@
+"""The rl-zoo layer: algorithm registry, experiment manager and command lines behind ``zoo/*.py``."""

@@ -1,0 +1,37 @@
+"""Which algorithms the zoo trains on the reserve, and in which view.
+
+rl_zoo3 takes new algorithms by insertion into ``rl_zoo3.ALGOS`` (and, for ``-optimize``, into its
+``HYPERPARAMS_SAMPLER`` / ``HYPERPARAMS_CONVERTER``); :func:`register_algorithms` does that once.
+"""
+
+from __future__ import annotations
+
+from stable_baselines3 import A2C, DDPG, DQN, PPO, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from sb3_contrib import RecurrentPPO
+
+#: Algorithms trained with one policy shared by all UAVs (the parameter-sharing vector environment).
+SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
+    "ppo": PPO,  # decentralized PPO
+    "a2c": A2C,
+    "dqn": DQN,  # the paper's Q-learning
+    "ddpg": DDPG,  # continuous action mode
+    "td3": TD3,  # continuous action mode
+    "ppo_lstm": RecurrentPPO,
+}
+#: Algorithms trained on the centralised view (global state in, joint action out).
+CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
+    "cppo": PPO,  # Centralized PPO
+}
+ZOO_ALGOS: dict[str, type[BaseAlgorithm]] = {**SHARED_ALGOS, **CENTRALIZED_ALGOS}
+
+
+def register_algorithms() -> None:
+    """Make rl_zoo3 know every algorithm of :data:`ZOO_ALGOS` (idempotent)."""
+    import rl_zoo3
+    from rl_zoo3 import hyperparams_opt
+
+    for name, algo in ZOO_ALGOS.items():
+        rl_zoo3.ALGOS.setdefault(name, algo)
+    hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault("cppo", hyperparams_opt.HYPERPARAMS_SAMPLER["ppo"])
+    hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault("cppo", hyperparams_opt.HYPERPARAMS_CONVERTER["ppo"])

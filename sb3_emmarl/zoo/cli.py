@@ -1,0 +1,226 @@
+"""Command lines of the zoo: ``zoo/train.py`` and ``zoo/enjoy.py`` call :func:`train_main` / :func:`enjoy_main`.
+
+The flags are rl-baselines3-zoo's (``--algo --env -n --seed --tensorboard-log --eval-freq --env-kwargs
+--hyperparams -f -optimize --storage --study-name --n-trials``...). Every input is checked before any
+training starts; a run that fails while being set up leaves no folder behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sb3_emmarl.common.centralized import ENV_ID
+from sb3_emmarl.common.evaluation import evaluate_team
+from sb3_emmarl.common.metrics import format_summary, summarize
+from sb3_emmarl.zoo.algos import ZOO_ALGOS
+
+#: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
+TEAM_EVAL_SEED_OFFSET = 20_000
+
+
+def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
+    """rl-zoo's ``key:value`` pairs; values are Python expressions (quote strings: ``region:"'forest'"``).
+
+    :param items: the ``key:value`` strings
+    :param flag: the flag's name, for error messages
+    :raise ValueError: naming the pair that does not parse
+    """
+    result: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition(":")
+        if not sep or not key:
+            raise ValueError(f"{flag} expects key:value pairs, got {item!r}")
+        try:
+            result[key] = eval(value, {"__builtins__": {"dict": dict, "list": list, "tuple": tuple}}, {})
+        except Exception as error:
+            raise ValueError(f"{flag} {key}: {value!r} is not a valid Python value ({error}); "
+                             f"quote strings, e.g. {key}:\"'text'\"") from None
+    return result
+
+
+class KeyValues(argparse.Action):
+    """argparse action storing ``key:value`` pairs as a dict (see :func:`parse_key_values`)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        try:
+            setattr(namespace, self.dest, parse_key_values(values, option_string or self.dest))
+        except ValueError as error:
+            parser.error(str(error))
+
+
+def train_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description="Train an agent on the wildlife reserve (rl-baselines3-zoo flags).")
+    parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
+    parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="overwrite the YAML's n_timesteps")
+    parser.add_argument("--seed", type=int, default=-1, help="random seed (-1: draw one)")
+    parser.add_argument("-tb", "--tensorboard-log", default="", help="tensorboard log folder")
+    parser.add_argument("-f", "--log-folder", default="logs", help="where runs are saved (logs/<algo>/<env>_<n>/)")
+    parser.add_argument("--eval-freq", type=int, default=25000, help="evaluate every n steps (<= 0: never)")
+    parser.add_argument("--eval-episodes", type=int, default=5, help="episodes per periodic evaluation")
+    parser.add_argument("--n-eval-envs", type=int, default=1, help="environments for periodic evaluation")
+    parser.add_argument("--save-freq", type=int, default=-1, help="checkpoint every n steps (<= 0: never)")
+    parser.add_argument("--team-eval-episodes", type=int, default=5,
+                        help="evaluation episodes whose team metrics are printed after training (0: none)")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
+    parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation reserve arguments")
+    parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=KeyValues,
+                        help="overwrite hyperparameters, e.g. learning_rate:0.01")
+    parser.add_argument("-conf", "--conf-file", default=None, help="YAML file instead of zoo/hyperparams/<algo>.yml")
+    parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
+    parser.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"],
+                        help="subproc: reserve copies in worker processes")
+    parser.add_argument("--num-threads", type=int, default=-1, help="torch threads (-1: torch's default)")
+    parser.add_argument("--log-interval", type=int, default=-1, help="override the log interval (-1: default)")
+    parser.add_argument("--device", default="auto", help="torch device")
+    parser.add_argument("--verbose", type=int, default=1, help="0: quiet, 1: info")
+    parser.add_argument("-uuid", "--uuid", action="store_true", help="unique run folder name")
+    parser.add_argument("-optimize", "--optimize-hyperparameters", action="store_true", help="optuna search")
+    parser.add_argument("--n-trials", type=int, default=10, help="optuna trials")
+    parser.add_argument("--max-total-trials", type=int, default=None, help="optuna trials over all workers")
+    parser.add_argument("--n-jobs", type=int, default=1, help="parallel optuna jobs")
+    parser.add_argument("--sampler", default="tpe", choices=["random", "tpe", "auto"], help="optuna sampler")
+    parser.add_argument("--pruner", default="median", choices=["halving", "median", "none"], help="optuna pruner")
+    parser.add_argument("--n-startup-trials", type=int, default=10, help="random trials before the sampler")
+    parser.add_argument("--n-evaluations", type=int, default=None, help="evaluations per optuna trial")
+    parser.add_argument("--storage", default=None, help="optuna storage (default SQLite file; an RDB URL for many machines)")
+    parser.add_argument("--study-name", default=None, help="optuna study name")
+    parser.add_argument("--optimization-log-path", default=None, help="where optuna trials log")
+    parser.add_argument("--no-optim-plots", action="store_true", help="no optuna plots")
+    return parser
+
+
+def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.env != ENV_ID:
+        parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
+    if args.n_timesteps == 0 or args.n_timesteps < -1:
+        parser.error(f"-n must be a positive number of timesteps, got {args.n_timesteps}")
+    if args.team_eval_episodes < 0:
+        parser.error(f"--team-eval-episodes must be >= 0, got {args.team_eval_episodes}")
+    if args.conf_file is not None and not Path(args.conf_file).is_file():
+        parser.error(f"--conf-file {args.conf_file!r} does not exist")
+
+
+def train_main(argv: list[str] | None = None) -> int:
+    """Train, save the run in rl-zoo's layout, and print the team metrics of a deterministic evaluation."""
+    import torch as th
+    from stable_baselines3.common.utils import set_random_seed
+
+    from sb3_emmarl.zoo.exp_manager import ReserveExperimentManager
+
+    parser = train_parser()
+    args = parser.parse_args(argv)
+    _check_train_args(parser, args)
+    if args.seed < 0:
+        args.seed = int(np.random.randint(2**31 - 1))
+    set_random_seed(args.seed)
+    if args.num_threads > 0:
+        th.set_num_threads(args.num_threads)
+    if args.optimize_hyperparameters and args.storage is None:
+        Path(args.log_folder).mkdir(parents=True, exist_ok=True)
+        args.storage = f"sqlite:///{Path(args.log_folder) / 'optuna.db'}"
+        args.study_name = args.study_name or f"{args.algo}-{ENV_ID}"
+
+    manager = None
+    try:
+        manager = ReserveExperimentManager(
+            args, args.algo, args.env, args.log_folder, args.tensorboard_log, args.n_timesteps, args.eval_freq,
+            args.eval_episodes, args.save_freq, args.hyperparams, args.env_kwargs, args.eval_env_kwargs, "",
+            args.optimize_hyperparameters, args.storage, args.study_name, args.n_trials, args.max_total_trials,
+            args.n_jobs, args.sampler, args.pruner, args.optimization_log_path,
+            n_startup_trials=args.n_startup_trials, n_evaluations=args.n_evaluations,
+            uuid_str=f"_{uuid.uuid4()}" if args.uuid else "", seed=args.seed, log_interval=args.log_interval,
+            verbose=args.verbose, vec_env_type=args.vec_env, n_eval_envs=args.n_eval_envs,
+            no_optim_plots=args.no_optim_plots, device=args.device, config=args.conf_file, show_progress=args.progress,
+        )
+        results = manager.setup_experiment()
+    except (ValueError, TypeError, KeyError, AssertionError, yaml.YAMLError, OSError) as error:
+        if manager is not None and Path(manager.save_path).is_dir():
+            shutil.rmtree(manager.save_path)  # nothing half-written is left behind
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if results is None:
+        manager.hyperparameters_optimization()
+        return 0
+    model, _ = results
+    manager.learn(model)
+    manager.save_trained_model(model)
+    if args.team_eval_episodes:
+        vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"
+        records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
+                                env_kwargs=manager.eval_env_kwargs,
+                                vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None)
+        (Path(manager.save_path) / "team_eval.json").write_text(json.dumps(records, indent=1))
+        eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
+        title = f"{args.algo} on {ENV_ID}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
+        print(format_summary(summarize(records), title))
+    return 0
+
+
+def enjoy_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description="Watch a trained team: team metrics and an animation of its patrol.")
+    parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
+    parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
+    parser.add_argument("-f", "--folder", default="logs", help="log folder of the runs")
+    parser.add_argument("--exp-id", type=int, default=0, help="run number (0: the latest)")
+    parser.add_argument("--load-best", action="store_true", help="the best model of the periodic evaluations")
+    parser.add_argument("--load-checkpoint", type=int, default=None, help="the checkpoint of this step")
+    parser.add_argument("--episodes", type=int, default=3, help="evaluation episodes")
+    parser.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    parser.add_argument("--deterministic", action="store_true",
+                        help="the most likely actions instead of sampled ones (identical UAVs then tend to move in lockstep)")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="override the run's reserve arguments")
+    parser.add_argument("-o", "--output", default=None, help="animation file, .gif or .mp4 (default: <run>/patrol.gif)")
+    parser.add_argument("--no-record", action="store_true", help="print the metrics only")
+    parser.add_argument("--fps", type=int, default=10, help="animation frames per second")
+    parser.add_argument("--frame-skip", type=int, default=1, help="keep one frame in this many")
+    return parser
+
+
+def enjoy_main(argv: list[str] | None = None) -> int:
+    """Load a saved run, print its team metrics on evaluation episodes and record one episode."""
+    from rl_zoo3.utils import get_model_path
+    from rl_zoo3.utils import EnvironmentName
+
+    from sb3_emmarl.common.recording import record_episode
+
+    parser = enjoy_parser()
+    args = parser.parse_args(argv)
+    if args.env != ENV_ID:
+        parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.output is not None and Path(args.output).suffix not in (".gif", ".mp4"):
+        parser.error(f"--output must end in .gif or .mp4, got {args.output!r}")
+    try:
+        checkpoint = None if args.load_checkpoint is None else str(args.load_checkpoint)
+        _, model_path, log_path = get_model_path(args.exp_id, args.folder, args.algo, EnvironmentName(args.env),
+                                                 args.load_best, checkpoint)
+    except (AssertionError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    params_path = Path(log_path) / args.env
+    config_file = params_path / "config.yml"
+    config = yaml.load(config_file.read_text(), Loader=yaml.UnsafeLoader) if config_file.is_file() else {}
+    env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
+    vec_normalize = params_path / "vecnormalize.pkl"
+    vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
+    model = ZOO_ALGOS[args.algo].load(model_path, device="cpu")
+    records = evaluate_team(model, n_episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
+                            deterministic=args.deterministic, vec_normalize_path=vec_normalize_path)
+    print(format_summary(summarize(records), f"{model_path}: {len(records)} episodes from seed {args.seed} (mean +- std)"))
+    if not args.no_record:
+        output = Path(args.output) if args.output else Path(log_path) / "patrol.gif"
+        record_episode(model, output, seed=args.seed, env_kwargs=env_kwargs, deterministic=args.deterministic,
+                       vec_normalize_path=vec_normalize_path, fps=args.fps, frame_skip=args.frame_skip)
+        print(f"Recorded one episode to {output}")
+    return 0

@@ -1,0 +1,148 @@
+"""The parameter-sharing vector environment, and each SuperSuit 3.11 SB3-adapter fault pinned down."""
+
+import numpy as np
+import pytest
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_emmarl.common.vec_env import SharedPolicyVecEnv, make_vec_env
+from wildlife_reserve import reserve_v0
+
+SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 25}
+
+
+def rollout(venv, steps=60, seed=0):
+    rng = np.random.default_rng(seed)
+    obs = [venv.reset()]
+    rewards, dones = [], []
+    for _ in range(steps):
+        o, r, d, _ = venv.step(rng.integers(0, 15, venv.num_envs))
+        obs.append(o)
+        rewards.append(r)
+        dones.append(d)
+    return np.array(obs), np.array(rewards), np.array(dones)
+
+
+def test_index_layout_is_copy_major_then_agent():
+    venv = make_vec_env(n_copies=3, seed=11, env_kwargs=SMALL)
+    obs = venv.reset()
+    assert venv.num_envs == 9 and venv.get_attr("n")[0] == 3
+    for c in range(3):
+        direct, _ = reserve_v0.parallel_env(**SMALL).reset(seed=11 + c)
+        for a, agent in enumerate(["uav_0", "uav_1", "uav_2"]):
+            np.testing.assert_array_equal(obs[c * 3 + a], direct[agent])
+
+
+def test_ppo_seed_works_and_reproduces_exactly():
+    # SuperSuit fault: PPO(..., seed=0) raised AttributeError (ConcatVecEnv has no seed).
+    params = []
+    for _ in range(2):
+        model = PPO("MlpPolicy", make_vec_env(n_copies=2, env_kwargs=SMALL), n_steps=32, batch_size=64, n_epochs=1, seed=0)
+        model.learn(2 * 3 * 32 * 2)
+        params.append(np.concatenate([p.detach().numpy().ravel() for p in model.policy.parameters()]))
+    np.testing.assert_array_equal(params[0], params[1])
+
+
+def test_vec_env_seed_then_reset_reproduces_and_other_seeds_differ():
+    # SuperSuit fault: reset(seed=...) / seed() raised AttributeError.
+    runs = []
+    for seed in (5, 5, 6):
+        venv = make_vec_env(n_copies=2, env_kwargs=SMALL)
+        assert venv.seed(seed) == [seed] * 3 + [seed + 1] * 3
+        runs.append(rollout(venv))
+    for a, b in zip(runs[0], runs[1]):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(runs[0][0], runs[2][0])
+
+
+def test_every_copy_plays_a_different_episode_even_unseeded():
+    # SuperSuit fault: copies were clones of one environment, sharing its random state.
+    def pre_seeded():
+        env = reserve_v0.parallel_env(**SMALL)
+        env.reset(seed=0)  # a random state that a clone would copy
+        return env
+
+    venv = SharedPolicyVecEnv(pre_seeded, n_copies=3)
+    obs = venv.reset()
+    copies = obs.reshape(3, 3, -1)
+    assert not np.array_equal(copies[0], copies[1]) and not np.array_equal(copies[1], copies[2])
+    seeded = make_vec_env(n_copies=3, seed=0, env_kwargs=SMALL).reset().reshape(3, 3, -1)
+    assert not np.array_equal(seeded[0], seeded[1])
+
+
+def test_time_limit_is_marked_as_truncation_and_termination_is_not():
+    # SuperSuit fault: truncation reached SB3 as a plain done without TimeLimit.truncated.
+    venv = make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL)
+    venv.reset()
+    for _ in range(SMALL["max_cycles"]):
+        _, _, dones, infos = venv.step(np.zeros(venv.num_envs, dtype=int))
+        assert dones.dtype == bool
+    assert dones.all()
+    assert all(info["TimeLimit.truncated"] for info in infos)
+    assert all("terminal_observation" in info and "metrics" in info for info in infos)
+    # An episode that ends because every battery is empty is a termination, not a truncation.
+    venv.reset()
+    for battery in venv.get_attr("battery"):
+        battery[:] = 1e-5
+    _, _, dones, infos = venv.step(np.zeros(venv.num_envs, dtype=int))
+    assert dones.all() and not any(info["TimeLimit.truncated"] for info in infos)
+
+
+class RecordRewards(BaseCallback):
+    def _on_step(self) -> bool:
+        self.locals.setdefault("raw", []).append(self.locals["rewards"].copy())
+        self.raw = self.locals["raw"]
+        return True
+
+
+def test_ppo_bootstraps_at_the_time_limit():
+    venv = make_vec_env(n_copies=1, seed=0, env_kwargs=SMALL)
+    model = PPO("MlpPolicy", venv, n_steps=SMALL["max_cycles"], batch_size=25, n_epochs=1, gamma=0.9, seed=0)
+    callback = RecordRewards()
+    model.learn(SMALL["max_cycles"] * 3, callback=callback)
+    raw = np.array(callback.raw)
+    buffer = model.rollout_buffer.rewards
+    # Inside the episode the buffer holds the raw rewards; at the cut it adds gamma * V(terminal obs).
+    np.testing.assert_allclose(buffer[:-1], raw[:-1], rtol=1e-6)
+    assert not np.allclose(buffer[-1], raw[-1])
+
+
+def test_get_attr_set_attr_and_env_method_reach_the_copies():
+    # SuperSuit fault: get_attr raised AttributeError.
+    venv = make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL)
+    venv.reset()
+    assert venv.get_attr("max_cycles") == [25] * 6
+    assert venv.get_attr("render_mode") == [None] * 6
+    venv.set_attr("max_cycles", 30, indices=[3])
+    assert venv.get_attr("max_cycles") == [25, 25, 25, 30, 30, 30]
+    states = venv.env_method("state", indices=[0, 3])
+    assert len(states) == 2 and not np.array_equal(states[0], states[1])
+    assert venv.env_is_wrapped(object) == [False] * 6
+
+
+def test_multiprocess_copies_match_in_process_copies():
+    # SuperSuit fault: with num_cpus > 1 the seeds collided across processes.
+    in_process = rollout(make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL), steps=30)
+    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2)
+    try:
+        multi = rollout(venv, steps=30)
+        assert venv.get_attr("max_cycles") == [25] * 12
+        with pytest.raises(NotImplementedError, match="num_cpus <= 1"):
+            venv.env_method("state")
+    finally:
+        venv.close()
+    for a, b in zip(in_process, multi):
+        np.testing.assert_array_equal(a, b)
+    copies = multi[0][0].reshape(4, 3, -1)
+    assert all(not np.array_equal(copies[i], copies[j]) for i in range(4) for j in range(i + 1, 4))
+
+
+def test_bad_arguments_fail_early():
+    with pytest.raises(ValueError, match="n_copies must be an int >= 1, got 0"):
+        make_vec_env(n_copies=0, env_kwargs=SMALL)
+    with pytest.raises(ValueError, match="num_cpus must be an int >= 0"):
+        make_vec_env(num_cpus=-1, env_kwargs=SMALL)
+    with pytest.raises(ValueError, match="comm_loss must be in"):
+        make_vec_env(env_kwargs={"comm_loss": 2.0})
+    with pytest.raises(TypeError, match="n_drones"):
+        make_vec_env(env_kwargs={"n_drones": 2})

@@ -1,0 +1,129 @@
+"""The zoo's train and enjoy commands: rl-zoo's folder layout, tensorboard metrics, early and clean failures."""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+from PIL import Image
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_emmarl.common.metrics import TEAM_METRICS
+from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
+
+TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
+
+
+def load_config(run):
+    return dict(yaml.load((run / "WildlifeReserve-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader))
+
+
+def train(tmp_path, *extra):
+    return train_main(["--algo", "ppo", "--env", "WildlifeReserve-v0", "-n", "1024", "--seed", "1", "-f",
+                       str(tmp_path / "logs"), "-tb", str(tmp_path / "runs"), "--eval-freq", "512", "--eval-episodes", "2",
+                       "--team-eval-episodes", "2", "--verbose", "0", "-params", "n_steps:32", "batch_size:64", *TINY,
+                       *extra])
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("zoo")
+    assert train(tmp_path) == 0
+    return tmp_path
+
+
+def test_train_saves_the_run_in_rl_zoo_layout(trained_run):
+    run = trained_run / "logs" / "ppo" / "WildlifeReserve-v0_1"
+    for name in ["WildlifeReserve-v0.zip", "best_model.zip", "evaluations.npz", "monitor.csv", "team_eval.json",
+                 "WildlifeReserve-v0/config.yml", "WildlifeReserve-v0/args.yml", "WildlifeReserve-v0/command.txt"]:
+        assert (run / name).is_file(), name
+    config = load_config(run)
+    assert config["n_steps"] == 32 and config["env_kwargs"]["n_uavs"] == 2
+    records = json.loads((run / "team_eval.json").read_text())
+    assert len(records) == 2 and set(TEAM_METRICS) <= set(records[0]) and "mode" in records[0]
+
+
+def test_tensorboard_holds_every_reserve_metric(trained_run):
+    events = list((trained_run / "runs").rglob("events.out.tfevents.*"))
+    assert len(events) == 1
+    accumulator = EventAccumulator(str(events[0]))
+    accumulator.Reload()
+    tags = set(accumulator.Tags()["scalars"])
+    expected = {f"reserve/{metric}" for metric in TEAM_METRICS} | {"reserve/policy_entropy"}
+    assert expected <= tags, expected - tags
+    entropy = [event.value for event in accumulator.Scalars("reserve/policy_entropy")]
+    assert all(0.0 < value <= 2.71 for value in entropy)  # at most ln(15)
+    coverage = [event.value for event in accumulator.Scalars("reserve/coverage_efficiency")]
+    assert all(0.0 <= value <= 1.0 for value in coverage)
+
+
+def test_enjoy_prints_metrics_and_records_a_gif(trained_run, capsys):
+    gif = trained_run / "patrol.gif"
+    assert enjoy_main(["--algo", "ppo", "-f", str(trained_run / "logs"), "--episodes", "2", "-o", str(gif)]) == 0
+    out = capsys.readouterr().out
+    assert all(metric in out for metric in TEAM_METRICS)
+    with Image.open(gif) as image:
+        assert image.n_frames > 20 and image.size == (600, 600)  # identical frames may be merged
+
+
+def test_enjoy_without_a_run_fails_cleanly(tmp_path, capsys):
+    assert enjoy_main(["--algo", "ppo", "-f", str(tmp_path), "--no-record"]) == 2
+    assert "folder was not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--env-kwargs", "n_drones:3"], "n_drones"),
+        (["--env-kwargs", "n_uavs:-1"], "n_uavs must be >= 1, got -1"),
+        (["--env-kwargs", "comm_loss:1.5"], "comm_loss must be in [0.0, 1.0], got 1.5"),
+        (["-params", "n_stepz:32"], "n_stepz"),
+    ],
+)
+def test_bad_inputs_stop_before_training_and_leave_nothing(tmp_path, capsys, args, message):
+    assert train(tmp_path, *args) == 2
+    assert message in capsys.readouterr().err
+    assert not list((tmp_path / "logs").rglob("*.zip"))
+    assert not (tmp_path / "logs" / "ppo" / "WildlifeReserve-v0_1").exists()
+
+
+def test_malformed_yaml_stops_with_its_name(tmp_path, capsys):
+    bad = tmp_path / "bad.yml"
+    bad.write_text("WildlifeReserve-v0:\n  n_timesteps: [1,\n  policy: 'MlpPolicy'\n")
+    assert train(tmp_path, "-conf", str(bad)) == 2
+    assert "bad.yml" in capsys.readouterr().err
+    missing = tmp_path / "other.yml"
+    missing.write_text("CartPole-v1:\n  n_timesteps: 10\n")
+    assert train(tmp_path, "-conf", str(missing)) == 2
+    assert "Hyperparameters not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--algo", "sac"], "argument --algo: invalid choice: 'sac'"),
+        (["--env", "CartPole-v1"], "--env must be WildlifeReserve-v0"),
+        (["--env-kwargs", "n_uavs=3"], "--env-kwargs expects key:value pairs, got 'n_uavs=3'"),
+        (["--env-kwargs", "region:forest"], "--env-kwargs region: 'forest' is not a valid Python value"),
+        (["-n", "0"], "-n must be a positive number of timesteps"),
+    ],
+)
+def test_bad_flags_are_rejected_by_the_parser(capsys, args, message):
+    with pytest.raises(SystemExit) as exit_info:
+        train_main(args)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_key_values_take_python_values():
+    assert parse_key_values(["n_uavs:20", "region:'forest'", "grid_size:(40, 60)", "policy:dict(a=1)"], "--x") == {
+        "n_uavs": 20, "region": "forest", "grid_size": (40, 60), "policy": {"a": 1}}
+    with pytest.raises(ValueError, match="not a valid Python value"):
+        parse_key_values(["x:__import__('os')"], "--x")
+
+
+def test_cli_env_kwargs_update_the_yaml_ones(tmp_path):
+    assert train_main(["--algo", "ddpg", "-n", "200", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "-1",
+                       "--team-eval-episodes", "0", "--verbose", "0", "-params", "learning_starts:50", *TINY]) == 0
+    config = load_config(Path(tmp_path) / "ddpg" / "WildlifeReserve-v0_1")
+    assert config["env_kwargs"] == {"continuous_actions": True, "n_uavs": 2, "grid_size": 20, "max_cycles": 40}

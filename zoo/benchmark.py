@@ -1,0 +1,11 @@
+"""Train algorithms on the reserve and compare each with the random team on the same evaluation episodes.
+
+Example (issue 3's benchmark, about 10 minutes): ``python zoo/benchmark.py --algos ppo -n 3000000 --seeds 0``
+"""
+
+import sys
+
+from sb3_emmarl.zoo.benchmark import benchmark_main
+
+if __name__ == "__main__":
+    sys.exit(benchmark_main())
