@@ -4,16 +4,17 @@ PYTHON ?= python
 TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env
+.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env benchmark-ppo
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
 	$(PIP) -e ".[tests]"
 
-# The main job: for now a scripted patrol of the default reserve, printing the team metrics.
+# The main job: a short decentralized PPO run on the default reserve (about 2 minutes on 2 cores),
+# tensorboard logs in runs/, the run in logs/ppo/, then the team metrics of 5 evaluation episodes.
 main: install
-	$(PYTHON) zoo/patrol.py --policy random --episodes 3 --seed 0
-	$(PYTHON) zoo/patrol.py --policy stalest_block --episodes 3 --seed 0
+	$(PYTHON) zoo/train.py --algo ppo --env WildlifeReserve-v0 -n 500000 --seed 0 -tb runs/ -f logs/ \
+		--eval-freq -1 --team-eval-episodes 5 --verbose 0 -P
 
 pytest:
 	$(PYTHON) -m pytest -n 2 tests
@@ -33,3 +34,7 @@ commit-checks: lint pytest
 benchmark-env: install
 	$(PIP) -e ".[tests,bench]"
 	$(PYTHON) benchmarks/env_speed.py
+
+# Issue 3's benchmark: decentralized PPO against the random team (about 10-15 minutes).
+benchmark-ppo: install
+	$(PYTHON) zoo/benchmark.py --algos ppo -n 3000000 --seeds 0 --eval-episodes 20

@@ -65,7 +65,7 @@ def test_patrol_script_prints_the_team_metrics():
         (["--env-kwargs", "n_uavs:0"], "n_uavs must be >= 1, got 0"),
         (["--env-kwargs", "n_drones:3"], "n_drones"),
         (["--env-kwargs", "n_uavs=3"], "expects key:value pairs"),
-        (["--env-kwargs", "region:forest"], "is not a Python literal"),
+        (["--env-kwargs", "region:forest"], "is not a valid Python value"),
         (["--episodes", "0"], "--episodes must be >= 1"),
     ],
 )

@@ -127,3 +127,13 @@ def test_cli_env_kwargs_update_the_yaml_ones(tmp_path):
                        "--team-eval-episodes", "0", "--verbose", "0", "-params", "learning_starts:50", *TINY]) == 0
     config = load_config(Path(tmp_path) / "ddpg" / "WildlifeReserve-v0_1")
     assert config["env_kwargs"] == {"continuous_actions": True, "n_uavs": 2, "grid_size": 20, "max_cycles": 40}
+
+
+def test_optimize_runs_optuna_trials_into_a_sqlite_study(tmp_path):
+    import optuna
+
+    assert train_main(["--algo", "ppo", "-optimize", "--n-trials", "2", "-n", "1000", "--n-evaluations", "1",
+                       "--sampler", "random", "--pruner", "none", "-f", str(tmp_path), "--verbose", "0",
+                       "--eval-episodes", "1", "--no-optim-plots", *TINY]) == 0
+    study = optuna.load_study(study_name="ppo-WildlifeReserve-v0", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
+    assert len(study.trials) == 2 and all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)

@@ -6,26 +6,12 @@ Example: ``python zoo/patrol.py --policy stalest_block --episodes 3 --seed 0``
 from __future__ import annotations
 
 import argparse
-import ast
 import sys
 
 from sb3_emmarl.common.metrics import format_summary, summarize
+from sb3_emmarl.zoo.cli import KeyValues
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.scripted import SCRIPTED_PATROLS, run_patrol
-
-
-def parse_env_kwargs(items: list[str]) -> dict:
-    """Parse rl-zoo style ``key:value`` pairs (values are Python literals)."""
-    kwargs = {}
-    for item in items:
-        key, sep, value = item.partition(":")
-        if not sep or not key:
-            raise SystemExit(f"--env-kwargs expects key:value pairs, got {item!r}")
-        try:
-            kwargs[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            raise SystemExit(f"--env-kwargs {key}: {value!r} is not a Python literal") from None
-    return kwargs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,12 +19,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", choices=sorted(SCRIPTED_PATROLS), default="stalest_block")
     parser.add_argument("--episodes", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--env-kwargs", nargs="*", default=[], help="reserve arguments as key:value, e.g. n_uavs:20")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, default={},
+                        help="reserve arguments as key:value, e.g. n_uavs:20")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     try:
-        env = reserve_v0.parallel_env(**parse_env_kwargs(args.env_kwargs))
+        env = reserve_v0.parallel_env(**args.env_kwargs)
     except (TypeError, ValueError) as error:
         parser.error(str(error))
     policy_cls = SCRIPTED_PATROLS[args.policy]
