@@ -13,7 +13,7 @@ install:
 # The main job: a short decentralized PPO run on the default reserve (about 2 minutes on 2 cores),
 # tensorboard logs in runs/, the run in logs/ppo/, then the team metrics of 5 evaluation episodes.
 main: install
-	$(PYTHON) zoo/train.py --algo ppo --env WildlifeReserve-v0 -n 500000 --seed 0 -tb runs/ -f logs/ \
+	$(PYTHON) zoo/train.py --algo ppo --env WildlifeReserve-v0 -n 500000 --seed 0 -tb runs -f logs \
 		--eval-freq -1 --team-eval-episodes 5 --verbose 0 -P
 
 pytest:
