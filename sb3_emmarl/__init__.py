@@ -1,5 +1,7 @@
 """sb3-emmarl: latent-variable multi-agent reinforcement learning on Stable-Baselines3."""
 
+from sb3_emmarl.em_ddpg import EMDDPG
+from sb3_emmarl.em_ppo import EMPPO
 from sb3_emmarl.version import __version__
 
-__all__ = ["__version__"]
+__all__ = ["EMDDPG", "EMPPO", "__version__"]

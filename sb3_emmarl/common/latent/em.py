@@ -1,0 +1,218 @@
+"""The E-step between rollouts, and the callback that runs it (Algorithm 2, line 11).
+
+:func:`transitions_from_pairs` turns pairs of consecutive augmented observations (from a rollout
+buffer or a replay buffer) into the E-step's data: the history ``h_t``, ``x_t``, ``a_t`` and the
+target ``(x_{t+1}, r_t)``. :class:`EStep` keeps the latest few rollouts' data, fits the encoder and
+decoder by maximising the ELBO with Adam, then sets the prior ``pi`` to the mean responsibilities.
+:class:`EMCallback` calls it at the end of each rollout; the M-step is the algorithm's own update.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_emmarl.common.latent.history import HistoryLayout
+from sb3_emmarl.common.latent.model import LatentModel
+
+
+FIELDS = ("window", "next_slot", "groups")
+
+
+@dataclass
+class LatentBatch:
+    """E-step data: the history ``window`` ``h_t`` ``(N, H, step_dim)``, the ``next_slot`` ``(N, step_dim)``
+    (``x_{t+1}``, ``a_t``, ``r_t``) and ``groups`` (agents of one reserve copy at one step share a group id)."""
+
+    window: th.Tensor
+    next_slot: th.Tensor
+    groups: th.Tensor
+
+    def __len__(self) -> int:
+        return len(self.window)
+
+    @staticmethod
+    def cat(batches: list[LatentBatch]) -> LatentBatch:
+        offset, groups = 0, []
+        for batch in batches:  # keep group ids distinct across rollouts
+            groups.append(batch.groups + offset)
+            offset += int(batch.groups.max()) + 1 if len(batch) else 0
+        return LatentBatch(th.cat([b.window for b in batches]), th.cat([b.next_slot for b in batches]), th.cat(groups))
+
+
+def transitions_from_pairs(layout: HistoryLayout, observations: np.ndarray, next_observations: np.ndarray,
+                           groups: np.ndarray, device: th.device | str = "cpu") -> LatentBatch:
+    """E-step samples from augmented observations ``o_t`` and ``o_{t+1}`` of the same entry (``(N, total_dim)``):
+    ``h_t`` is ``o_t``'s window, and the newest slot of ``o_{t+1}``'s window holds ``x_{t+1}``, ``a_t`` and ``r_t``."""
+    _, window = layout.split(observations)
+    _, next_window = layout.split(next_observations)
+
+    def tensor(x: np.ndarray) -> th.Tensor:
+        return th.as_tensor(np.ascontiguousarray(x), dtype=th.float32, device=device)
+
+    return LatentBatch(tensor(window), tensor(next_window[:, -1]), th.as_tensor(groups, dtype=th.long, device=device))
+
+
+def transitions_from_rollout(layout: HistoryLayout, observations: np.ndarray, episode_starts: np.ndarray,
+                             agents_per_copy: int, device: th.device | str = "cpu") -> LatentBatch:
+    """E-step samples from an on-policy rollout buffer (``(n_steps, n_envs, total_dim)``), skipping episode ends."""
+    n_steps, n_envs = episode_starts.shape
+    t, env = np.nonzero(episode_starts[1:] == 0)  # o_{t+1} follows o_t within one episode
+    groups = t * max(1, n_envs // agents_per_copy) + env // agents_per_copy
+    return transitions_from_pairs(layout, observations[t, env], observations[t + 1, env], groups, device)
+
+
+class EStep:
+    """Fit the encoder and decoder on recent data by maximising the ELBO, then set ``pi`` in closed form.
+
+    :param latent_model: the latent model (its prior is updated in place)
+    :param learning_rate: Adam learning rate of the encoder and decoder
+    :param n_epochs: passes over the data per E-step
+    :param batch_size: minibatch size
+    :param window: rollouts kept (the latest and ``window - 1`` before it)
+    :param estimator: ``"enumerate"`` or ``"gumbel"``
+    :param temperature: initial Gumbel-softmax temperature
+    :param min_temperature: floor of the annealed temperature
+    :param anneal_rate: the temperature is ``max(min_temperature, temperature * exp(-anneal_rate * n_e_steps))``
+    :param team_pooling: pool the agents of one copy and step into a team posterior during training
+    :param max_samples: at most this many samples (drawn at random) per E-step
+    :param starved_share: a component whose prior falls below ``starved_share / K`` is re-seeded by splitting the
+        busiest one (0: never)
+    :param seed: seed of the minibatch order
+    """
+
+    def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 2, batch_size: int = 1024,
+                 window: int = 3, estimator: str = "enumerate", temperature: float = 1.0, min_temperature: float = 0.1,
+                 anneal_rate: float = 0.05, team_pooling: bool = False, max_samples: int = 20_000,
+                 starved_share: float = 0.1, seed: int = 0) -> None:
+        if estimator not in ("enumerate", "gumbel"):
+            raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
+        for name, value in (("n_epochs", n_epochs), ("batch_size", batch_size), ("window", window),
+                            ("max_samples", max_samples)):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        if not temperature > 0 or not 0 < min_temperature <= temperature:
+            raise ValueError(f"need 0 < min_temperature <= temperature, got {min_temperature} and {temperature}")
+        self.model = latent_model
+        self.optimizer = th.optim.Adam([p for p in latent_model.parameters() if p.requires_grad], lr=learning_rate)
+        self.n_epochs, self.batch_size, self.max_samples = n_epochs, batch_size, max_samples
+        self.memory: deque[LatentBatch] = deque(maxlen=window)
+        self.estimator = estimator
+        self.initial_temperature, self.min_temperature, self.anneal_rate = temperature, min_temperature, anneal_rate
+        self.team_pooling = team_pooling
+        self.starved_share = starved_share
+        self.n_updates = 0
+        self.generator = th.Generator().manual_seed(seed)
+
+    @property
+    def temperature(self) -> float:
+        return max(self.min_temperature, self.initial_temperature * math.exp(-self.anneal_rate * self.n_updates))
+
+    def add(self, batch: LatentBatch) -> None:
+        """Remember a rollout's data (the oldest leaves once ``window`` rollouts are kept)."""
+        if len(batch):
+            self.memory.append(batch)
+
+    def _data(self) -> LatentBatch:
+        data = LatentBatch.cat(list(self.memory))
+        if len(data) > self.max_samples:
+            keep = th.randperm(len(data), generator=self.generator)[: self.max_samples]
+            data = LatentBatch(*(getattr(data, name)[keep] for name in FIELDS))
+        return data
+
+    def evaluate(self, data: LatentBatch | None = None) -> dict[str, float]:
+        """Mean ELBO, reconstruction and KL on ``data`` (default: the kept rollouts), without updating anything."""
+        data = data if data is not None else self._data()
+        with th.no_grad():
+            out = self.model.elbo(data.window, data.next_slot, "enumerate", groups=data.groups if self.team_pooling else None)
+        return {k: float(out[k].mean()) for k in ("elbo", "recon", "kl")}
+
+    def step(self, train: bool = True) -> dict[str, float]:
+        """One E-step on the kept data; ``train=False`` only re-estimates ``pi`` (E-step frozen: nothing changes).
+
+        :return: statistics for the logger (ELBO and its terms after the step, entropies, temperature)
+        """
+        if not self.memory:
+            return {}
+        data = self._data()
+        if train:
+            self.model.train()
+            for _ in range(self.n_epochs):
+                order = th.randperm(len(data), generator=self.generator)
+                for start in range(0, len(data), self.batch_size):
+                    idx = order[start:start + self.batch_size]
+                    window, next_slot = data.window[idx], data.next_slot[idx]
+                    groups = data.groups[idx] if self.team_pooling else None
+                    # E: responsibilities of the components for each stretch, from the current decoder and prior.
+                    with th.no_grad():
+                        responsibilities = self.model.responsibilities(window, next_slot, groups).exp()
+                    # Decoder: maximise the expected log-likelihood under them (exact, or one Gumbel-softmax sample).
+                    recon = self.model.expected_log_likelihood(window, next_slot, responsibilities, self.estimator,
+                                                               self.temperature)
+                    # Encoder: q_phi(z | h_t) learns to predict them from the history alone (the ELBO's optimal q).
+                    log_q = self.model.posterior_logits(window)
+                    if groups is not None:
+                        log_q = self.model.pool(log_q, groups)
+                    loss = -recon.mean() - (responsibilities * log_q).sum(-1).mean()
+                    self.optimizer.zero_grad()
+                    loss.backward()
+                    th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
+                    self.optimizer.step()
+            self.n_updates += 1
+        with th.no_grad():
+            out = self.model.elbo(data.window, data.next_slot, "enumerate", groups=data.groups if self.team_pooling else None)
+            q = out["log_q"].exp()
+            revived = 0
+            if train:  # pi in closed form: the mean responsibilities
+                groups = data.groups if self.team_pooling else None
+                self.model.set_prior(self.model.responsibilities(data.window, data.next_slot, groups).exp())
+                revived = self._revive_starved_components()
+            prior = self.model.prior()
+        return {
+            "elbo": float(out["elbo"].mean()),
+            "recon": float(out["recon"].mean()),
+            "kl": float(out["kl"].mean()),
+            "prior_entropy": float(-(prior * prior.log()).sum()),
+            "posterior_entropy": float(-(q * out["log_q"]).sum(-1).mean()),
+            "temperature": self.temperature,
+            "n_samples": float(len(data)),
+            "revived_components": float(revived),
+        }
+
+    def _revive_starved_components(self) -> int:
+        """Split the busiest component into every component whose prior fell below ``starved_share / K``."""
+        prior = self.model.prior()
+        starved = th.nonzero(prior < self.starved_share / self.model.n_components).flatten().tolist()
+        for dead in starved:
+            self.model.split_component(dead, int(self.model.prior().argmax()), generator=self.generator)
+        return len(starved)
+
+
+class EMCallback(BaseCallback):
+    """Run the E-step after each rollout and log ``latent/*`` scalars.
+
+    The algorithm supplies the data through ``latent_batch()`` and owns ``e_step`` (an :class:`EStep`),
+    ``freeze_e_step`` and ``e_step_interval`` (rollouts between E-steps).
+    """
+
+    def __init__(self, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.rollouts = 0
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        model = self.model
+        self.rollouts += 1
+        if self.rollouts % model.e_step_interval:
+            return
+        model.e_step.add(model.latent_batch())
+        stats = model.e_step.step(train=not model.freeze_e_step)
+        for key, value in stats.items():
+            self.logger.record(f"latent/{key}", value)

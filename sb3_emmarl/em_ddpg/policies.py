@@ -1,0 +1,3 @@
+from sb3_emmarl.common.latent.policies import LatentTD3Policy
+
+MlpPolicy = LatentTD3Policy
