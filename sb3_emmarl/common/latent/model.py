@@ -25,6 +25,11 @@ from torch import nn
 from sb3_emmarl.common.latent.history import HistoryLayout
 
 
+def gaussian_log_density(target: th.Tensor, mean: th.Tensor, log_std: th.Tensor) -> th.Tensor:
+    """Diagonal Gaussian log-density, summed over the last dimension."""
+    return (-0.5 * ((target - mean) / log_std.exp()) ** 2 - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+
+
 class LatentModel(nn.Module):
     """Encoder, decoder and prior of the categorical latent variable, shared by all agents.
 
@@ -74,14 +79,12 @@ class LatentModel(nn.Module):
 
     def log_likelihood_per_component(self, features: th.Tensor, actions: th.Tensor, target: th.Tensor) -> th.Tensor:
         """Gaussian ``log p(target | x_t, a_t, z = k)`` for every component: ``(B, K)``."""
-        mean, log_std = self.component_means(features, actions), self.decoder_log_std
-        return (-0.5 * ((target[:, None, :] - mean) / log_std.exp()) ** 2 - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        return gaussian_log_density(target[:, None, :], self.component_means(features, actions), self.decoder_log_std)
 
     def log_likelihood(self, features: th.Tensor, actions: th.Tensor, target: th.Tensor, z: th.Tensor) -> th.Tensor:
-        """Gaussian log-density of ``target`` given a one-hot or relaxed ``z`` ``(B, K)``: means and log-stds mixed by ``z``."""
+        """Gaussian log-density of ``target`` given a one-hot or relaxed ``z`` ``(B, K)``, means and log-stds mixed by it."""
         mean = (z[:, :, None] * self.component_means(features, actions)).sum(1)
-        log_std = z @ self.decoder_log_std
-        return (-0.5 * ((target - mean) / log_std.exp()) ** 2 - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        return gaussian_log_density(target, mean, z @ self.decoder_log_std)
 
     # ------------------------------------------------------------------ ELBO
     def transitions(self, window: th.Tensor, next_slot: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
@@ -147,7 +150,7 @@ class LatentModel(nn.Module):
 
     def expected_log_likelihood(self, window: th.Tensor, next_slot: th.Tensor, weights: th.Tensor,
                                 estimator: str = "enumerate", temperature: float = 1.0) -> th.Tensor:
-        """``E_{z ~ weights}[ sum_j log p(x_{j+1}, r_j | x_j, a_j, z) ]``: exact sum over ``K`` or one Gumbel-softmax sample."""
+        """``E_{z ~ weights}[ sum_j log p(x_{j+1}, r_j | x_j, a_j, z) ]``: exact over ``K``, or one Gumbel-softmax sample."""
         if estimator == "enumerate":
             return (weights * self.stretch_log_likelihood(window, next_slot)).sum(-1)
         if estimator == "gumbel":
