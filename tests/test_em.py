@@ -189,3 +189,32 @@ def test_team_pooling_multiplies_posteriors_and_divides_the_prior():
 def test_bad_em_settings_are_rejected(kwargs, message):
     with pytest.raises(ValueError, match=message):
         EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), **kwargs)
+
+
+def test_evaluate_team_reports_latent_accuracy_for_em_models():
+    from sb3_emmarl.common.evaluation import evaluate_team
+
+    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, env_kwargs=SMALL), n_steps=32, batch_size=64, n_components=8, seed=0)
+    model.learn(256)
+    records = evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
+    assert records == evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
+    for record in records:
+        assert 0.0 <= record["latent_accuracy"] <= 1.0 and record["latent_kl"] >= 0.0
+        assert 0.0 <= record["latent_nmi"] <= 1.0
+    assert len({r["latent_nmi"] for r in records}) == 1  # one alignment over all evaluated episodes
+
+
+@pytest.mark.parametrize("algo", ["em_ppo", "em_ddpg"])
+def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
+    import json
+
+    from sb3_emmarl.zoo.cli import train_main
+
+    params = ["n_steps:32", "batch_size:64"] if algo == "em_ppo" else ["learning_starts:60", "e_step_interval:2"]
+    assert train_main(["--algo", algo, "-n", "300", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "150",
+                       "--eval-episodes", "1", "--team-eval-episodes", "2", "--verbose", "0", "-params", *params,
+                       "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:30"]) == 0
+    run = tmp_path / algo / "WildlifeReserve-v0_1"
+    records = json.loads((run / "team_eval.json").read_text())
+    assert len(records) == 2 and "latent_accuracy" in records[0]
+    assert (run / "best_model.zip").is_file()

@@ -45,13 +45,14 @@ class RandomPolicy:
 
 
 def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centralized: bool = False,
-                  vec_normalize_path: str | None = None) -> VecEnv:
+                  vec_normalize_path: str | None = None, model: Any = None) -> VecEnv:
     """One reserve for evaluation: the parameter-sharing view, or the centralised one.
 
     :param seed: seed of the first episode (later episodes follow from it)
     :param env_kwargs: the reserve's arguments
     :param centralized: the single-agent view over the global state and the joint action
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training (applied frozen)
+    :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG) gets its history wrapper on top
     """
     env_kwargs = dict(env_kwargs or {})
     if centralized:
@@ -65,6 +66,8 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
         venv = VecNormalize.load(vec_normalize_path, venv)
         venv.training = False
         venv.norm_reward = False
+    if hasattr(model, "wrap_env"):
+        venv = model.wrap_env(venv)
     return venv
 
 
@@ -111,12 +114,16 @@ def evaluate_team(
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     own_env = vec_env is None
     if own_env:
-        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path)
+        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model)
     per_copy = int(getattr(vec_env, "agents_per_copy", 1))
+    has_latent = getattr(getattr(model, "policy", None), "latent_model", None) is not None
+    latent = LatentTracker(model, vec_env) if has_latent else None
     records: list[dict[str, Any]] = []
     with th.random.fork_rng():
         th.manual_seed(seed)
         observations = vec_env.reset()
+        if latent is not None:
+            latent.observe(observations, vec_env.reset_infos, len(records))
         state, starts = None, np.ones(vec_env.num_envs, dtype=bool)
         while len(records) < n_episodes:
             actions, state = model.predict(observations, state=state, episode_start=starts, deterministic=deterministic)
@@ -124,6 +131,53 @@ def evaluate_team(
             for i in np.flatnonzero(starts):
                 if i % per_copy == 0 and "metrics" in infos[i]:
                     records.append({**infos[i]["metrics"], "episode": len(records), "seed": seed})
+            if latent is not None:
+                latent.observe(observations, infos, len(records), starts)
     if own_env:
         vec_env.close()
-    return records[:n_episodes]
+    records = records[:n_episodes]
+    if latent is not None:
+        latent.annotate(records)
+    return records
+
+
+class LatentTracker:
+    """Posteriors of an EM model during evaluation, paired with the true mode of each entry's episode.
+
+    Only steps with a full history window count (from step ``history_length`` of an episode on).
+    :meth:`annotate` aligns components to modes over all evaluated episodes (Hungarian matching) and adds
+    to each record its episode's ``latent_accuracy`` and ``latent_kl`` and the overall ``latent_nmi``.
+    """
+
+    def __init__(self, model: Any, vec_env: VecEnv) -> None:
+        self.model = model
+        self.min_step = int(model.layout.history_length)
+        self.steps = np.zeros(vec_env.num_envs, dtype=np.int64)
+        self.posteriors: list[np.ndarray] = []
+        self.modes: list[np.ndarray] = []
+        self.episodes: list[np.ndarray] = []
+
+    def observe(self, observations: np.ndarray, infos: list[dict], episode: int, starts: np.ndarray | None = None) -> None:
+        if starts is not None:
+            self.steps = np.where(starts, 0, self.steps + 1)
+        keep = np.flatnonzero((self.steps >= self.min_step) & np.array(["mode" in info for info in infos]))
+        if len(keep):
+            self.posteriors.append(self.model.posterior(observations[keep]))
+            self.modes.append(np.array([infos[i]["mode"] for i in keep], dtype=np.int64))
+            self.episodes.append(np.full(len(keep), episode))
+
+    def annotate(self, records: list[dict[str, Any]]) -> None:
+        from sb3_emmarl.common.latent.metrics import align_components, latent_kl, normalized_mutual_information
+
+        if not self.posteriors:
+            return
+        posteriors, modes, episodes = (np.concatenate(x) for x in (self.posteriors, self.modes, self.episodes))
+        mapping = align_components(posteriors, modes)
+        correct = mapping[posteriors.argmax(1)] == modes
+        nmi = normalized_mutual_information(posteriors.argmax(1), modes)
+        for record in records:
+            mine = episodes == record["episode"]
+            if mine.any():
+                record["latent_accuracy"] = float(correct[mine].mean())
+                record["latent_kl"] = latent_kl(posteriors[mine], modes[mine], mapping)
+                record["latent_nmi"] = nmi

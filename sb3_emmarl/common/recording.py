@@ -39,7 +39,7 @@ def record_episode(
     if fps < 1 or frame_skip < 1:
         raise ValueError(f"fps and frame_skip must be >= 1, got {fps} and {frame_skip}")
     env_kwargs = {**dict(env_kwargs or {}), "render_mode": "rgb_array"}
-    venv = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path)
+    venv = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model)
     with th.random.fork_rng():
         th.manual_seed(seed)
         observations = venv.reset()

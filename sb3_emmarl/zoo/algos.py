@@ -10,6 +10,9 @@ from stable_baselines3 import A2C, DDPG, DQN, PPO, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from sb3_contrib import RecurrentPPO
 
+from sb3_emmarl.em_ddpg import EMDDPG
+from sb3_emmarl.em_ppo import EMPPO
+
 #: Algorithms trained with one policy shared by all UAVs (the parameter-sharing vector environment).
 SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ppo": PPO,  # decentralized PPO
@@ -18,7 +21,11 @@ SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ddpg": DDPG,  # continuous action mode
     "td3": TD3,  # continuous action mode
     "ppo_lstm": RecurrentPPO,
+    "em_ppo": EMPPO,  # the paper's method, with PPO as the M-step
+    "em_ddpg": EMDDPG,  # the paper's method, with DDPG as the M-step (continuous action mode)
 }
+#: Algorithms that read a history window (the zoo adds the HistoryWrapper to their environments).
+LATENT_ALGOS = ("em_ppo", "em_ddpg")
 #: Algorithms trained on the centralised view (global state in, joint action out).
 CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "cppo": PPO,  # Centralized PPO
@@ -33,5 +40,6 @@ def register_algorithms() -> None:
 
     for name, algo in ZOO_ALGOS.items():
         rl_zoo3.ALGOS.setdefault(name, algo)
-    hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault("cppo", hyperparams_opt.HYPERPARAMS_SAMPLER["ppo"])
-    hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault("cppo", hyperparams_opt.HYPERPARAMS_CONVERTER["ppo"])
+    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg")):
+        hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, hyperparams_opt.HYPERPARAMS_SAMPLER[like])
+        hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, hyperparams_opt.HYPERPARAMS_CONVERTER[like])

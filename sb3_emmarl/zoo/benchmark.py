@@ -80,3 +80,84 @@ def benchmark_main(argv: list[str] | None = None) -> int:
         for metric, (a, b, p) in comparison.items():
             print(f"{metric:<22}{a:>10.3f}{b:>10.3f}{p:>10.2g}")
     return 0
+
+
+#: Metrics of the method comparison, with the latent ones (present for EM models only).
+COMPARE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "latent_accuracy", "latent_kl")
+
+
+def parse_variant(text: str) -> tuple[str, str, list[str]]:
+    """``NAME=ALGO:key=value,key=value`` (or just ``ALGO``) -> (name, algo, ``-params`` items)."""
+    name, _, spec = text.partition("=") if "=" in text.split(":")[0] else (text.split(":")[0], "", text)
+    algo, _, params = spec.partition(":")
+    if algo not in ZOO_ALGOS:
+        raise ValueError(f"variant {text!r}: unknown algorithm {algo!r}; the zoo trains {sorted(ZOO_ALGOS)}")
+    items = [p.replace("=", ":", 1) for p in params.split(",") if p]
+    return name, algo, items
+
+
+def compare_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description="Compare variants at the same budget over seeds (train in fresh processes).")
+    parser.add_argument("--variants", nargs="+", default=["em_ppo", "no_latent=em_ppo:use_latent=False", "ppo"],
+                        help="NAME=ALGO:key=value,... (hyperparameter overrides)")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=1_000_000, help="budget of every run, agent-steps")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--eval-episodes", type=int, default=10, help="evaluation episodes per run")
+    parser.add_argument("--eval-seed", type=int, default=50_000, help="seed of the evaluation episodes")
+    parser.add_argument("-f", "--log-folder", default="logs/compare", help="where the runs are saved")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
+    parser.add_argument("--ratio", nargs=2, default=["em_ppo", "ppo"], metavar=("A", "B"),
+                        help="print the wall-time ratio of variant A to variant B")
+    return parser
+
+
+def compare_main(argv: list[str] | None = None) -> int:
+    """Train every variant on every seed (each in a fresh process), evaluate, print mean +- std per variant."""
+    import json
+    import subprocess
+    import sys
+
+    from rl_zoo3.utils import get_latest_run_id
+
+    parser = compare_parser()
+    args = parser.parse_args(argv)
+    try:
+        variants = [parse_variant(v) for v in args.variants]
+    except ValueError as error:
+        parser.error(str(error))
+    env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] if args.env_kwargs else []
+    results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
+    for seed in args.seeds:
+        for name, algo, params in variants:  # interleaved, so that machine load drifts hit every variant alike
+            folder = str(Path(args.log_folder) / name)
+            command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
+                       "--seed", str(seed), "-f", folder, "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0",
+                       *env_flags, *(["-params", *params] if params else [])]
+            done = subprocess.run(command, capture_output=True, text=True)
+            if done.returncode != 0:
+                print(done.stderr[-2000:], file=sys.stderr)
+                return 2
+            run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
+            stats = json.loads((run / "run_stats.json").read_text())
+            model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
+            config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+            records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
+            row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
+            results[name].append({**row, **stats})
+            print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " +
+                  ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+    print(f"\n{len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; {args.eval_episodes} evaluation "
+          f"episodes from seed {args.eval_seed} per run; mean +- std over seeds")
+    columns = (*COMPARE_METRICS, "train_seconds", "peak_rss_mib")
+    print(f"{'variant':<12}" + "".join(f"{c:>22}" for c in columns))
+    for name, runs in results.items():
+        cells = []
+        for column in columns:
+            values = [r[column] for r in runs if column in r]
+            cells.append(f"{np.mean(values):>13.3f} +- {np.std(values):<5.3f}" if values else f"{'-':>22}")
+        print(f"{name:<12}" + "".join(cells))
+    a, b = args.ratio
+    if a in results and b in results:
+        ratio = np.mean([r["train_seconds"] for r in results[a]]) / np.mean([r["train_seconds"] for r in results[b]])
+        print(f"\nwall-time ratio {a} / {b}: {ratio:.2f}")
+    return 0

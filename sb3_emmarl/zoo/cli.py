@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import sys
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -152,8 +154,13 @@ def train_main(argv: list[str] | None = None) -> int:
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
+    start = time.perf_counter()
     manager.learn(model)
+    train_seconds = time.perf_counter() - start
     manager.save_trained_model(model)
+    stats = {"train_seconds": train_seconds, "n_timesteps": int(model.num_timesteps),
+             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    (Path(manager.save_path) / "run_stats.json").write_text(json.dumps(stats, indent=1))
     if args.team_eval_episodes:
         vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,

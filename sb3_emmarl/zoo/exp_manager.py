@@ -14,6 +14,7 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 
 from __future__ import annotations
 
+import inspect
 import os
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,8 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.callbacks import TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, ZOO_ALGOS, register_algorithms
+from sb3_emmarl.common.latent.algorithm import wrap_with_history
+from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -70,6 +72,9 @@ class ReserveExperimentManager(ExperimentManager):
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
         processed = super()._preprocess_hyperparams(hyperparams)
+        if self.algo in LATENT_ALGOS:  # the history the EM algorithms read, for training and evaluation envs alike
+            default = inspect.signature(ZOO_ALGOS[self.algo]).parameters["history_length"].default
+            self.history_length = int(processed[0].get("history_length", default))
         if self._eval_env_kwargs_args is None:  # rl_zoo3 only copies them when --env-kwargs is given
             self.eval_env_kwargs = self.env_kwargs
         # Validate the environment's arguments now, before any folder or process exists.
@@ -100,7 +105,10 @@ class ReserveExperimentManager(ExperimentManager):
             monitor_dir=None if eval_env or no_log else self.save_path,
             vec_env_wrapper=self.vec_env_wrapper,
         )
-        return self._maybe_normalize(env, eval_env)
+        env = self._maybe_normalize(env, eval_env)
+        if self.algo in LATENT_ALGOS:
+            env = wrap_with_history(env, self.history_length)
+        return env
 
     def create_callbacks(self) -> None:
         super().create_callbacks()
