@@ -145,8 +145,8 @@ def test_save_load_gives_the_same_actions_and_posteriors(algo, tmp_path):
 
 def test_works_on_any_sb3_vector_environment_with_defaults(tmp_path):
     model = EMPPO("MlpPolicy", synthetic_env(n=4), n_steps=32, batch_size=64, tensorboard_log=str(tmp_path), seed=0)
-    model.learn(512)  # 4 rollouts of 4 x 32 steps
-    assert model.e_step.n_updates == 4
+    model.learn(512)  # 4 rollouts of 4 x 32 steps: one E-step with the default interval of 4
+    assert model.e_step.n_updates == 1
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     events = next(tmp_path.rglob("events.out.tfevents.*"))
@@ -160,7 +160,7 @@ def test_works_on_any_sb3_vector_environment_with_defaults(tmp_path):
 def test_gumbel_estimator_anneals_and_team_pooling_runs():
     env = make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL)
     model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, estimator="gumbel", team_pooling=True, seed=0,
-                  e_step_kwargs={"anneal_rate": 0.5})
+                  e_step_interval=1, e_step_kwargs={"anneal_rate": 0.5})
     model.learn(3 * 32 * 6)
     assert model.e_step.n_updates == 3
     assert model.e_step.temperature == pytest.approx(np.exp(-1.5))

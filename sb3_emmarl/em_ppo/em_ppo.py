@@ -49,7 +49,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param e_step_interval: rollouts between E-steps
     :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`
         (``learning_rate``, ``n_epochs``, ``batch_size``, ``window``, ``temperature``, ``min_temperature``,
-        ``anneal_rate``, ``max_samples``)
+        ``anneal_rate``, ``max_samples``, ``starved_share``)
     :param use_latent: False is the no-latent ablation (same networks without the posterior input, no E-step)
     :param freeze_e_step: ablation: the encoder, decoder and prior never change
     :param freeze_m_step: ablation: the policy and value networks never change (the paper's "disabling the M-step")
@@ -78,11 +78,11 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         ent_coef: float = 0.01,
         n_components: int = 4,
         history_length: int = 8,
-        encoder_hidden: int = 64,
+        encoder_hidden: int = 32,
         decoder_hidden: tuple[int, ...] = (64, 64),
         estimator: str = "enumerate",
         team_pooling: bool = False,
-        e_step_interval: int = 1,
+        e_step_interval: int = 4,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
         freeze_e_step: bool = False,
@@ -116,12 +116,29 @@ class EMPPO(LatentAlgorithmMixin, PPO):
                                         self.device)
 
     def train(self) -> None:
-        """The M-step: PPO's update (skipped when ``freeze_m_step``)."""
+        """The M-step: PPO's update (skipped when ``freeze_m_step``).
+
+        The posterior of every observation of the rollout is computed once, with the encoder as the E-step
+        just left it, and written over the start of its (already used) history window in the buffer, so the
+        epochs of minibatches read it instead of running the encoder again.
+        """
         if self.freeze_m_step:
             self._update_learning_rate(self.policy.optimizer)
             self.logger.record("train/m_step_frozen", 1.0)
             return
-        super().train()
+        latent = self.policy.latent_model
+        if latent is None:
+            super().train()
+            return
+        observations = self.rollout_buffer.observations
+        flat = observations.reshape(-1, observations.shape[-1])
+        start = self.layout.obs_dim
+        flat[:, start:start + self.n_components] = self.posterior(flat)
+        latent.precomputed = True
+        try:
+            super().train()
+        finally:
+            latent.precomputed = False
 
     def learn(self: SelfEMPPO, total_timesteps: int, callback: BaseCallback | list | None = None, log_interval: int = 1,
               tb_log_name: str = "EMPPO", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfEMPPO:

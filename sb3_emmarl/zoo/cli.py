@@ -81,7 +81,8 @@ def train_parser() -> argparse.ArgumentParser:
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"],
                         help="subproc: reserve copies in worker processes")
-    parser.add_argument("--num-threads", type=int, default=-1, help="torch threads (-1: torch's default)")
+    parser.add_argument("--num-threads", type=int, default=1,
+                        help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
     parser.add_argument("--log-interval", type=int, default=-1, help="override the log interval (-1: default)")
     parser.add_argument("--device", default="auto", help="torch device")
     parser.add_argument("--verbose", type=int, default=1, help="0: quiet, 1: info")

@@ -20,9 +20,9 @@ from sb3_emmarl.common.latent.em import EMCallback, EStep, LatentBatch
 from sb3_emmarl.common.latent.history import HistoryLayout, HistoryWrapper, find_history_wrapper
 
 #: Defaults of the E-step (see :class:`~sb3_emmarl.common.latent.em.EStep`).
-E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 2, "batch_size": 1024, "window": 3,
+E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 2, "batch_size": 1024, "window": 2,
                                    "temperature": 1.0, "min_temperature": 0.1, "anneal_rate": 0.05,
-                                   "max_samples": 20_000, "starved_share": 0.1}
+                                   "max_samples": 2048, "starved_share": 0.1}
 
 
 def wrap_with_history(env: Any, history_length: int, verbose: int = 0) -> VecEnv:

@@ -133,7 +133,7 @@ class EStep:
         return {k: float(out[k].mean()) for k in ("elbo", "recon", "kl")}
 
     def step(self, train: bool = True) -> dict[str, float]:
-        """One E-step on the kept data; ``train=False`` only re-estimates ``pi`` (E-step frozen: nothing changes).
+        """One E-step on the kept data; ``train=False`` (E-step frozen) changes nothing and only reports.
 
         :return: statistics for the logger (ELBO and its terms after the step, entropies, temperature)
         """

@@ -60,6 +60,8 @@ class LatentModel(nn.Module):
         self.decoder_bias = nn.Parameter(th.zeros(n_components, target_dim))
         self.decoder_log_std = nn.Parameter(th.zeros(n_components, target_dim))
         self.register_buffer("log_prior", th.full((n_components,), -math.log(n_components)))
+        #: When True, features extractors read a posterior written into the observation instead of running the encoder.
+        self.precomputed = False
 
     # ------------------------------------------------------------------ encoder q_phi(z | h_t)
     def posterior_logits(self, window: th.Tensor) -> th.Tensor:

@@ -40,8 +40,11 @@ class LatentFeaturesExtractor(BaseFeaturesExtractor):
         raw, window = self.layout.split(observations)
         if self.latent_model is None:
             return raw
-        with th.no_grad():
-            posterior = self.latent_model.posterior(window)
+        if self.latent_model.precomputed:  # the posterior already sits where the window starts (see EMPPO.train)
+            posterior = observations[..., self.layout.obs_dim:self.layout.obs_dim + self.latent_model.n_components]
+        else:
+            with th.no_grad():
+                posterior = self.latent_model.posterior(window)
         return th.cat([raw, posterior], dim=-1)
 
 
