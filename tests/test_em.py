@@ -218,3 +218,20 @@ def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
     records = json.loads((run / "team_eval.json").read_text())
     assert len(records) == 2 and "latent_accuracy" in records[0]
     assert (run / "best_model.zip").is_file()
+
+
+def test_the_method_page_states_the_defaults_the_code_has():
+    import inspect
+    from pathlib import Path
+
+    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "em.md").read_text()
+    rows = {line.split("|")[1].strip().strip("`"): line.split("|")[2].strip() for line in page.splitlines()
+            if line.startswith("| `")}
+    for key, value in E_STEP_DEFAULTS.items():
+        stated = rows[key].split()[0]
+        assert float(stated) == value, (key, rows[key])
+    signature = inspect.signature(EMPPO).parameters
+    for name in ("n_components", "history_length", "encoder_hidden", "e_step_interval"):
+        assert rows[name].startswith(str(signature[name].default)), (name, rows[name])
