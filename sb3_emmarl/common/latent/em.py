@@ -125,13 +125,6 @@ class EStep:
             data = LatentBatch(*(getattr(data, name)[keep] for name in FIELDS))
         return data
 
-    def evaluate(self, data: LatentBatch | None = None) -> dict[str, float]:
-        """Mean ELBO, reconstruction and KL on ``data`` (default: the kept rollouts), without updating anything."""
-        data = data if data is not None else self._data()
-        with th.no_grad():
-            out = self.model.elbo(data.window, data.next_slot, "enumerate", groups=data.groups if self.team_pooling else None)
-        return {k: float(out[k].mean()) for k in ("elbo", "recon", "kl")}
-
     def step(self, train: bool = True) -> dict[str, float]:
         """One E-step on the kept data; ``train=False`` (E-step frozen) changes nothing and only reports.
 

@@ -30,6 +30,13 @@ def gaussian_log_density(target: th.Tensor, mean: th.Tensor, log_std: th.Tensor)
     return (-0.5 * ((target - mean) / log_std.exp()) ** 2 - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
 
 
+def sum_by_group(values: th.Tensor, groups: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """Sum the rows of ``values`` within each group; every row gets its group's sum and its group's size."""
+    _, index, counts = th.unique(groups, return_inverse=True, return_counts=True)
+    summed = th.zeros(len(counts), values.shape[1], device=values.device, dtype=values.dtype).index_add(0, index, values)
+    return summed[index], counts[index]
+
+
 class LatentModel(nn.Module):
     """Encoder, decoder and prior of the categorical latent variable, shared by all agents.
 
@@ -117,9 +124,7 @@ class LatentModel(nn.Module):
         """
         log_joint = self.stretch_log_likelihood(window, next_slot)
         if groups is not None:
-            _, index, _ = th.unique(groups, return_inverse=True, return_counts=True)
-            summed = th.zeros(int(index.max()) + 1, log_joint.shape[1], device=log_joint.device).index_add(0, index, log_joint)
-            log_joint = summed[index]
+            log_joint = sum_by_group(log_joint, groups)[0]
         return F.log_softmax(log_joint + self.log_prior, dim=-1)
 
     def elbo(
@@ -169,10 +174,8 @@ class LatentModel(nn.Module):
         :param log_q: per-agent ``log q`` ``(B, K)``
         :param groups: ``(B,)`` integer group ids
         """
-        _, index, counts = th.unique(groups, return_inverse=True, return_counts=True)
-        summed = th.zeros(len(counts), log_q.shape[1], device=log_q.device).index_add(0, index, log_q)
-        team = summed - (counts[:, None] - 1) * self.log_prior
-        return F.log_softmax(team, dim=-1)[index]
+        summed, counts = sum_by_group(log_q, groups)
+        return F.log_softmax(summed - (counts[:, None] - 1) * self.log_prior, dim=-1)
 
     # ------------------------------------------------------------------ prior pi
     @th.no_grad()

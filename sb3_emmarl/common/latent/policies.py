@@ -55,24 +55,24 @@ class LatentPolicyMixin:
     ``encoder_hidden``, ``decoder_hidden``); ``use_latent=False`` builds no model (the no-latent ablation).
     """
 
-    def _create_latent(self, latent_kwargs: dict[str, Any], use_latent: bool) -> None:
-        kwargs = dict(latent_kwargs)
-        layout = HistoryLayout(**{k: int(kwargs.pop(k)) for k in ("obs_dim", "history_length", "feature_dim", "action_dim")})
-        model = LatentModel(layout, **kwargs) if use_latent else None
-        # Plain attributes: nn.Module.__init__ has not run yet.
+    def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
+                 use_latent: bool = True, **kwargs) -> None:
+        sizes = dict(latent_kwargs)
+        layout = HistoryLayout(**{k: int(sizes.pop(k)) for k in ("obs_dim", "history_length", "feature_dim", "action_dim")})
+        # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
         object.__setattr__(self, "_latent_layout", layout)
-        object.__setattr__(self, "_pending_latent_model", model)
+        object.__setattr__(self, "_pending_latent_model", LatentModel(layout, **sizes) if use_latent else None)
         object.__setattr__(self, "_latent_config", (dict(latent_kwargs), use_latent))
-
-    def _register_latent(self) -> None:
-        """Make the latent model a submodule (after the networks and their optimizers exist)."""
+        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
+        # A submodule only now, after the networks' optimizers were built without its parameters.
         self.latent_model = self._pending_latent_model
         self.to(self.device)
 
     def make_features_extractor(self) -> LatentFeaturesExtractor:
         return LatentFeaturesExtractor(self.observation_space, self._latent_layout, self._pending_latent_model)
 
-    def _add_latent_parameters(self, data: dict[str, Any]) -> dict[str, Any]:
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
         latent_kwargs, use_latent = self._latent_config
         data.update(latent_kwargs=latent_kwargs, use_latent=use_latent)
         return data
@@ -81,36 +81,13 @@ class LatentPolicyMixin:
 class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
     """SB3's ``ActorCriticPolicy`` whose policy and value networks see the latent posterior (EM-PPO).
 
-    :param latent_kwargs: history layout and latent model sizes (set by the algorithm)
-    :param use_latent: build the latent model (False: the no-latent ablation)
-    :param args: as ``ActorCriticPolicy``
-    :param kwargs: as ``ActorCriticPolicy``
+    Takes ``ActorCriticPolicy``'s arguments plus ``latent_kwargs`` (history layout and latent model sizes,
+    set by the algorithm) and ``use_latent`` (False: the no-latent ablation).
     """
-
-    def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
-                 use_latent: bool = True, **kwargs) -> None:
-        self._create_latent(latent_kwargs, use_latent)
-        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
-        self._register_latent()
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return self._add_latent_parameters(super()._get_constructor_parameters())
 
 
 class LatentTD3Policy(LatentPolicyMixin, TD3Policy):
     """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the latent posterior (EM-DDPG).
 
-    :param latent_kwargs: history layout and latent model sizes (set by the algorithm)
-    :param use_latent: build the latent model (False: the no-latent ablation)
-    :param args: as ``TD3Policy``
-    :param kwargs: as ``TD3Policy``
+    Takes ``TD3Policy``'s arguments plus ``latent_kwargs`` and ``use_latent`` (see :class:`LatentActorCriticPolicy`).
     """
-
-    def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
-                 use_latent: bool = True, **kwargs) -> None:
-        self._create_latent(latent_kwargs, use_latent)
-        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
-        self._register_latent()
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return self._add_latent_parameters(super()._get_constructor_parameters())
