@@ -6,7 +6,7 @@ import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_emmarl import EMDDPG, EMPPO
-from sb3_emmarl.common.latent.em import EStep, transitions_from_rollout
+from sb3_emmarl.common.latent.em import EStep, LatentBatch, transitions_from_rollout
 from sb3_emmarl.common.latent.history import HistoryWrapper
 from sb3_emmarl.common.latent.metrics import latent_report
 from sb3_emmarl.common.latent.model import LatentModel
@@ -164,6 +164,46 @@ def test_gumbel_estimator_anneals_and_team_pooling_runs():
     model.learn(3 * 32 * 6)
     assert model.e_step.n_updates == 3
     assert model.e_step.temperature == pytest.approx(np.exp(-1.5))
+
+
+def test_the_m_step_sees_the_posteriors_the_actions_were_drawn_with(monkeypatch):
+    """An E-step after every rollout changes the encoder before PPO's update, yet the update's first log-probs
+    equal the rollout's: the networks read the posteriors of collection time."""
+    from stable_baselines3 import PPO
+
+    checked = []
+
+    def check(self):
+        buffer = self.rollout_buffer
+        obs = th.as_tensor(buffer.observations.reshape(-1, buffer.observations.shape[-1]))
+        actions = th.as_tensor(buffer.actions.reshape(-1))
+        with th.no_grad():
+            _, log_prob, _ = self.policy.evaluate_actions(obs, actions)
+            current = self.posterior(buffer.observations.reshape(len(obs), -1))
+        stored = buffer.observations.reshape(len(obs), -1)[:, 440:440 + self.n_components]
+        assert np.abs(current - stored).max() > 1e-4  # the E-step did move the encoder
+        np.testing.assert_allclose(log_prob.numpy(), buffer.log_probs.reshape(-1), atol=1e-5)
+        checked.append(True)
+
+    monkeypatch.setattr(PPO, "train", check)
+    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL), n_steps=32, batch_size=64,
+                  e_step_interval=1, seed=0)
+    model.learn(2 * 3 * 32 * 2)
+    assert len(checked) == 2 and model.e_step.n_updates == 2
+
+
+def test_team_pooled_e_steps_keep_each_group_in_one_minibatch():
+    layout = HistoryWrapper(synthetic_env(n=2), history_length=2).layout
+    e_step = EStep(LatentModel(layout, n_components=2), batch_size=20, max_samples=50, team_pooling=True)
+    groups = th.arange(70) // 7  # 10 groups of 7
+    e_step.add(LatentBatch(th.randn(70, 2, layout.step_dim), th.randn(70, layout.step_dim), groups))
+    data = e_step._data()
+    kept = data.groups.unique(return_counts=True)[1]
+    assert len(data) == 49 and (kept == 7).all()  # whole groups, as many as fit in max_samples
+    batches = e_step._minibatches(data)
+    assert sorted(th.cat(batches).tolist()) == list(range(49))
+    for idx in batches:
+        assert (data.groups[idx].unique(return_counts=True)[1] == 7).all()
 
 
 def test_team_pooling_multiplies_posteriors_and_divides_the_prior():

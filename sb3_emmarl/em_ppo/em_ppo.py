@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, TypeVar
 
+import numpy as np
+
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
@@ -108,6 +110,24 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     def _setup_model(self) -> None:
         super()._setup_model()
         self._setup_e_step()
+        # The posterior each rollout step's actions were drawn with, and which steps have theirs.
+        self._rollout_posteriors = np.zeros((self.n_steps, self.n_envs, self.n_components), dtype=np.float32)
+        self._recorded = np.zeros(self.n_steps, dtype=bool)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_rollout_posteriors", "_recorded"]
+
+    def start_collection(self) -> None:
+        self._recorded[:] = False
+
+    def record_collection_step(self) -> None:
+        """Keep the posterior the policy computed for this step's actions (read from its features extractor)."""
+        extractor = self.policy.pi_features_extractor
+        posterior, extractor.latest_posterior = extractor.latest_posterior, None
+        step = self.rollout_buffer.pos  # the row the step is about to be added at
+        if posterior is not None and step < self.n_steps and posterior.shape == self._rollout_posteriors.shape[1:]:
+            self._rollout_posteriors[step] = posterior.cpu().numpy()
+            self._recorded[step] = True
 
     def latent_batch(self) -> LatentBatch:
         """The E-step's data from the rollout buffer just collected."""
@@ -118,9 +138,11 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     def train(self) -> None:
         """The M-step: PPO's update (skipped when ``freeze_m_step``).
 
-        The posterior of every observation of the rollout is computed once, with the encoder as the E-step
-        just left it, and written over the start of its (already used) history window in the buffer, so the
-        epochs of minibatches read it instead of running the encoder again.
+        The policy and value networks see the posteriors the rollout's actions were drawn with (the encoder
+        the E-step just refitted acts from the next rollout on), so PPO's ratios start at 1 as they should.
+        Each is written over the start of its (already used) history window in the buffer, and the epochs of
+        minibatches read it there instead of running the encoder again. Steps collected without the EM
+        callback get theirs from the current encoder.
         """
         if self.freeze_m_step:
             self._update_learning_rate(self.policy.optimizer)
@@ -133,7 +155,9 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         observations = self.rollout_buffer.observations
         flat = observations.reshape(-1, observations.shape[-1])
         start = self.layout.obs_dim
-        flat[:, start:start + self.n_components] = self.posterior(flat)
+        recorded = self._recorded.all() and observations.shape[:2] == self._rollout_posteriors.shape[:2]
+        flat[:, start:start + self.n_components] = (self._rollout_posteriors.reshape(-1, self.n_components)
+                                                    if recorded else self.posterior(flat))
         latent.precomputed = True
         try:
             super().train()

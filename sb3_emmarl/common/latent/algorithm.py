@@ -100,6 +100,12 @@ class LatentAlgorithmMixin:
     def latent_batch(self) -> LatentBatch:  # pragma: no cover - provided by each algorithm
         raise NotImplementedError
 
+    def start_collection(self) -> None:
+        """Called by the EM callback when a rollout starts (nothing to do by default)."""
+
+    def record_collection_step(self) -> None:
+        """Called by the EM callback after each collection step (nothing to do by default)."""
+
     @property
     def agents_per_copy(self) -> int:
         return int(getattr(self.env, "agents_per_copy", 1))

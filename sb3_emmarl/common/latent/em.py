@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 import torch as th
@@ -118,64 +119,104 @@ class EStep:
         if len(batch):
             self.memory.append(batch)
 
+    def _shuffle(self, data: LatentBatch) -> tuple[th.Tensor, th.Tensor]:
+        """A random order of the samples and where each unit starts in it.
+
+        A unit is one sample, or with team pooling one group (the agents of one copy and step), which stays
+        whole in subsampling and in minibatches so that its members' evidence is pooled together.
+        """
+        units = th.unique(data.groups, return_inverse=True)[1] if self.team_pooling else th.arange(len(data))
+        rank = th.randperm(int(units.max()) + 1, generator=self.generator)[units]
+        order = th.argsort(rank, stable=True)
+        ranked = rank[order]
+        starts = th.cat([th.zeros(1, dtype=th.long), th.nonzero(ranked[1:] != ranked[:-1]).flatten() + 1])
+        return order, starts
+
     def _data(self) -> LatentBatch:
+        """The kept rollouts, at most ``max_samples`` of them (whole units, drawn at random)."""
         data = LatentBatch.cat(list(self.memory))
         if len(data) > self.max_samples:
-            keep = th.randperm(len(data), generator=self.generator)[: self.max_samples]
-            data = LatentBatch(*(getattr(data, name)[keep] for name in FIELDS))
+            order, starts = self._shuffle(data)
+            ends = th.cat([starts[1:], th.tensor([len(data)])])
+            fitting = ends[ends <= self.max_samples]
+            cut = int(fitting[-1]) if len(fitting) else int(ends[0])  # whole units; at least one
+            data = LatentBatch(*(getattr(data, name)[order[:cut]] for name in FIELDS))
         return data
+
+    def _minibatches(self, data: LatentBatch) -> list[th.Tensor]:
+        """Random minibatches of about ``batch_size`` samples, cut between units."""
+        order, starts = self._shuffle(data)
+        targets = th.tensor(list(range(self.batch_size, len(data), self.batch_size)), dtype=th.long)
+        ends = th.cat([starts, th.tensor([len(data)])])[th.searchsorted(starts, targets)].unique().tolist()
+        cuts = [0, *[c for c in ends if 0 < c < len(data)], len(data)]
+        return [order[a:b] for a, b in pairwise(cuts)]
 
     def step(self, train: bool = True) -> dict[str, float]:
         """One E-step on the kept data; ``train=False`` (E-step frozen) changes nothing and only reports.
 
-        :return: statistics for the logger (ELBO and its terms after the step, entropies, temperature)
+        Each minibatch: the decoder's stretch log-likelihood ``L`` ``(B, K)`` once; the exact responsibilities
+        ``r ∝ pi exp(L)`` (no gradient); the decoder maximises ``E_r[L]`` (exact, or one Gumbel-softmax sample)
+        and the encoder fits ``q_phi(z | h_t)`` to ``r`` by cross-entropy. The statistics and the new prior
+        ``pi`` (the mean responsibilities) come from the last epoch's minibatches, each taken before its update.
+
+        :return: statistics for the logger: the ELBO under the encoder's posterior and its reconstruction and KL
+            terms, the prior's and the posterior's entropy, the temperature
         """
         if not self.memory:
             return {}
         data = self._data()
-        if train:
-            self.model.train()
-            for _ in range(self.n_epochs):
-                order = th.randperm(len(data), generator=self.generator)
-                for start in range(0, len(data), self.batch_size):
-                    idx = order[start:start + self.batch_size]
-                    window, next_slot = data.window[idx], data.next_slot[idx]
-                    groups = data.groups[idx] if self.team_pooling else None
+        n_epochs = self.n_epochs if train else 1
+        self.model.train(train)
+        totals: dict[str, th.Tensor] = {}
+        for epoch in range(n_epochs):
+            last = epoch == n_epochs - 1
+            for idx in self._minibatches(data):
+                window, next_slot = data.window[idx], data.next_slot[idx]
+                groups = data.groups[idx] if self.team_pooling else None
+                with th.set_grad_enabled(train):
+                    log_lik = self.model.stretch_log_likelihood(window, next_slot)
                     # E: responsibilities of the components for each stretch, from the current decoder and prior.
-                    with th.no_grad():
-                        responsibilities = self.model.responsibilities(window, next_slot, groups).exp()
+                    responsibilities = self.model.responsibilities_from(log_lik, groups).exp()
                     # Decoder: maximise the expected log-likelihood under them (exact, or one Gumbel-softmax sample).
                     recon = self.model.expected_log_likelihood(window, next_slot, responsibilities, self.estimator,
-                                                               self.temperature)
+                                                               self.temperature, log_likelihood=log_lik)
                     # Encoder: q_phi(z | h_t) learns to predict them from the history alone (the ELBO's optimal q).
                     log_q = self.model.posterior_logits(window)
                     if groups is not None:
                         log_q = self.model.pool(log_q, groups)
                     loss = -recon.mean() - (responsibilities * log_q).sum(-1).mean()
+                if last:
+                    self._accumulate(totals, log_lik.detach(), log_q.detach(), responsibilities)
+                if train:
                     self.optimizer.zero_grad()
                     loss.backward()
                     th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
                     self.optimizer.step()
+        self.model.train(False)
+        revived = 0
+        if train:
             self.n_updates += 1
-        with th.no_grad():
-            out = self.model.elbo(data.window, data.next_slot, "enumerate", groups=data.groups if self.team_pooling else None)
-            q = out["log_q"].exp()
-            revived = 0
-            if train:  # pi in closed form: the mean responsibilities
-                groups = data.groups if self.team_pooling else None
-                self.model.set_prior(self.model.responsibilities(data.window, data.next_slot, groups).exp())
-                revived = self._revive_starved_components()
-            prior = self.model.prior()
+            self.model.set_prior(totals["responsibilities"][None] / len(data))  # pi in closed form
+            revived = self._revive_starved_components()
+        prior = self.model.prior()
+        stats = {key: float(totals[key] / len(data)) for key in ("elbo", "recon", "kl", "posterior_entropy")}
         return {
-            "elbo": float(out["elbo"].mean()),
-            "recon": float(out["recon"].mean()),
-            "kl": float(out["kl"].mean()),
+            **stats,
             "prior_entropy": float(-(prior * prior.log()).sum()),
-            "posterior_entropy": float(-(q * out["log_q"]).sum(-1).mean()),
             "temperature": self.temperature,
             "n_samples": float(len(data)),
             "revived_components": float(revived),
         }
+
+    def _accumulate(self, totals: dict[str, th.Tensor], log_lik: th.Tensor, log_q: th.Tensor,
+                    responsibilities: th.Tensor) -> None:
+        """Add a minibatch's ELBO terms under the encoder's posterior and its responsibilities to ``totals``."""
+        q = log_q.exp()
+        recon = (q * log_lik).sum(-1)
+        kl = (q * (log_q - self.model.log_prior)).sum(-1)
+        for key, value in (("elbo", (recon - kl).sum()), ("recon", recon.sum()), ("kl", kl.sum()),
+                           ("posterior_entropy", -(q * log_q).sum()), ("responsibilities", responsibilities.sum(0))):
+            totals[key] = totals.get(key, 0) + value
 
     def _revive_starved_components(self) -> int:
         """Split the busiest component into every component whose prior fell below ``starved_share / K``."""
@@ -190,14 +231,19 @@ class EMCallback(BaseCallback):
     """Run the E-step after each rollout and log ``latent/*`` scalars.
 
     The algorithm supplies the data through ``latent_batch()`` and owns ``e_step`` (an :class:`EStep`),
-    ``freeze_e_step`` and ``e_step_interval`` (rollouts between E-steps).
+    ``freeze_e_step`` and ``e_step_interval`` (rollouts between E-steps). After each collection step it
+    calls the algorithm's ``record_collection_step()`` (EM-PPO keeps the posteriors its actions were drawn with).
     """
 
     def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.rollouts = 0
 
+    def _on_rollout_start(self) -> None:
+        self.model.start_collection()
+
     def _on_step(self) -> bool:
+        self.model.record_collection_step()
         return True
 
     def _on_rollout_end(self) -> None:

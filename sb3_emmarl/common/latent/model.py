@@ -122,7 +122,11 @@ class LatentModel(nn.Module):
 
         With ``groups``, the agents of a group share one team posterior (their evidence adds up).
         """
-        log_joint = self.stretch_log_likelihood(window, next_slot)
+        return self.responsibilities_from(self.stretch_log_likelihood(window, next_slot), groups)
+
+    def responsibilities_from(self, log_likelihood: th.Tensor, groups: th.Tensor | None = None) -> th.Tensor:
+        """:meth:`responsibilities` from a computed :meth:`stretch_log_likelihood` ``(B, K)`` (no gradient flows back)."""
+        log_joint = log_likelihood.detach()
         if groups is not None:
             log_joint = sum_by_group(log_joint, groups)[0]
         return F.log_softmax(log_joint + self.log_prior, dim=-1)
@@ -156,10 +160,17 @@ class LatentModel(nn.Module):
         return {"elbo": recon - kl, "recon": recon, "kl": kl, "log_q": log_q}
 
     def expected_log_likelihood(self, window: th.Tensor, next_slot: th.Tensor, weights: th.Tensor,
-                                estimator: str = "enumerate", temperature: float = 1.0) -> th.Tensor:
-        """``E_{z ~ weights}[ sum_j log p(x_{j+1}, r_j | x_j, a_j, z) ]``: exact over ``K``, or one Gumbel-softmax sample."""
+                                estimator: str = "enumerate", temperature: float = 1.0,
+                                log_likelihood: th.Tensor | None = None) -> th.Tensor:
+        """``E_{z ~ weights}[ sum_j log p(x_{j+1}, r_j | x_j, a_j, z) ]``: exact over ``K``, or one Gumbel-softmax sample.
+
+        :param log_likelihood: the :meth:`stretch_log_likelihood` of these samples when already computed
+            (``"enumerate"`` then reuses it)
+        """
         if estimator == "enumerate":
-            return (weights * self.stretch_log_likelihood(window, next_slot)).sum(-1)
+            if log_likelihood is None:
+                log_likelihood = self.stretch_log_likelihood(window, next_slot)
+            return (weights * log_likelihood).sum(-1)
         if estimator == "gumbel":
             features, actions, target, mask = self.transitions(window, next_slot)
             batch, steps = features.shape[:2]

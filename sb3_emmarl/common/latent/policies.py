@@ -35,6 +35,8 @@ class LatentFeaturesExtractor(BaseFeaturesExtractor):
         super().__init__(observation_space, layout.obs_dim + (latent_model.n_components if latent_model else 0))
         self.layout = layout
         object.__setattr__(self, "latent_model", latent_model)  # a reference, so the model is saved once
+        #: The posterior of the last batch it computed (EM-PPO keeps the ones its rollout was collected with).
+        self.latest_posterior: th.Tensor | None = None
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
         raw, window = self.layout.split(observations)
@@ -45,6 +47,7 @@ class LatentFeaturesExtractor(BaseFeaturesExtractor):
         else:
             with th.no_grad():
                 posterior = self.latent_model.posterior(window)
+            self.latest_posterior = posterior
         return th.cat([raw, posterior], dim=-1)
 
 
