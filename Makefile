@@ -4,7 +4,7 @@ PYTHON ?= python
 TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em
+.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-probe
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -42,3 +42,7 @@ benchmark-ppo: install
 # Issue 4's benchmark: EM-PPO, its no-latent ablation and PPO, 3 seeds at the same budget.
 benchmark-em: install
 	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2 --eval-episodes 10
+
+# How much of the hidden mode the encoder's history window holds: a supervised ceiling (about 5 minutes).
+benchmark-latent-probe: install
+	$(PYTHON) benchmarks/latent_probe.py --history-lengths 8 32
