@@ -86,6 +86,12 @@ def benchmark_main(argv: list[str] | None = None) -> int:
 COMPARE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "latent_accuracy", "latent_kl")
 
 
+#: The method comparison's default variants: EM-PPO, its frozen-E-step and no-latent ablations, and PPO. The
+#: frozen E-step keeps the encoder at its random initialisation: the policy still sees a function of the
+#: history, but not one fitted by EM, which separates "history as input" from "inferred posterior as input".
+DEFAULT_VARIANTS = ("em_ppo", "frozen_e_step=em_ppo:freeze_e_step=True", "no_latent=em_ppo:use_latent=False", "ppo")
+
+
 def parse_variant(text: str) -> tuple[str, str, list[str]]:
     """``NAME=ALGO:key=value,key=value`` (or just ``ALGO``) -> (name, algo, ``-params`` items)."""
     name, _, spec = text.partition("=") if "=" in text.split(":")[0] else (text.split(":")[0], "", text)
@@ -98,7 +104,7 @@ def parse_variant(text: str) -> tuple[str, str, list[str]]:
 
 def compare_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Compare variants at the same budget over seeds (train in fresh processes).")
-    parser.add_argument("--variants", nargs="+", default=["em_ppo", "no_latent=em_ppo:use_latent=False", "ppo"],
+    parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS),
                         help="NAME=ALGO:key=value,... (hyperparameter overrides)")
     parser.add_argument("-n", "--n-timesteps", type=int, default=1_000_000, help="budget of every run, agent-steps")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
