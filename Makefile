@@ -39,7 +39,7 @@ benchmark-env: install
 benchmark-ppo: install
 	$(PYTHON) zoo/benchmark.py --algos ppo -n 3000000 --seeds 0 --eval-episodes 20
 
-# Issue 4's benchmark: EM-PPO, its no-latent ablation and PPO, 3 seeds at the same budget.
+# Issue 4's benchmark: EM-PPO, its frozen-E-step and no-latent ablations and PPO, 3 seeds at the same budget (about 30 minutes).
 benchmark-em: install
 	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2 --eval-episodes 10
 
