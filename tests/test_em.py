@@ -275,3 +275,23 @@ def test_the_method_page_states_the_defaults_the_code_has():
     signature = inspect.signature(EMPPO).parameters
     for name in ("n_components", "history_length", "encoder_hidden", "e_step_interval"):
         assert rows[name].startswith(str(signature[name].default)), (name, rows[name])
+
+
+def test_the_elbo_is_tight_at_the_exact_posterior_and_lower_elsewhere():
+    """ELBO(q) = log p(D) - KL(q || p(z | D)): equal to the log-evidence at q = responsibilities, below it otherwise."""
+    th.manual_seed(0)
+    layout = HistoryWrapper(synthetic_env(n=2), history_length=3).layout
+    model = LatentModel(layout, n_components=3)
+    model.set_prior(th.tensor([[0.5, 0.3, 0.2]]))
+    window, next_slot = th.randn(6, 3, layout.step_dim), th.randn(6, layout.step_dim)
+    window[..., -1] = 1.0  # every slot is a real step
+    next_slot[:, -1] = 1.0
+    with th.no_grad():
+        log_lik = model.stretch_log_likelihood(window, next_slot)
+        evidence = th.logsumexp(log_lik + model.log_prior, dim=-1)
+        exact = model.elbo(window, next_slot, log_q=model.responsibilities(window, next_slot))
+        encoder = model.elbo(window, next_slot)
+    th.testing.assert_close(exact["elbo"], evidence, rtol=1e-4, atol=1e-3)
+    th.testing.assert_close(exact["elbo"], exact["recon"] - exact["kl"])
+    assert (encoder["elbo"] < evidence - 1e-4).all()
+    th.testing.assert_close(encoder["elbo"], model.elbo(window, next_slot, log_likelihood=log_lik)["elbo"])

@@ -186,7 +186,9 @@ class EStep:
                         log_q = self.model.pool(log_q, groups)
                     loss = -recon.mean() - (responsibilities * log_q).sum(-1).mean()
                 if last:
-                    self._accumulate(totals, log_lik.detach(), log_q.detach(), responsibilities)
+                    with th.no_grad():
+                        terms = self.model.elbo(window, next_slot, log_likelihood=log_lik.detach(), log_q=log_q.detach())
+                    self._accumulate(totals, terms, responsibilities)
                 if train:
                     self.optimizer.zero_grad()
                     loss.backward()
@@ -208,14 +210,13 @@ class EStep:
             "revived_components": float(revived),
         }
 
-    def _accumulate(self, totals: dict[str, th.Tensor], log_lik: th.Tensor, log_q: th.Tensor,
-                    responsibilities: th.Tensor) -> None:
-        """Add a minibatch's ELBO terms under the encoder's posterior and its responsibilities to ``totals``."""
-        q = log_q.exp()
-        recon = (q * log_lik).sum(-1)
-        kl = (q * (log_q - self.model.log_prior)).sum(-1)
-        for key, value in (("elbo", (recon - kl).sum()), ("recon", recon.sum()), ("kl", kl.sum()),
-                           ("posterior_entropy", -(q * log_q).sum()), ("responsibilities", responsibilities.sum(0))):
+    @staticmethod
+    def _accumulate(totals: dict[str, th.Tensor], terms: dict[str, th.Tensor], responsibilities: th.Tensor) -> None:
+        """Add a minibatch's ELBO terms (enumerated, under the encoder's posterior) and responsibilities to ``totals``."""
+        log_q = terms["log_q"]
+        for key, value in (("elbo", terms["elbo"].sum()), ("recon", terms["recon"].sum()), ("kl", terms["kl"].sum()),
+                           ("posterior_entropy", -(log_q.exp() * log_q).sum()),
+                           ("responsibilities", responsibilities.sum(0))):
             totals[key] = totals.get(key, 0) + value
 
     def _revive_starved_components(self) -> int:

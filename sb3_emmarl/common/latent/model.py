@@ -138,6 +138,8 @@ class LatentModel(nn.Module):
         estimator: str = "enumerate",
         temperature: float = 1.0,
         groups: th.Tensor | None = None,
+        log_likelihood: th.Tensor | None = None,
+        log_q: th.Tensor | None = None,
     ) -> dict[str, th.Tensor]:
         """Per-sample ELBO with the encoder's posterior, its reconstruction and KL terms.
 
@@ -149,13 +151,16 @@ class LatentModel(nn.Module):
         :param estimator: ``"enumerate"`` (exact over ``K``) or ``"gumbel"`` (one relaxed sample of ``z``)
         :param temperature: Gumbel-softmax temperature
         :param groups: optional ``(B,)`` ids of agents to pool into one team posterior (same copy and step)
+        :param log_likelihood: the :meth:`stretch_log_likelihood` of these samples, when already computed
+        :param log_q: ``log q_phi(z | h_t)`` of these samples (pooled, with ``groups``), when already computed
         :return: ``elbo``, ``recon``, ``kl`` ``(B,)`` and ``log_q`` ``(B, K)``
         """
-        log_q = self.posterior_logits(window)
-        if groups is not None:
-            log_q = self.pool(log_q, groups)
+        if log_q is None:
+            log_q = self.posterior_logits(window)
+            if groups is not None:
+                log_q = self.pool(log_q, groups)
         q = log_q.exp()
-        recon = self.expected_log_likelihood(window, next_slot, q, estimator, temperature)
+        recon = self.expected_log_likelihood(window, next_slot, q, estimator, temperature, log_likelihood)
         kl = (q * (log_q - self.log_prior)).sum(-1)
         return {"elbo": recon - kl, "recon": recon, "kl": kl, "log_q": log_q}
 
