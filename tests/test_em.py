@@ -295,3 +295,27 @@ def test_the_elbo_is_tight_at_the_exact_posterior_and_lower_elsewhere():
     th.testing.assert_close(exact["elbo"], exact["recon"] - exact["kl"])
     assert (encoder["elbo"] < evidence - 1e-4).all()
     th.testing.assert_close(encoder["elbo"], model.elbo(window, next_slot, log_likelihood=log_lik)["elbo"])
+
+
+def test_em_ddpg_computes_each_sample_posterior_once_with_the_same_result():
+    """The default LatentReplayBuffer writes the posterior into the samples; the update equals the one that runs
+    the encoder inside every network (a plain ReplayBuffer), with far fewer encoder passes."""
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from sb3_emmarl.em_ddpg.buffers import LatentReplayBuffer
+
+    def run(**kwargs):
+        env = make_vec_env(n_copies=1, seed=0, env_kwargs={**SMALL, "continuous_actions": True})
+        model = EMDDPG("MlpPolicy", env, seed=0, learning_starts=60, e_step_interval=2, **kwargs)
+        calls = []
+        forward = model.policy.latent_model.posterior_logits
+        model.policy.latent_model.posterior_logits = lambda window: calls.append(len(window)) or forward(window)
+        model.learn(300)
+        return model, sum(n == model.batch_size for n in calls)
+
+    shared, shared_passes = run()
+    plain, plain_passes = run(replay_buffer_class=ReplayBuffer)
+    assert isinstance(shared.replay_buffer, LatentReplayBuffer) and shared.replay_buffer.on_sample is None
+    for (name, a), b in zip(shared.policy.state_dict().items(), plain.policy.state_dict().values()):
+        th.testing.assert_close(a, b, msg=name)
+    assert 0 < shared_passes and 2 * shared_passes < plain_passes

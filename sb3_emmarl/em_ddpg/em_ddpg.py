@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+import torch as th
 from stable_baselines3 import DDPG
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
@@ -13,6 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
 from sb3_emmarl.common.latent.em import LatentBatch, transitions_from_pairs
+from sb3_emmarl.em_ddpg.buffers import LatentReplayBuffer
 from sb3_emmarl.em_ddpg.policies import MlpPolicy
 
 SelfEMDDPG = TypeVar("SelfEMDDPG", bound="EMDDPG")
@@ -102,6 +104,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         if e_step_transitions < 1:
             raise ValueError(f"e_step_transitions must be >= 1, got {e_step_transitions}")
         self.e_step_transitions = int(e_step_transitions)
+        kwargs.setdefault("replay_buffer_class", LatentReplayBuffer)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
                          batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
                          action_noise=action_noise, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
@@ -133,11 +136,30 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
                                       self.device)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        """The M-step: DDPG's update (skipped when ``freeze_m_step``)."""
+        """The M-step: DDPG's update (skipped when ``freeze_m_step``).
+
+        With a :class:`~sb3_emmarl.em_ddpg.buffers.LatentReplayBuffer` (the default), the posterior of each
+        sampled observation and next observation is computed once per batch, with the current encoder, and
+        written into the sample, where the actor, the critic and their targets read it.
+        """
         if self.freeze_m_step:
             self.logger.record("train/m_step_frozen", 1.0)
             return
-        super().train(gradient_steps, batch_size)
+        latent, buffer = self.policy.latent_model, self.replay_buffer
+        if latent is None or not isinstance(buffer, LatentReplayBuffer):
+            super().train(gradient_steps, batch_size)
+            return
+        buffer.on_sample = self._write_sample_posterior
+        latent.precomputed = True
+        try:
+            super().train(gradient_steps, batch_size)
+        finally:
+            buffer.on_sample = None
+            latent.precomputed = False
+
+    def _write_sample_posterior(self, observations: th.Tensor) -> None:
+        with th.no_grad():
+            self.write_posterior(observations, self.policy.latent_model.posterior(self.layout.split(observations)[1]))
 
     def learn(self: SelfEMDDPG, total_timesteps: int, callback: BaseCallback | list | None = None, log_interval: int = 4,
               tb_log_name: str = "EMDDPG", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfEMDDPG:

@@ -153,11 +153,10 @@ class EMPPO(LatentAlgorithmMixin, PPO):
             super().train()
             return
         observations = self.rollout_buffer.observations
-        flat = observations.reshape(-1, observations.shape[-1])
-        start = self.layout.obs_dim
         recorded = self._recorded.all() and observations.shape[:2] == self._rollout_posteriors.shape[:2]
-        flat[:, start:start + self.n_components] = (self._rollout_posteriors.reshape(-1, self.n_components)
-                                                    if recorded else self.posterior(flat))
+        self.write_posterior(observations, self._rollout_posteriors if recorded else
+                             self.posterior(observations.reshape(-1, observations.shape[-1])).reshape(
+                                 *observations.shape[:-1], self.n_components))
         latent.precomputed = True
         try:
             super().train()

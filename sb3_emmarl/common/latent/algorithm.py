@@ -122,6 +122,15 @@ class LatentAlgorithmMixin:
             obs = th.as_tensor(np.asarray(observations), dtype=th.float32, device=self.device)
             return self.policy.latent_model.posterior(self.layout.split(obs)[1]).cpu().numpy()
 
+    def write_posterior(self, observations: Any, posterior: Any) -> None:
+        """Write posteriors ``(..., K)`` over the start of the history windows of augmented observations (numpy or
+        torch, in place), where the features extractors read them while the latent model is ``precomputed``.
+
+        Only for observations whose windows were already read: the window's first slot is overwritten.
+        """
+        start = self.layout.obs_dim
+        observations[..., start:start + self.n_components] = posterior
+
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "e_step"]
 
