@@ -59,7 +59,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param seed: seed
     :param device: torch device
     :param _init_setup_model: build the networks now
-    :param kwargs: other DDPG arguments
+    :param kwargs: other DDPG arguments (``replay_buffer_class`` defaults to
+        :class:`~sb3_emmarl.em_ddpg.buffers.LatentReplayBuffer`)
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
