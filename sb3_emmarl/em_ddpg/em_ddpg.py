@@ -8,12 +8,12 @@ import numpy as np
 import torch as th
 from stable_baselines3 import DDPG
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
-from sb3_emmarl.common.latent.em import LatentBatch, transitions_from_pairs
+from sb3_emmarl.common.latent.em import LatentBatch, team_groups, transitions_from_pairs
 from sb3_emmarl.em_ddpg.buffers import LatentReplayBuffer
 from sb3_emmarl.em_ddpg.policies import MlpPolicy
 
@@ -116,8 +116,6 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     def _setup_model(self) -> None:
         super()._setup_model()
         if self.action_noise is None and self.env is not None:
-            from stable_baselines3.common.noise import NormalActionNoise
-
             dim = int(np.prod(self.action_space.shape))
             self.action_noise = NormalActionNoise(np.zeros(dim), 0.2 * np.ones(dim))
         self._setup_e_step()
@@ -129,10 +127,9 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
             raise ValueError("EM-DDPG needs the replay buffer's next observations: optimize_memory_usage=False")
         size = buffer.buffer_size if buffer.full else buffer.pos
         steps = (buffer.pos - 1 - np.arange(min(self.e_step_transitions, size))) % buffer.buffer_size
-        n_envs = buffer.n_envs
-        t, env = np.meshgrid(steps, np.arange(n_envs), indexing="ij")
+        t, env = np.meshgrid(steps, np.arange(buffer.n_envs), indexing="ij")
         t, env = t.ravel(), env.ravel()
-        groups = t * max(1, n_envs // self.agents_per_copy) + env // self.agents_per_copy
+        groups = team_groups(t, env, buffer.n_envs, self.agents_per_copy)
         return transitions_from_pairs(self.layout, buffer.observations[t, env], buffer.next_observations[t, env], groups,
                                       self.device)
 

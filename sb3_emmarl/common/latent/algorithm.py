@@ -128,8 +128,7 @@ class LatentAlgorithmMixin:
 
         Only for observations whose windows were already read: the window's first slot is overwritten.
         """
-        start = self.layout.obs_dim
-        observations[..., start:start + self.n_components] = posterior
+        observations[..., self.layout.posterior_columns(self.n_components)] = posterior
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "e_step"]

@@ -59,12 +59,16 @@ def transitions_from_pairs(layout: HistoryLayout, observations: np.ndarray, next
     return LatentBatch(tensor(window), tensor(next_window[:, -1]), th.as_tensor(groups, dtype=th.long, device=device))
 
 
+def team_groups(steps: np.ndarray, entries: np.ndarray, n_envs: int, agents_per_copy: int) -> np.ndarray:
+    """Group ids of ``(step, vector entry)`` pairs: the agents of one reserve copy at one step share one."""
+    return steps * max(1, n_envs // agents_per_copy) + entries // agents_per_copy
+
+
 def transitions_from_rollout(layout: HistoryLayout, observations: np.ndarray, episode_starts: np.ndarray,
                              agents_per_copy: int, device: th.device | str = "cpu") -> LatentBatch:
     """E-step samples from an on-policy rollout buffer (``(n_steps, n_envs, total_dim)``), skipping episode ends."""
-    n_envs = episode_starts.shape[1]
     t, env = np.nonzero(episode_starts[1:] == 0)  # o_{t+1} follows o_t within one episode
-    groups = t * max(1, n_envs // agents_per_copy) + env // agents_per_copy
+    groups = team_groups(t, env, episode_starts.shape[1], agents_per_copy)
     return transitions_from_pairs(layout, observations[t, env], observations[t + 1, env], groups, device)
 
 

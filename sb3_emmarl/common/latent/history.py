@@ -57,6 +57,11 @@ class HistoryLayout:
         window = observations[..., self.obs_dim:].reshape(*observations.shape[:-1], self.history_length, self.step_dim)
         return raw, window
 
+    def posterior_columns(self, n_components: int) -> slice:
+        """Where a precomputed posterior is written in an augmented observation: over the start of its window
+        (used only once the window has been read, see ``LatentAlgorithmMixin.write_posterior``)."""
+        return slice(self.obs_dim, self.obs_dim + n_components)
+
     def slot_parts(self, window):
         """Split a window ``(..., H, step_dim)`` into features, actions, rewards and the valid flag."""
         d_x, d_a = self.feature_dim, self.action_dim

@@ -43,7 +43,7 @@ class LatentFeaturesExtractor(BaseFeaturesExtractor):
         if self.latent_model is None:
             return raw
         if self.latent_model.precomputed:  # the posterior already sits where the window starts (see EMPPO.train)
-            posterior = observations[..., self.layout.obs_dim:self.layout.obs_dim + self.latent_model.n_components]
+            posterior = observations[..., self.layout.posterior_columns(self.latent_model.n_components)]
         else:
             with th.no_grad():
                 posterior = self.latent_model.posterior(window)
