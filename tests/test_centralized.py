@@ -12,7 +12,8 @@ from stable_baselines3.common.env_checker import check_env
 
 from sb3_emmarl.common.centralized import ENV_ID, CentralizedReserveEnv, register_envs
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.reserve import N_MOVES, ReserveParallelEnv
+from wildlife_reserve.reserve.constants import N_MOVES
+from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 STAY, UP, DOWN, LEFT, RIGHT = range(N_MOVES)
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
@@ -43,13 +44,13 @@ def test_gymnasium_check_env(continuous_actions):
 @pytest.mark.parametrize("n_uavs, n_poachers, n_leopards, belief_size", [(3, 4, 3, 8), (1, 0, 0, 4), (5, 2, 1, 3)])
 def test_observation_is_the_global_state(n_uavs, n_poachers, n_leopards, belief_size):
     env = make(n_uavs=n_uavs, n_poachers=n_poachers, n_leopards=n_leopards, belief_size=belief_size)
-    dim = 4 * n_uavs + 4 * n_poachers + 3 * n_leopards + belief_size**2 + 1
+    dim = 4 * n_uavs + 4 * n_poachers + 3 * n_leopards + 2 * belief_size**2 + 1
     assert env.observation_space == spaces.Box(-1.0, 1.0, (dim,), np.float32)
     assert env.observation_space == env.parallel_env.state_space
     obs, info = env.reset(seed=0)
     assert obs.shape == (dim,) and obs.dtype == np.float32
     np.testing.assert_array_equal(obs, env.parallel_env.state())
-    assert info == {"mode": env.parallel_env.mode}
+    assert info["mode"] == env.parallel_env.mode
     for _ in range(3):
         obs, *_ = env.step(env.action_space.sample())
         assert obs in env.observation_space

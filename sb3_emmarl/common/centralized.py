@@ -23,7 +23,8 @@ import numpy as np
 from gymnasium import spaces
 
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.reserve import N_COMMS, N_MOVES, ReserveParallelEnv
+from wildlife_reserve.reserve.constants import N_COMMS, N_MOVES
+from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 #: The Gymnasium id of :class:`CentralizedReserveEnv` (see :func:`register_envs`).
 ENV_ID = "WildlifeReserve-v0"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.modes import PoacherStrategy
+from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
 #: Unit steps: stay, up, down, left, right (row, col). Index 0 is "stay".
 STEPS = np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int64)
@@ -19,25 +20,6 @@ LEOPARD_MOVE_PROB = 0.4
 POACHER_SIGHT = 8
 #: Nominal radius (clear weather) within which a poacher notices a UAV.
 NOTICE_RADIUS = 5
-
-
-def edge_points(side: np.ndarray, frac: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Cells on the border: side 0 north, 1 south, 2 west, 3 east; ``frac`` in [0, 1] along it."""
-    height, width = shape
-    along_row = np.rint(frac * (height - 1)).astype(np.int64)
-    along_col = np.rint(frac * (width - 1)).astype(np.int64)
-    rows = np.choose(side, [np.zeros_like(along_col), np.full_like(along_col, height - 1), along_row, along_row])
-    cols = np.choose(side, [along_col, along_col, np.zeros_like(along_row), np.full_like(along_row, width - 1)])
-    return np.stack([rows, cols], axis=-1)
-
-
-def nearest_edge(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """For each cell, the nearest side and the fraction along it (the cell's projection on the border)."""
-    height, width = shape
-    dists = np.stack([cells[:, 0], height - 1 - cells[:, 0], cells[:, 1], width - 1 - cells[:, 1]], axis=-1)
-    side = dists.argmin(axis=-1)
-    frac = np.where(side < 2, cells[:, 1] / max(width - 1, 1), cells[:, 0] / max(height - 1, 1))
-    return side, frac
 
 
 def plan_poachers(

@@ -14,6 +14,7 @@ from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES
 DEFAULT_REWARD_WEIGHTS: dict[str, float] = {
     "detection": 10.0,  # per poacher detected for the first time
     "coverage": 0.05,  # per high-risk cell seen for the first time this episode
+    "sign": 0.1,  # per sign of poacher activity (track, snare, camp, ...) the team finds for the first time
     "poaching": 20.0,  # penalty per poaching event
     "collision": 1.0,  # penalty per pair of UAVs in one cell
     "energy": 1.0,  # penalty per unit of battery spent (a full battery is 1)

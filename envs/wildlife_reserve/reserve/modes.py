@@ -43,6 +43,7 @@ class Weather:
     :param thermal: factor on thermal detection probability
     :param range_factor: share of the sensor radius within which anything is detected
     :param notice_factor: factor on the radius within which poachers notice UAVs
+    :param signs: factor on the chance of seeing signs of poacher activity
     """
 
     name: str
@@ -50,6 +51,7 @@ class Weather:
     thermal: float
     range_factor: float
     notice_factor: float
+    signs: float
 
 
 STRATEGIES: tuple[PoacherStrategy, ...] = (
@@ -68,8 +70,8 @@ STRATEGIES: tuple[PoacherStrategy, ...] = (
 )
 
 WEATHERS: tuple[Weather, ...] = (
-    Weather("clear", visual=1.0, thermal=1.0, range_factor=1.0, notice_factor=1.0),
-    Weather("fog", visual=0.35, thermal=0.8, range_factor=0.6, notice_factor=0.5),
+    Weather("clear", visual=1.0, thermal=1.0, range_factor=1.0, notice_factor=1.0, signs=1.0),
+    Weather("fog", visual=0.35, thermal=0.8, range_factor=0.6, notice_factor=0.5, signs=0.6),
 )
 
 N_MODES = len(STRATEGIES) * len(WEATHERS)

@@ -1,8 +1,8 @@
 """Pygame drawing of the reserve, as PettingZoo's own environments render.
 
-Terrain and risk are drawn once per map onto a background surface; each frame adds the UAVs
-(with their sensing footprints and the messages delivered this step), leopards, poachers,
-decoys, this step's readings and the jammer.
+Terrain and risk are drawn once per map onto a background surface; each frame adds the signs of
+poacher activity (brown, orange once the team found them), the UAVs (with their sensing footprints
+and the messages delivered this step), leopards, poachers, decoys, this step's readings and the jammer.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from wildlife_reserve.reserve.constants import POACHER_ACTIVE, POACHER_CAUGHT
+
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
@@ -20,6 +22,7 @@ RISK_COLOUR = np.array([230, 120, 40], dtype=np.float64)
 UAV_COLOUR, GROUNDED_COLOUR = (40, 90, 230), (90, 90, 120)
 LEOPARD_COLOUR, POACHER_COLOUR, CAUGHT_COLOUR = (250, 200, 30), (220, 30, 30), (255, 255, 255)
 READING_COLOUR, LINK_COLOUR, DECOY_COLOUR = (255, 0, 255), (120, 200, 255), (160, 0, 160)
+SIGN_COLOUR, FOUND_SIGN_COLOUR = (110, 60, 20), (255, 140, 0)
 #: Largest side of the picture in pixels; each cell gets at least 2 pixels.
 TARGET_PIXELS = 600
 
@@ -85,11 +88,17 @@ class ReserveRenderer:
             pg.draw.circle(canvas, colour, (x, y), max(2, cell))
         for pos, alive in zip(env.leopard_pos, env.leopard_alive):
             pg.draw.circle(canvas, LEOPARD_COLOUR if alive else (0, 0, 0), self._centre(pos), max(2, cell), 0 if alive else 1)
+        live = env.signs.live(env.t)
+        found = env.team.known_signs.any(axis=0)
+        for index in live:
+            colour = FOUND_SIGN_COLOUR if index < len(found) and found[index] else SIGN_COLOUR
+            x, y = self._centre(env.signs.pos[index])
+            pg.draw.rect(canvas, colour, (x - cell // 2, y - cell // 2, max(2, cell), max(2, cell)))
         for pos in env.decoy_pos:
             pg.draw.circle(canvas, DECOY_COLOUR, self._centre(pos), max(2, cell // 2 + 1), 1)
         for pos, status in zip(env.poacher_pos, env.poacher_status):
-            if status in (1, 2):  # active or caught
-                colour = POACHER_COLOUR if status == 1 else CAUGHT_COLOUR
+            if status in (POACHER_ACTIVE, POACHER_CAUGHT):
+                colour = POACHER_COLOUR if status == POACHER_ACTIVE else CAUGHT_COLOUR
                 x, y = self._centre(pos)
                 half = max(2, cell)
                 pg.draw.line(canvas, colour, (x - half, y - half), (x + half, y + half), 2)

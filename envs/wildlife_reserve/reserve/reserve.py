@@ -9,23 +9,24 @@
 | Agents             | `agents= ['uav_0', 'uav_1', ..., 'uav_9']` (default)       |
 | Agents             | `n_uavs` (default 10, any n >= 1)                          |
 | Action shape       | `Discrete(15)` or `Box(-1, 1, (3,))`                       |
-| Observation shape  | `(6 * (2r + 1)^2 + 6 + 3 * max_neighbors + 2 * belief_size^2,)`; 440 by default |
+| Observation shape  | `(7 * (2r + 1)^2 + 6 + 3 * max_neighbors + 3 * belief_size^2,)`; 553 by default |
 | Observation values | [-1, 1]                                                    |
-| State shape        | `(4 n_uavs + 4 n_poachers + 3 n_leopards + belief_size^2 + 1,)` |
+| State shape        | `(4 n_uavs + 4 n_poachers + 3 n_leopards + 2 belief_size^2 + 1,)` |
 
 A team of UAVs patrols a wildlife reserve against poachers who hunt its leopards. Each
 episode has a hidden scenario mode `z*` (poacher strategy x weather) that decides where and
-when poachers enter, how they move, and how well the sensors see; the UAVs never observe it
-(it is in `infos[agent]["mode"]` for evaluation only). The full card, with every argument and
-its range, is `docs/env.md`.
+when poachers enter, how they move, where their signs (tracks, snares, camps, vehicles) lie and
+how well the sensors see; the UAVs never observe it (it is in `infos[agent]["mode"]` for
+evaluation only). The full card, with every argument and its range, is `docs/env.md`.
 
 ### Observations
-Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window of six channels
+Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window of seven channels
 (visual occlusion, risk, time since the team last saw the cell as far as this UAV knows,
-poacher signals, leopard signals, other UAVs), then own position, velocity, battery, episode
-progress, the relative positions of up to `max_neighbors` UAVs within `R_c` (padded, with a
-presence flag), and two `belief_size x belief_size` maps built from what this UAV knows (its own
-history and what was shared with it): time since each block was flown over, and poacher activity.
+poacher signals, leopard signals, other UAVs, signs of poacher activity), then own position,
+velocity, battery, episode progress, the relative positions of up to `max_neighbors` UAVs within
+`R_c` (padded, with a presence flag), and three `belief_size x belief_size` maps built from what
+this UAV knows (its own history and what was shared with it): time since each block was flown
+over, poacher activity, and the signs of poacher activity found there.
 `env.split_observation(obs)` names the parts.
 
 ### Actions
@@ -35,11 +36,18 @@ first two scale `uav_speed`, comm > 1/3 broadcasts and comm < -1/3 queries.
 
 ### Rewards
 One shared team reward per step: `detection` per poacher detected, `coverage` per high-risk
-cell seen for the first time, minus `poaching` per poaching event, `collision` per pair of UAVs
-in one cell and `energy` per unit of battery spent. `shaping > 0` mixes in each UAV's own share.
+cell seen for the first time, `sign` per sign of poacher activity the team finds for the first
+time, minus `poaching` per poaching event, `collision` per pair of UAVs in one cell and `energy`
+per unit of battery spent. `shaping > 0` mixes in each UAV's own share.
+
+### Infos
+`infos[agent]["mode"]` (the hidden mode, for evaluation), `infos[agent]["heard_from"]` (the
+indices of the teammates whose messages reached this UAV this step) and, on the last step,
+`infos[agent]["metrics"]`.
 
 ### Version History
-* v0: initial release (sb3-emmarl 0.1.0)
+* v0: initial release (sb3-emmarl 0.1.0); signs of poacher activity, the `heard_from` links and the
+  `sign` reward term added in sb3-emmarl 0.2.0 (observations grew from 440 to 553 floats by default)
 """
 
 from __future__ import annotations
@@ -54,19 +62,28 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.reserve import actors, sensing, terrain as terrain_lib
+from wildlife_reserve.reserve import actors, sensing, signs as signs_lib, terrain as terrain_lib
 from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig, check_int
+from wildlife_reserve.reserve.constants import (
+    COMM_BROADCAST,
+    COMM_NONE,
+    COMM_QUERY,
+    N_COMMS,
+    N_MOVES,
+    POACHER_ACTIVE,
+    POACHER_CAUGHT,
+    POACHER_GONE,
+    POACHER_WAITING,
+)
+from wildlife_reserve.reserve.knowledge import TeamKnowledge
 from wildlife_reserve.reserve.modes import N_MODES, decode_mode
-
-N_CHANNELS = 6
-CH_OCCLUSION, CH_RISK, CH_STALENESS, CH_POACHER, CH_LEOPARD, CH_UAV = range(N_CHANNELS)
-N_MOVES, N_COMMS = 5, 3
-COMM_NONE, COMM_BROADCAST, COMM_QUERY = range(N_COMMS)
-POACHER_WAITING, POACHER_ACTIVE, POACHER_CAUGHT, POACHER_GONE = range(4)
-#: Timestamp of a cell nobody has seen.
-NEVER = np.float32(-1.0e6)
-#: Standard deviation of the noise on the signal channels per unit of ``sensor_noise``.
-SIGNAL_NOISE_STD = 0.3
+from wildlife_reserve.reserve.observation import (
+    build_observations,
+    global_state,
+    observation_layout,
+    observation_size,
+    state_size,
+)
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
@@ -102,7 +119,9 @@ class ReserveParallelEnv(ParallelEnv):
     State lives in numpy arrays over agents and cells; grids are padded by the sensor radius so
     that every observation window is one fancy-index away. Internal arrays are public for tests
     and tools: ``uav_pos`` (float rows/cols), ``battery``, ``grounded``, ``poacher_pos``,
-    ``poacher_status``, ``leopard_pos``, ``leopard_alive``, ``terrain``, ``risk``.
+    ``poacher_status``, ``leopard_pos``, ``leopard_alive``, ``terrain``, ``risk``, ``signs``
+    (:class:`~wildlife_reserve.reserve.signs.Signs`) and ``team``
+    (:class:`~wildlife_reserve.reserve.knowledge.TeamKnowledge`: what each UAV knows, the links).
 
     :param kwargs: see :class:`~wildlife_reserve.reserve.config.ReserveConfig`
     """
@@ -122,19 +141,21 @@ class ReserveParallelEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         self.preset = terrain_lib.REGIONS[cfg.region]
         self.n_dens = max(self.preset.n_dens, 1)
-        self._offsets = np.arange(-self.r, self.r + 1)
-        self._ring = np.maximum(np.abs(self._offsets)[:, None], np.abs(self._offsets)[None, :])
+        offsets = np.arange(-self.r, self.r + 1)
+        self._ring = np.maximum(np.abs(offsets)[:, None], np.abs(offsets)[None, :])
         self._padded_shape = (self.height + 2 * self.r, self.width + 2 * self.r)
-        self._cells_padded = self._padded_shape[0] * self._padded_shape[1]
         # Flat offsets of the window cells around a cell, in the padded grids (row-major).
         wp = self._padded_shape[1]
-        self._win_offsets = (self._offsets[:, None] + self.r) * wp + self._offsets[None, :] + self.r
-        self.obs_dim = N_CHANNELS * self.window**2 + 6 + 3 * cfg.max_neighbors + 2 * cfg.belief_size**2
-        self.state_dim = 4 * self.n + 4 * cfg.n_poachers + 3 * cfg.n_leopards + cfg.belief_size**2 + 1
-        # Map each cell to its block of the coarse belief map.
+        self._win_offsets = (offsets[:, None] + self.r) * wp + offsets[None, :] + self.r
+        self.observation_layout = observation_layout(cfg)
+        self.obs_dim = observation_size(cfg)
+        self.state_dim = state_size(cfg)
+        # Map each cell to its block of the coarse maps.
         rows = np.arange(self.height) * cfg.belief_size // self.height
         cols = np.arange(self.width) * cfg.belief_size // self.width
         self._block = (rows[:, None] * cfg.belief_size + cols[None, :]).astype(np.int64)
+        self.team = TeamKnowledge(self.n, self._padded_shape, cfg.belief_size**2, cfg.max_cycles, cfg.belief_decay,
+                                  cfg.comm_radius, cfg.comm_loss)
         self.np_random: np.random.Generator | None = None
         self._static_map = None
         if cfg.terrain_seed is not None:
@@ -159,6 +180,22 @@ class ReserveParallelEnv(ParallelEnv):
     @functools.cached_property
     def state_space(self) -> spaces.Box:
         return spaces.Box(low=-1.0, high=1.0, shape=(self.state_dim,), dtype=np.float32)
+
+    # ------------------------------------------------------------------ the team's knowledge (read-only views)
+    @property
+    def knowledge(self) -> np.ndarray:
+        """``knowledge[r, s]``: the time up to which UAV r knows UAV s's visits and readings."""
+        return self.team.knowledge
+
+    @property
+    def beacons(self) -> np.ndarray:
+        """``beacons[s, r]``: r heard s's position beacon this step."""
+        return self.team.beacons
+
+    @property
+    def comm_links(self) -> np.ndarray:
+        """``comm_links[s, r]``: a message (broadcast or query answer) of s reached r this step."""
+        return self.team.comm_links
 
     # ------------------------------------------------------------------ map
     def _build_map(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, terrain_lib.Hotspots]:
@@ -203,6 +240,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.n_high_risk = int(self.high_risk.sum())
         self.cover = self.terrain != terrain_lib.OPEN
         self._occ_pad = self._pad(terrain_lib.VISUAL_OCCLUSION[self.terrain], 1.0).ravel()
+        self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
         self._risk_pad = self._pad(self.risk, 0.0).ravel()
         self._high_risk_pad = self._pad(self.high_risk, False).ravel()
         self._high_risk_flat = np.flatnonzero(self._high_risk_pad)
@@ -220,6 +258,8 @@ class ReserveParallelEnv(ParallelEnv):
         # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
         self._reach_offsets = np.argwhere(self._ring <= self.reach) - self.r
         self._detect_table = sensing.detection_table(self.r, self.weather, cfg.sensor_noise)
+        # Chance of seeing a sign in each window cell, by terrain: (w * w, terrain types).
+        self._sign_table = sensing.sign_detection_table(self.r, self.weather, cfg.sensor_noise)[self._ring.ravel()]
 
         # UAVs.
         if "uav_positions" in options:
@@ -234,18 +274,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.velocity = np.zeros((self.n, 2))
         self.battery = np.ones(self.n)
         self.grounded = np.zeros(self.n, dtype=bool)
-        # Each UAV's own visit history: last and first time it saw each (padded) cell.
-        self._stamps = np.empty((2, self.n, *self._padded_shape), dtype=np.float32)
-        self._stamps[0], self._stamps[1] = NEVER, -NEVER
-        self.own_last, self.own_first = self._stamps
-        # The same per block of the coarse maps (the block under the UAV).
-        self._block_stamps = np.empty((2, self.n, cfg.belief_size**2), dtype=np.float32)
-        self._block_stamps[0], self._block_stamps[1] = NEVER, -NEVER
-        # knowledge[r, s]: r knows s's visits and readings up to this time
-        self.knowledge = np.full((self.n, self.n), NEVER, dtype=np.float32)
-        self.beacons = np.zeros((self.n, self.n), dtype=bool)  # beacons[s, r]: r heard s's position this step
-        self.comm_links = np.zeros((self.n, self.n), dtype=bool)  # comm_links[s, r]: s's knowledge reached r
-        self._events = np.zeros((0, 3))  # (time, detecting UAV, belief block) of known poacher readings
+        self.team.reset()
 
         # Leopards at their dens.
         dens = self.hotspots.dens
@@ -254,7 +283,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.leopard_alive = np.ones(cfg.n_leopards, dtype=bool)
         self.leopard_moved = np.zeros(cfg.n_leopards, dtype=bool)
 
-        # Poachers, planned from the mode's strategy.
+        # Poachers, planned from the mode's strategy, and the signs their kind left before the episode.
         poacher_rng = np.random.default_rng(poacher_seed)
         self.poacher_entry_time, self.poacher_entry, self.poacher_target = actors.plan_poachers(
             poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens)
@@ -262,12 +291,20 @@ class ReserveParallelEnv(ParallelEnv):
         self.poacher_status = np.full(cfg.n_poachers, POACHER_WAITING, dtype=np.int8)
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)
         self.poaching_timer = np.zeros(cfg.n_poachers, dtype=np.int64)
+        self.signs = signs_lib.Signs(self._padded_shape, self.r, self._block)
+        self.signs.add(*signs_lib.plan_signs(sign_rng := np.random.default_rng([poacher_seed, 1]), self.strategy,
+                                             self.poacher_entry, self.poacher_target, dens, shape), t=0)
+        self._found = np.zeros(self.signs.capacity, dtype=bool)  # signs the team has found (for the reward)
 
-        # Adversarial condition: decoys at random cells, a jammer that travels with the poachers.
+        # Adversarial condition: decoys at random cells (with fake signs around), a jammer that travels with the poachers.
         if cfg.adversarial:
             self.decoy_pos = np.stack([poacher_rng.integers(0, self.height, cfg.n_decoys),
                                        poacher_rng.integers(0, self.width, cfg.n_decoys)], axis=-1)
             self.jammer_pos = self.poacher_entry[0].astype(np.float64) if cfg.n_poachers else np.array(shape) / 2
+            for decoy in self.decoy_pos:
+                fakes = np.clip(signs_lib.around(sign_rng, decoy, signs_lib.DECOY_SIGNS, 1, 2), 0, [self.height - 1,
+                                                                                                    self.width - 1])
+                self.signs.add(fakes, -signs_lib.TRACK_AGE, signs_lib.DECOY, t=0)
         else:
             self.decoy_pos = np.zeros((0, 2), dtype=np.int64)
             self.jammer_pos = None
@@ -275,17 +312,17 @@ class ReserveParallelEnv(ParallelEnv):
         self.jammer_on = False
 
         self.metrics = {"team_reward": 0.0, "false_alarms": 0, "poaching_events": 0, "collisions": 0, "energy": 0.0,
-                        "poachers_entered": 0, "poachers_detected": 0}
+                        "poachers_entered": 0, "poachers_detected": 0, "signs_found": 0}
         self.first_entry_time: int | None = None
         self.first_detection_time: int | None = None
         self.detections = np.zeros((0, 3), dtype=np.int64)  # this step's poacher readings: (uav, row, col)
         self._set_window(self._uav_cells())
-        self._stale_window, self._stale_blocks = self._staleness()
-        self._mark_own_visits(np.ones(self.n, dtype=bool))
-        self._update_beacons(np.ones(self.n, dtype=bool))
-        signals = np.zeros((self.n, 2, self.window, self.window), dtype=np.float32)
-        obs = self._observations(signals)
-        infos = {a: {"mode": self.mode} for a in self.agents}
+        self._stale_window, self._stale_blocks = self.team.staleness(self.t, self._window)
+        self._mark_visits(np.ones(self.n, dtype=bool))
+        self.team.update_beacons(self.rng, self.team.in_range(self.uav_pos, np.ones(self.n, dtype=bool)))
+        signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
+        obs = build_observations(self, signals)
+        infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
         if self.render_mode == "human":
             self.render()
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
@@ -298,33 +335,64 @@ class ReserveParallelEnv(ParallelEnv):
         """
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset() first")
-        cfg = self.config
-        weights = cfg.reward_weights
         move, comm = self._decode_actions(actions)
         airborne = ~self.grounded
         move[~airborne] = 0.0
         comm[~airborne] = COMM_NONE
         self.t += 1
 
-        # UAV motion and energy.
+        energy = self._fly(move, comm, airborne)
+        cells = self._uav_cells()
+        own_collisions = self._collisions(cells, airborne)
+        self._move_ground_actors(cells[airborne])
+        signals, seen, readings, signs_found = self._sense(cells, airborne)
+        poaching_events = self._poach()
+        own_new, new_cells = self._share(comm, airborne, readings)
+        rewards_arr = self._rewards(seen, signs_found, own_new, new_cells, poaching_events, own_collisions, energy)
+
+        obs = build_observations(self, signals)
+        truncated = self.t >= self.max_cycles
+        terminated = bool(self.grounded.all())
+        info: dict[str, Any] = {"mode": self.mode}
+        if truncated or terminated:
+            info["metrics"] = self.episode_metrics()
+        agents = self.agents
+        heard = self.team.heard_from()
+        observations = {a: obs[i] for i, a in enumerate(agents)}
+        rewards = {a: float(rewards_arr[i]) for i, a in enumerate(agents)}
+        terminations = dict.fromkeys(agents, terminated)
+        truncations = dict.fromkeys(agents, truncated and not terminated)
+        infos = {a: {**info, "heard_from": heard[i]} for i, a in enumerate(agents)}
+        if truncated or terminated:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    # ------------------------------------------------------------------ the phases of a step
+    def _fly(self, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray) -> np.ndarray:
+        """Move the UAVs, spend their energy and ground those whose battery ran out; returns ``(n,)`` energy spent."""
+        speed = self.config.uav_speed
         old = self.uav_pos
-        self.uav_pos = np.minimum(np.maximum(old + move * cfg.uav_speed, 0.0), self._upper)
-        self.velocity = (self.uav_pos - old) / cfg.uav_speed
+        self.uav_pos = np.minimum(np.maximum(old + move * speed, 0.0), self._upper)
+        self.velocity = (self.uav_pos - old) / speed
         energy = airborne * ENERGY_COSTS["hover"] + ENERGY_COSTS["move"] * np.sqrt((self.velocity**2).sum(-1))
         energy += np.where(comm == COMM_BROADCAST, ENERGY_COSTS["broadcast"],
                            np.where(comm == COMM_QUERY, ENERGY_COSTS["query"], 0.0))
         energy = np.minimum(energy, self.battery)
         self.battery = self.battery - energy
         self.grounded = self.battery <= 1e-12
-        cells = self._uav_cells()
-        self._set_window(cells)
+        self._set_window(self._uav_cells())
+        return energy
 
-        # Collisions: pairs of airborne UAVs in one cell.
+    def _collisions(self, cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:
+        """``(n,)`` other airborne UAVs in each UAV's cell."""
         flat = np.where(airborne, cells[:, 0] * self.width + cells[:, 1], -1 - np.arange(self.n))
-        own_collisions = (flat[:, None] == flat[None, :]).sum(axis=1) - 1
-        collisions = int(own_collisions.sum()) // 2
+        return (flat[:, None] == flat[None, :]).sum(axis=1) - 1
 
-        # Leopards and poachers.
+    def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
+        """Leopards walk, poachers enter and move (leaving tracks), the jammer follows them."""
+        cfg = self.config
         old_leopards = self.leopard_pos
         self.leopard_pos = actors.step_leopards(self.rng, self.leopard_pos, self.leopard_home, cfg.leopard_range,
                                                 (self.height, self.width))
@@ -338,89 +406,156 @@ class ReserveParallelEnv(ParallelEnv):
         active = self.poacher_status == POACHER_ACTIVE
         if active.any():
             self.poacher_pos, self.poacher_moved = actors.step_poachers(
-                self.rng, self.poacher_pos, active & (self.poaching_timer == 0), self._poacher_targets(), cells[airborne],
+                self.rng, self.poacher_pos, active & (self.poaching_timer == 0), self._poacher_targets(), uav_cells,
                 actors.NOTICE_RADIUS * self.weather.notice_factor, self.strategy, self.cover)
+            tracks = self.poacher_moved & (self.rng.random(len(self.poacher_pos)) < signs_lib.TRACK_PROB)
+            if tracks.any():
+                self.signs.add(self.poacher_pos[tracks], self.t, signs_lib.TRACK, self.t)
         else:
             self.poacher_moved[:] = False
         self.jammer_on = self.jammer_pos is not None and bool(active.any())  # the jammer works while poachers are in
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
 
-        # Sensing: true detections, leopard sightings, false alarms and decoys.
-        signals = np.zeros((self.n, 2, self.window, self.window), dtype=np.float32)
-        seen = self._sense(cells, airborne, active, signals)
+    def _sense(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Every airborne UAV senses poachers, leopards and signs; false alarms, decoys and false sign readings.
+
+        Caught poachers leave play here.
+
+        :return: signals ``(n, 3, w, w)`` (poacher, leopard and sign channels as the sensors report them),
+            ``(n, n_poachers)`` who detected which poacher, this step's poacher readings ``(k, 3)``
+            ``(uav, row, col)``, and the number of signs the team found for the first time
+        """
+        cfg, r = self.config, self.r
+        signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
+        active = self.poacher_status == POACHER_ACTIVE
+        n_poachers = len(self.poacher_pos)
+        targets = np.concatenate([self.poacher_pos, self.leopard_pos])
+        seen = np.zeros((self.n, n_poachers), dtype=bool)
+        if len(targets):
+            present = np.concatenate([active, self.leopard_alive])
+            moved = np.concatenate([self.poacher_moved, self.leopard_moved]).astype(np.int64)
+            delta = targets[None, :, :] - cells[:, None, :]
+            dist = np.minimum(np.abs(delta).max(-1), r + 1)
+            p = self._detect_table[dist, self.terrain[targets[:, 0], targets[:, 1]][None], moved[None]]
+            hit = sensing.detect(self.rng, p) & present[None] & airborne[:, None]
+            uav, tgt = np.nonzero(hit)
+            signals[uav, (tgt >= n_poachers).astype(np.int64), delta[uav, tgt, 0] + r, delta[uav, tgt, 1] + r] = 1.0
+            seen = hit[:, :n_poachers]
+
+        # Spurious poacher readings: sensor noise everywhere, decoys in the adversarial condition.
+        uav, offsets = sensing.false_readings(self.rng, airborne, self._reach_offsets, cfg.sensor_noise)
+        if len(self.decoy_pos):
+            d_uav, d_offsets = sensing.decoy_readings(self.rng, self.decoy_pos[None, :, :] - cells[:, None, :], airborne,
+                                                      r, self.reach, cfg.sensor_noise)
+            uav, offsets = np.concatenate([uav, d_uav]), np.concatenate([offsets, d_offsets])
+        where = cells[uav] + offsets
+        keep = (where >= 0).all(-1) & (where < [self.height, self.width]).all(-1)  # no readings off the map
+        uav, offsets, where = uav[keep], offsets[keep], where[keep]
+        signals[uav, 0, offsets[:, 0] + r, offsets[:, 1] + r] = 1.0
+        self.metrics["false_alarms"] += len(uav)
+
         caught = seen.any(axis=0)
-        own_detections = seen.sum(axis=1)
-        n_detected = int(caught.sum())
         self.poacher_status[caught] = POACHER_CAUGHT
-        if n_detected and self.first_detection_time is None:
+        if caught.any() and self.first_detection_time is None:
             self.first_detection_time = self.t
         pairs = np.argwhere(seen)  # (uav, poacher) pairs become (uav, row, col) readings
-        readings = [np.column_stack([pairs[:, 0], self.poacher_pos[pairs[:, 1]]]),
-                    self._false_alarms(cells, airborne, signals[:, 0])]
+        readings = np.concatenate([np.column_stack([pairs[:, 0], self.poacher_pos[pairs[:, 1]]]),
+                                   np.column_stack([uav, where])]).astype(np.int64)
+        found = self._sense_signs(airborne, signals[:, 2])
+        signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
+        signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
+        return signals, seen, readings, found
 
-        # Poaching: an undetected poacher next to a live leopard for poaching_time steps.
+    def _sense_signs(self, airborne: np.ndarray, channel: np.ndarray) -> int:
+        """Signs seen this step (marked in ``channel`` ``(n, w, w)``, learned by the UAVs that saw them), and
+        false sign readings under sensor noise; returns how many signs the team found for the first time."""
+        ids = self.signs.live_at(self._window.reshape(self.n, -1), self.t)
+        uav, cell = np.nonzero((ids >= 0) & airborne[:, None])
+        sign = ids[uav, cell]
+        p = self._sign_table[cell, self._terrain_pad[self._window.reshape(self.n, -1)[uav, cell]]]
+        hit = sensing.detect(self.rng, p)
+        uav, cell, sign = uav[hit], cell[hit], sign[hit]
+        # False sign readings: phantom records that only the reading UAV knows of.
+        f_uav, offsets = sensing.false_readings(self.rng, airborne, self._reach_offsets, self.config.sensor_noise)
+        where = self._uav_cells()[f_uav] + offsets
+        keep = (where >= 0).all(-1) & (where < [self.height, self.width]).all(-1)
+        f_uav, offsets, where = f_uav[keep], offsets[keep], where[keep]
+        if len(f_uav):
+            phantom = self.signs.add(where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
+            uav, sign = np.concatenate([uav, f_uav]), np.concatenate([sign, phantom])
+            cell = np.concatenate([cell, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r])
+        channel.reshape(self.n, -1)[uav, cell] = 1.0
+        self.team.learn_signs(uav, sign, self.signs.block[sign])
+        true = sign[self.signs.kind[sign] != signs_lib.FALSE_READING]
+        if len(self._found) < self.signs.capacity:
+            self._found = np.concatenate([self._found, np.zeros(self.signs.capacity - len(self._found), dtype=bool)])
+        fresh = np.unique(true[~self._found[true]])
+        self._found[fresh] = True
+        self.metrics["signs_found"] += len(fresh)
+        return len(fresh)
+
+    def _poach(self) -> int:
+        """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
+        returns the poaching events of this step."""
+        if not len(self.leopard_pos):
+            return 0
         active = self.poacher_status == POACHER_ACTIVE
-        poaching_events = 0
-        if len(self.leopard_pos):
-            near = (np.abs(self.poacher_pos[:, None] - self.leopard_pos[None]).max(-1) <= 1) & self.leopard_alive[None]
-            near &= active[:, None]
-            self.poaching_timer = np.where(near.any(axis=1), self.poaching_timer + 1, 0)
-            done = self.poaching_timer >= cfg.poaching_time
-            if done.any():  # one event per leopard killed; every poacher in on it leaves
-                victims = np.unique(near[done].argmax(axis=1))
-                self.leopard_alive[victims] = False
-                self.poacher_status[done] = POACHER_GONE
-                self.poaching_timer[done] = 0
-                poaching_events = len(victims)
+        near = (np.abs(self.poacher_pos[:, None] - self.leopard_pos[None]).max(-1) <= 1) & self.leopard_alive[None]
+        near &= active[:, None]
+        self.poaching_timer = np.where(near.any(axis=1), self.poaching_timer + 1, 0)
+        done = self.poaching_timer >= self.config.poaching_time
+        if not done.any():
+            return 0
+        # One event per leopard killed; the poachers whose timer ran out leave.
+        victims = np.unique(near[done].argmax(axis=1))
+        self.leopard_alive[victims] = False
+        self.poacher_status[done] = POACHER_GONE
+        self.poaching_timer[done] = 0
+        self.signs.add(self.leopard_pos[victims], self.t, signs_lib.CARCASS, self.t)
+        return len(victims)
 
-        # Coverage of high-risk cells, own visits and communication.
+    def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray) -> tuple[np.ndarray, int]:
+        """Each UAV looks (coverage, visit stamps), then the team talks; returns the high-risk cells each UAV
+        saw first ``(n,)`` and the team's new ones."""
         before = self._covered()
-        self._stale_window, self._stale_blocks = self._staleness()  # as known on arrival, before this step's look
-        own_new = self._mark_own_visits(airborne)
+        self._stale_window, self._stale_blocks = self.team.staleness(self.t, self._window)  # before this step's look
+        own_new = self._mark_visits(airborne)
         new_cells = self._covered() - before
-        self._communicate(comm, airborne)
-        self.detections = np.concatenate(readings).astype(np.int64)
-        if len(self.detections):
-            blocks = self._block[self.detections[:, 1], self.detections[:, 2]]
-            fresh = np.column_stack([np.full(len(blocks), self.t), self.detections[:, 0], blocks])
-            self._events = np.concatenate([self._events, fresh])
-        horizon = np.log(1e-3) / np.log(cfg.belief_decay) if cfg.belief_decay < 1 else self.max_cycles
-        self._events = self._events[self._events[:, 0] > self.t - horizon]
+        ok = airborne.copy()
+        if self.jammer_on:
+            self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
+            ok &= ~self.jammed
+        else:
+            self.jammed[:] = False
+        links = self.team.in_range(self.uav_pos, ok)
+        self.team.update_beacons(self.rng, links)
+        self.team.communicate(self.rng, comm, links, self.signs.block[:self.signs.count])
+        self.detections = readings
+        self.team.add_readings(self.t, readings[:, 0], self._block[readings[:, 1], readings[:, 2]])
+        return own_new, new_cells
 
-        # Rewards.
-        team = (weights["detection"] * n_detected + weights["coverage"] * new_cells - weights["poaching"] * poaching_events
-                - weights["collision"] * collisions - weights["energy"] * energy.sum())
-        rewards_arr = np.full(self.n, team)
+    def _rewards(self, seen: np.ndarray, signs_found: int, own_new: np.ndarray, new_cells: int, poaching_events: int,
+                 own_collisions: np.ndarray, energy: np.ndarray) -> np.ndarray:
+        """The team reward (and each UAV's, with shaping); updates the episode metrics."""
+        cfg, weights = self.config, self.config.reward_weights
+        n_detected = int(seen.any(axis=0).sum())
+        collisions = int(own_collisions.sum()) // 2
+        team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
+                - weights["poaching"] * poaching_events - weights["collision"] * collisions
+                - weights["energy"] * energy.sum())
+        rewards = np.full(self.n, team)
         if cfg.shaping > 0:
-            own = (weights["detection"] * own_detections + weights["coverage"] * own_new
+            own = (weights["detection"] * seen.sum(axis=1) + weights["coverage"] * own_new
                    - weights["collision"] * own_collisions - weights["energy"] * energy)
-            rewards_arr = (1.0 - cfg.shaping) * team + cfg.shaping * own
-
+            rewards = (1.0 - cfg.shaping) * team + cfg.shaping * own
         m = self.metrics
         m["team_reward"] += float(team)
         m["poaching_events"] += poaching_events
         m["collisions"] += collisions
         m["energy"] += float(energy.sum())
         m["poachers_detected"] += n_detected
-
-        obs = self._observations(signals)
-        truncated = self.t >= self.max_cycles
-        terminated = bool(self.grounded.all())
-        info = {"mode": self.mode}
-        if truncated or terminated:
-            info = {"mode": self.mode, "metrics": self.episode_metrics()}
-        agents = self.agents
-        observations = {a: obs[i] for i, a in enumerate(agents)}
-        rewards = {a: float(rewards_arr[i]) for i, a in enumerate(agents)}
-        terminations = dict.fromkeys(agents, terminated)
-        truncations = dict.fromkeys(agents, truncated and not terminated)
-        infos = {a: dict(info) for a in agents}
-        if truncated or terminated:
-            self.agents = []
-        if self.render_mode == "human":
-            self.render()
-        return observations, rewards, terminations, truncations, infos
+        return rewards
 
     # ------------------------------------------------------------------ helpers
     def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -461,54 +596,11 @@ class ReserveParallelEnv(ParallelEnv):
             target = np.where(in_sight[:, None], self.leopard_pos[nearest], target)
         return target
 
-    def _sense(self, cells: np.ndarray, airborne: np.ndarray, active: np.ndarray, signals: np.ndarray) -> np.ndarray:
-        """Draw detections of poachers and leopards by every airborne UAV and mark them in ``signals`` (n, 2, w, w).
-
-        :return: ``(n, n_poachers)`` bool of which UAV detected which poacher
-        """
-        n_poachers = len(self.poacher_pos)
-        targets = np.concatenate([self.poacher_pos, self.leopard_pos])
-        if not len(targets):
-            return np.zeros((self.n, 0), dtype=bool)
-        present = np.concatenate([active, self.leopard_alive])
-        moved = np.concatenate([self.poacher_moved, self.leopard_moved])
-        delta = targets[None, :, :] - cells[:, None, :]
-        dist = np.minimum(np.abs(delta).max(-1), self.r + 1)
-        p = self._detect_table[dist, self.terrain[targets[:, 0], targets[:, 1]][None], moved.astype(np.int64)[None]]
-        seen = (self.rng.random(p.shape) < p) & present[None] & airborne[:, None]
-        uav, tgt = np.nonzero(seen)
-        signals[uav, (tgt >= n_poachers).astype(np.int64), delta[uav, tgt, 0] + self.r, delta[uav, tgt, 1] + self.r] = 1.0
-        return seen[:, :n_poachers]
-
-    def _false_alarms(self, cells: np.ndarray, airborne: np.ndarray, channel: np.ndarray) -> np.ndarray:
-        """Spurious poacher readings (sensor noise, adversarial decoys), marked in ``channel``.
-
-        :return: ``(k, 3)`` readings ``(uav, row, col)``
-        """
-        cfg = self.config
-        alarm = (self.rng.random(self.n) < sensing.false_alarm_probability(cfg.sensor_noise)) & airborne
-        spot = (self.rng.random(self.n) * len(self._reach_offsets)).astype(np.int64)
-        uav = np.flatnonzero(alarm)
-        offsets = self._reach_offsets[spot[uav]]
-        if len(self.decoy_pos):
-            delta = self.decoy_pos[None, :, :] - cells[:, None, :]
-            dist = np.abs(delta).max(-1)
-            p = sensing.DECOY_PEAK * sensing.range_falloff(dist, self.r, self.reach) * (1 - 0.5 * cfg.sensor_noise)
-            d_uav, d_idx = np.nonzero((self.rng.random(p.shape) < p) & airborne[:, None])
-            uav = np.concatenate([uav, d_uav])
-            offsets = np.concatenate([offsets, delta[d_uav, d_idx]])
-        where = cells[uav] + offsets
-        keep = (where >= 0).all(-1) & (where < [self.height, self.width]).all(-1)  # no readings off the map
-        uav, offsets = uav[keep], offsets[keep]
-        channel[uav, offsets[:, 0] + self.r, offsets[:, 1] + self.r] = 1.0
-        self.metrics["false_alarms"] += len(uav)
-        return np.column_stack([uav, where[keep]])
-
     def _covered(self) -> int:
         """High-risk cells seen so far this episode."""
         return int(np.count_nonzero(self.visited.ravel()[self._high_risk_flat]))
 
-    def _mark_own_visits(self, airborne: np.ndarray) -> np.ndarray:
+    def _mark_visits(self, airborne: np.ndarray) -> np.ndarray:
         """Record what each airborne UAV sees now: the team's coverage and each UAV's own visit history.
 
         :return: ``(n,)`` high-risk cells each UAV saw for the first time in the episode
@@ -519,160 +611,13 @@ class ReserveParallelEnv(ParallelEnv):
         fresh = np.zeros(self.n, dtype=np.int64)
         fresh[idx] = (self._high_risk_pad[seen] & ~visited[seen]).sum(axis=1)
         visited[seen] = True
-        own = (idx[:, None] * self._cells_padded + seen).ravel()
-        self.own_last.ravel()[own] = self.t
-        first = self.own_first.ravel()
-        first[own] = np.minimum(first[own], self.t)
-        blocks = self._block.ravel()[(cells := self._uav_cells()[idx])[:, 0] * self.width + cells[:, 1]]
-        self._block_stamps[0, idx, blocks] = self.t
-        self._block_stamps[1, idx, blocks] = np.minimum(self._block_stamps[1, idx, blocks], self.t)
-        self.knowledge[idx, idx] = self.t
+        cells = self._uav_cells()[idx]
+        self.team.record_visits(self.t, idx, seen, self._block[cells[:, 0], cells[:, 1]])
         return fresh
 
-    def _in_range(self, airborne: np.ndarray) -> np.ndarray:
-        """``(n, n)`` bool: s and r (s != r) are airborne, unjammed and within ``R_c`` of each other."""
-        diff = self.uav_pos[:, None, :] - self.uav_pos[None, :, :]
-        self._dist = np.sqrt((diff**2).sum(-1))
-        ok = airborne.copy()
-        if self.jammer_on:
-            self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
-            ok &= ~self.jammed
-        else:
-            self.jammed[:] = False
-        links = (self._dist <= self.config.comm_radius) & ok[:, None] & ok[None, :]
-        np.fill_diagonal(links, False)
-        return links
-
-    def _update_beacons(self, airborne: np.ndarray) -> np.ndarray:
-        """Position beacons heard this step (lost with probability ``comm_loss``); returns the link matrix."""
-        links = self._in_range(airborne)
-        self.beacons = links & (self.rng.random(links.shape) >= self.config.comm_loss)
-        return links
-
-    def _communicate(self, comm: np.ndarray, airborne: np.ndarray) -> None:
-        """Broadcasts push and queries pull each UAV's knowledge; each message is lost with ``comm_loss``."""
-        links = self._update_beacons(airborne)
-        sent = links & (comm == COMM_BROADCAST)[:, None]
-        asking = np.flatnonzero(comm == COMM_QUERY)
-        if len(asking):
-            dist = np.where(links[:, asking], self._dist[:, asking], np.inf)
-            source = dist.argmin(axis=0)
-            reachable = np.isfinite(dist[source, np.arange(len(asking))])
-            sent[source[reachable], asking[reachable]] = True
-        delivered = sent & (self.rng.random(sent.shape) >= self.config.comm_loss)
-        self.comm_links = delivered
-        if delivered.any():
-            # knowledge[r] = max(knowledge[r], knowledge[s] for every s whose message reached r)
-            incoming = np.where(delivered.T[:, :, None], self.knowledge[None, :, :], NEVER).max(axis=1)
-            self.knowledge = np.maximum(self.knowledge, incoming)
-
-    def _known_age(self, last: np.ndarray, first: np.ndarray) -> np.ndarray:
-        """Age in [0, 1] (1 = never) of the newest visit each receiver knows of, from per-source stamps.
-
-        UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else
-        s's first visit if that one is, else nothing.
-
-        :param last: ``(source, receiver, ...)`` last-visit times
-        :param first: ``(source, receiver, ...)`` first-visit times
-        :return: ``(receiver, ...)`` ages scaled by ``max_cycles``
-        """
-        known_to = self.knowledge.T.reshape(self.n, self.n, *([1] * (last.ndim - 2)))  # knowledge[receiver, source]
-        seen = np.where(last <= known_to, last, np.where(first <= known_to, first, NEVER)).max(axis=0)
-        return np.minimum((np.float32(self.t) - seen) * np.float32(1.0 / self.max_cycles), np.float32(1.0))
-
-    def _staleness(self) -> tuple[np.ndarray, np.ndarray]:
-        """Time since each window cell ``(n, w, w)`` and each coarse block ``(n, belief_size^2)`` was seen,
-        as far as each UAV knows (before it looks this step)."""
-        src = np.arange(self.n)[:, None, None] * self._cells_padded
-        cells = np.take(self._stamps.reshape(2, -1), src + self._window.reshape(1, self.n, -1), axis=1)
-        blocks = np.broadcast_to(self._block_stamps[:, :, None, :], (2, self.n, self.n, self._block_stamps.shape[-1]))
-        last, first = np.concatenate([cells, blocks], axis=-1)  # (source, receiver, w * w + blocks)
-        ages = self._known_age(last, first)
-        return ages[:, : self.window**2].reshape(self.n, self.window, self.window), ages[:, self.window**2:]
-
-    def _belief(self) -> np.ndarray:
-        """``(n, belief_size^2)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
-        size = self.config.belief_size**2
-        if not len(self._events):
-            return np.zeros((self.n, size), dtype=np.float32)
-        times, who, block = self._events.T
-        known = times[None, :] <= self.knowledge[:, who.astype(np.int64)]
-        weight = known * self.config.belief_decay ** (self.t - times)[None, :]
-        onehot = np.zeros((len(block), size))
-        onehot[np.arange(len(block)), block.astype(np.int64)] = 1.0
-        mass = weight @ onehot
-        return 1.0 - np.exp(-mass)
-
-    def _observations(self, signals: np.ndarray) -> np.ndarray:
-        cfg = self.config
-        cells = self._uav_cells()
-        obs = np.empty((self.n, self.obs_dim), dtype=np.float32)
-        n_win = N_CHANNELS * self.window**2
-        win = obs[:, :n_win].reshape(self.n, N_CHANNELS, self.window, self.window)
-        win[:, CH_OCCLUSION] = self._occ_pad[self._window]
-        win[:, CH_RISK] = self._risk_pad[self._window]
-        win[:, CH_STALENESS] = self._stale_window
-        win[:, CH_POACHER:CH_LEOPARD + 1] = signals
-        if cfg.sensor_noise > 0:
-            noisy = signals + self.rng.normal(0.0, SIGNAL_NOISE_STD * cfg.sensor_noise, signals.shape)
-            win[:, CH_POACHER:CH_LEOPARD + 1] = np.clip(noisy, 0.0, 1.0)
-        # Other airborne UAVs inside the window (seen, not communicated).
-        delta = cells[None, :, :] - cells[:, None, :]  # delta[i, j] = cell_j - cell_i
-        visible = (np.abs(delta).max(-1) <= self.r) & ~self.grounded[None, :]
-        np.fill_diagonal(visible, False)
-        i, j = np.nonzero(visible)
-        win[:, CH_UAV] = 0.0
-        win[i, CH_UAV, delta[i, j, 0] + self.r, delta[i, j, 1] + self.r] = 1.0
-        if self.grounded.any():
-            win[self.grounded, CH_POACHER:] = 0.0
-
-        # Own position, velocity, battery and episode progress.
-        own = obs[:, n_win:n_win + 6]
-        own[:, :2] = np.minimum(self.uav_pos * self._inv_scale, 1.0)
-        own[:, 2:4] = self.velocity
-        own[:, 4] = self.battery
-        own[:, 5] = min(self.t / self.max_cycles, 1.0)
-        # Neighbours heard through beacons, nearest first.
-        k = cfg.max_neighbors
-        neighbours = obs[:, n_win + 6:n_win + 6 + 3 * k].reshape(self.n, k, 3)
-        neighbours[:] = 0.0
-        if k and self.n > 1:
-            diff = self.uav_pos[None, :, :] - self.uav_pos[:, None, :]  # diff[r, s] = pos_s - pos_r
-            dist = np.where(self.beacons.T, np.sqrt((diff**2).sum(-1)), np.inf)
-            order = np.argsort(dist, axis=1, kind="stable")[:, :k]
-            rows = np.arange(self.n)[:, None]
-            present = dist[rows, order] < np.inf
-            rel = diff[rows, order] * (1.0 / max(cfg.comm_radius, 1.0))
-            m = order.shape[1]
-            neighbours[:, :m, :2] = np.minimum(np.maximum(rel, -1.0), 1.0) * present[:, :, None]
-            neighbours[:, :m, 2] = present
-        size = cfg.belief_size**2
-        obs[:, n_win + 6 + 3 * k:n_win + 6 + 3 * k + size] = self._stale_blocks
-        obs[:, n_win + 6 + 3 * k + size:] = self._belief()
-        return obs
-
     # ------------------------------------------------------------------ public extras
-    @functools.cached_property
-    def observation_layout(self) -> dict[str, tuple[slice, tuple[int, ...]]]:
-        """Where each part of the flat observation lives: name -> (slice, shape).
-
-        ``window`` (6, w, w) channels (occlusion, risk, staleness, poacher, leopard, UAVs); ``own``
-        (row, col, d_row, d_col, battery, progress); ``neighbours`` (max_neighbors, 3) as (d_row, d_col,
-        present) / ``R_c``; ``block_staleness`` (time since each block was flown over, as far as the UAV
-        knows) and ``belief`` (poacher activity) maps, both (belief_size, belief_size).
-        """
-        k, b = self.config.max_neighbors, self.config.belief_size
-        shapes = {"window": (N_CHANNELS, self.window, self.window), "own": (6,), "neighbours": (k, 3),
-                  "block_staleness": (b, b), "belief": (b, b)}
-        layout, start = {}, 0
-        for name, shape in shapes.items():
-            size = int(np.prod(shape))
-            layout[name] = (slice(start, start + size), shape)
-            start += size
-        return layout
-
     def split_observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:
-        """Split flat observations ``(..., obs_dim)`` into their named parts (see :attr:`observation_layout`)."""
+        """Split flat observations ``(..., obs_dim)`` into their named parts (see ``observation_layout``)."""
         obs = np.asarray(obs)
         layout = self.observation_layout
         return {name: obs[..., part].reshape(*obs.shape[:-1], *shape) for name, (part, shape) in layout.items()}
@@ -682,7 +627,8 @@ class ReserveParallelEnv(ParallelEnv):
 
         ``coverage_efficiency`` is the share of high-risk cells seen; ``detection_rate`` the share of
         entered poachers detected (0 if none entered); ``time_to_first_detection`` counts steps from
-        the first entry to the first true detection, and runs to the current step when none happened.
+        the first entry to the first true detection, and runs to the current step when none happened;
+        ``signs_found`` counts the distinct signs of poacher activity the team found.
         """
         m = self.metrics
         entered = m["poachers_entered"]
@@ -701,24 +647,14 @@ class ReserveParallelEnv(ParallelEnv):
             "time_to_first_detection": int(ttfd),
             "poachers_entered": int(entered),
             "poachers_detected": int(m["poachers_detected"]),
+            "signs_found": int(m["signs_found"]),
             "episode_length": int(self.t),
             "mode": int(self.mode),
         }
 
     def state(self) -> np.ndarray:
-        """The global state (positions, batteries, poachers, leopards, coverage by block, progress), in [-1, 1]."""
-        scale = np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
-        uavs = np.column_stack([self.uav_pos / scale, self.battery, self.grounded])
-        poachers = np.column_stack([self.poacher_pos / scale, self.poacher_status == POACHER_ACTIVE,
-                                    self.poacher_status / POACHER_GONE])
-        leopards = np.column_stack([self.leopard_pos / scale, self.leopard_alive])
-        size = self.config.belief_size**2
-        inner = self.visited[self.r:self.r + self.height, self.r:self.r + self.width] & self.high_risk
-        seen = np.bincount(self._block.ravel(), weights=inner.ravel(), minlength=size)
-        total = np.bincount(self._block.ravel(), weights=self.high_risk.ravel(), minlength=size)
-        coverage = np.divide(seen, total, out=np.zeros(size), where=total > 0)
-        parts = [uavs.ravel(), poachers.ravel(), leopards.ravel(), coverage, [min(self.t / self.max_cycles, 1.0)]]
-        return np.clip(np.concatenate(parts), -1.0, 1.0).astype(np.float32)
+        """The global state (positions, batteries, poachers, leopards, coverage and signs by block, progress), in [-1, 1]."""
+        return global_state(self)
 
     def render(self) -> np.ndarray | None:
         """Draw the reserve with pygame: an RGB array in ``"rgb_array"`` mode, a window in ``"human"`` mode."""

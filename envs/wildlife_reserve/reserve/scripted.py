@@ -11,12 +11,15 @@ for the discrete action mode.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from wildlife_reserve.reserve.reserve import COMM_BROADCAST, N_COMMS, N_MOVES, ReserveParallelEnv
+from wildlife_reserve.reserve.actors import STEPS
+from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES
 
-#: Unit moves in the discrete action order: stay, up, down, left, right.
-_MOVE_VECTORS = np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.float64)
+if TYPE_CHECKING:
+    from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 
 class RandomPatrol:
@@ -74,7 +77,7 @@ class StalestBlockPatrol:
                  + 2.0 * (belief > self.belief_threshold) * belief)
         target = centres[score.argmax(axis=1)]
         heading = target - position
-        move = (_MOVE_VECTORS[None, 1:] * heading[:, None, :]).sum(-1).argmax(axis=1) + 1
+        move = (STEPS[None, 1:] * heading[:, None, :]).sum(-1).argmax(axis=1) + 1
         move = np.where(np.abs(heading).max(-1) < 1.0, 0, move)
         step = np.rint(parts["own"][:, 5] * env.max_cycles).astype(np.int64)  # episode progress -> step
         comm = np.where((self.broadcast_every > 0) & (step % max(self.broadcast_every, 1) == 0), COMM_BROADCAST, 0)

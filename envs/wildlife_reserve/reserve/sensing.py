@@ -1,8 +1,10 @@
 """The UAV sensor model: thermal, visual and motion sensors with occlusion, weather and corruption.
 
 Each sensor fires independently; a target is detected when any of them fires, so the detection
-probability is ``1 - (1 - p_visual)(1 - p_thermal)(1 - p_motion)``. All functions are vectorised
-over (UAV, target) pairs.
+probability is ``1 - (1 - p_visual)(1 - p_thermal)(1 - p_motion)``. Signs of poacher activity are
+seen by the visual sensor alone. The whole noise model lives here: detection draws, false alarms,
+decoys, false sign readings and the noise on the signal channels. All functions are vectorised over
+(UAV, target) pairs.
 """
 
 from __future__ import annotations
@@ -22,6 +24,10 @@ FALSE_ALARM_BASE = 0.002
 FALSE_ALARM_PER_NOISE = 0.05
 #: Chance that a decoy in range reads as a poacher (adversarial condition), times the range falloff.
 DECOY_PEAK = 0.5
+#: Peak probability of seeing a sign of poacher activity (at range <= 1, open ground, clear weather).
+SIGN_PEAK = 0.9
+#: Standard deviation of the noise on the signal channels per unit of ``sensor_noise``.
+SIGNAL_NOISE_STD = 0.3
 
 
 def effective_radius(sensor_radius: int, weather: Weather) -> int:
@@ -91,3 +97,61 @@ def false_alarm_probability(noise: float) -> float:
     :param noise: sensor corruption level in [0, 1]
     """
     return FALSE_ALARM_BASE + FALSE_ALARM_PER_NOISE * noise
+
+
+def sign_detection_table(sensor_radius: int, weather: Weather, noise: float) -> np.ndarray:
+    """Chance that a UAV sees a sign, as ``table[distance, terrain]`` (distances clipped to ``sensor_radius + 1``).
+
+    ``SIGN_PEAK * f(d) * (1 - visual occlusion) * weather.signs * (1 - noise / 2)``.
+
+    :param sensor_radius: nominal sensor radius
+    :param weather: the episode's weather
+    :param noise: sensor corruption level in [0, 1]
+    """
+    dist = np.arange(sensor_radius + 2)[:, None]
+    base = range_falloff(dist, sensor_radius, effective_radius(sensor_radius, weather))
+    return SIGN_PEAK * base * (1.0 - VISUAL_OCCLUSION[None, :]) * weather.signs * (1.0 - 0.5 * noise)
+
+
+def detect(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
+    """Independent detection draws with probabilities ``p`` (any shape)."""
+    return rng.random(p.shape) < p
+
+
+def false_readings(
+    rng: np.random.Generator, airborne: np.ndarray, reach_offsets: np.ndarray, noise: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Spurious readings: each airborne UAV reads one with :func:`false_alarm_probability`, at a uniform
+    offset within the sensing reach.
+
+    :param airborne: ``(n,)`` which UAVs sense
+    :param reach_offsets: ``(m, 2)`` offsets within the reach
+    :return: the reading UAVs ``(k,)`` and their offsets ``(k, 2)``
+    """
+    n = len(airborne)
+    alarm = (rng.random(n) < false_alarm_probability(noise)) & airborne
+    spot = (rng.random(n) * len(reach_offsets)).astype(np.int64)
+    uav = np.flatnonzero(alarm)
+    return uav, reach_offsets[spot[uav]]
+
+
+def decoy_readings(
+    rng: np.random.Generator, delta: np.ndarray, airborne: np.ndarray, sensor_radius: int, reach: int, noise: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Decoys read as poachers (adversarial condition): ``DECOY_PEAK * f(d) * (1 - noise / 2)``; terrain
+    and weather do not apply.
+
+    :param delta: ``(n, D, 2)`` decoy cell minus UAV cell
+    :param airborne: ``(n,)`` which UAVs sense
+    :return: the reading UAVs ``(k,)`` and the decoys' offsets from them ``(k, 2)``
+    """
+    p = DECOY_PEAK * range_falloff(np.abs(delta).max(-1), sensor_radius, reach) * (1 - 0.5 * noise)
+    uav, idx = np.nonzero(detect(rng, p) & airborne[:, None])
+    return uav, delta[uav, idx]
+
+
+def noisy_signals(rng: np.random.Generator, signals: np.ndarray, noise: float) -> np.ndarray:
+    """The signal channels as the UAVs read them: Gaussian noise of std ``SIGNAL_NOISE_STD * noise``, clipped to [0, 1]."""
+    if noise <= 0:
+        return signals
+    return np.clip(signals + rng.normal(0.0, SIGNAL_NOISE_STD * noise, signals.shape), 0.0, 1.0)

@@ -127,7 +127,8 @@ def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: Reg
     road_cells = []
     for _ in range(preset.n_roads):
         side = rng.integers(4)
-        start = _edge_point(rng, side, height, width)
+        along = width if side < 2 else height
+        start = edge_points(np.array(side), np.array(rng.integers(along) / max(along - 1, 1)), (height, width))
         end = np.array([rng.integers(height // 4, max(height // 4 + 1, 3 * height // 4)),
                         rng.integers(width // 4, max(width // 4 + 1, 3 * width // 4))])
         n = int(np.abs(end - start).max()) + 1
@@ -137,15 +138,23 @@ def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: Reg
     return Hotspots(dens=dens, waterholes=waterholes, roads=roads)
 
 
-def _edge_point(rng: np.random.Generator, side: int, height: int, width: int) -> np.ndarray:
-    """A random cell on side 0 (north), 1 (south), 2 (west) or 3 (east)."""
-    if side == 0:
-        return np.array([0, rng.integers(width)])
-    if side == 1:
-        return np.array([height - 1, rng.integers(width)])
-    if side == 2:
-        return np.array([rng.integers(height), 0])
-    return np.array([rng.integers(height), width - 1])
+def edge_points(side: np.ndarray, frac: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Cells on the border: side 0 north, 1 south, 2 west, 3 east; ``frac`` in [0, 1] along it."""
+    height, width = shape
+    along_row = np.rint(frac * (height - 1)).astype(np.int64)
+    along_col = np.rint(frac * (width - 1)).astype(np.int64)
+    rows = np.choose(side, [np.zeros_like(along_col), np.full_like(along_col, height - 1), along_row, along_row])
+    cols = np.choose(side, [along_col, along_col, np.zeros_like(along_row), np.full_like(along_row, width - 1)])
+    return np.stack([rows, cols], axis=-1)
+
+
+def nearest_edge(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """For each cell, the nearest side and the fraction along it (the cell's projection on the border)."""
+    height, width = shape
+    dists = np.stack([cells[:, 0], height - 1 - cells[:, 0], cells[:, 1], width - 1 - cells[:, 1]], axis=-1)
+    side = dists.argmin(axis=-1)
+    frac = np.where(side < 2, cells[:, 1] / max(width - 1, 1), cells[:, 0] / max(height - 1, 1))
+    return side, frac
 
 
 def risk_map(shape: tuple[int, int], hotspots: Hotspots) -> np.ndarray:

@@ -1,0 +1,191 @@
+"""What each UAV knows and how the team shares it: visit stamps, links, messages and the coarse maps.
+
+``knowledge[r, s]`` is the time up to which UAV ``r`` knows UAV ``s``'s visit history and readings.
+Each airborne UAV knows its own up to now; a delivered message ``s -> r`` sets
+``knowledge[r] = max(knowledge[r], knowledge[s])``, so knowledge travels one hop per step. From it
+come the staleness channel and map (time since a cell or block was seen, as far as the UAV knows),
+the poacher-activity belief map and the map of the signs of poacher activity the UAV knows of.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wildlife_reserve.reserve.constants import COMM_BROADCAST, COMM_QUERY, NEVER
+
+#: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
+SIGN_MAP_SCALE = 2.0
+
+
+class TeamKnowledge:
+    """The team's shared knowledge, as numpy arrays over UAVs.
+
+    Public arrays: ``knowledge`` ``(n, n)``; ``beacons[s, r]`` (r heard s's position this step);
+    ``comm_links[s, r]`` (a message of s reached r this step); ``own_last`` / ``own_first`` ``(n, *padded)``
+    (each UAV's last and first look at each cell); ``known_signs`` ``(n, capacity)`` (which sign records
+    each UAV knows of) and ``sign_counts`` ``(n, blocks)``.
+
+    :param n: number of UAVs
+    :param padded_shape: shape of the padded grids
+    :param n_blocks: blocks of the coarse maps
+    :param max_cycles: episode length (scales the staleness)
+    :param belief_decay: per-step decay of old poacher readings in the belief map
+    :param comm_radius: communication radius (Euclidean, cells)
+    :param comm_loss: chance that any one beacon or message is lost
+    """
+
+    def __init__(self, n: int, padded_shape: tuple[int, int], n_blocks: int, max_cycles: int, belief_decay: float,
+                 comm_radius: float, comm_loss: float) -> None:
+        self.n = n
+        self.padded_shape = padded_shape
+        self.cells_padded = padded_shape[0] * padded_shape[1]
+        self.n_blocks = n_blocks
+        self.max_cycles = max_cycles
+        self.belief_decay = belief_decay
+        self.comm_radius = comm_radius
+        self.comm_loss = comm_loss
+        # Readings older than this carry less than 1e-3 of their weight and are dropped.
+        self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
+        self._stamps = np.empty((2, n, *padded_shape), dtype=np.float32)
+        self._block_stamps = np.empty((2, n, n_blocks), dtype=np.float32)
+        self._sources = np.arange(n)[:, None, None] * self.cells_padded
+
+    def reset(self) -> None:
+        """Forget everything: a new episode."""
+        n = self.n
+        self._stamps[0], self._stamps[1] = NEVER, -NEVER
+        self.own_last, self.own_first = self._stamps
+        self._block_stamps[0], self._block_stamps[1] = NEVER, -NEVER
+        self.knowledge = np.full((n, n), NEVER, dtype=np.float32)
+        self.beacons = np.zeros((n, n), dtype=bool)
+        self.comm_links = np.zeros((n, n), dtype=bool)
+        self.dist = np.zeros((n, n))
+        self.events = np.zeros((0, 3))  # (time, reading UAV, block) of the poacher readings
+        self.known_signs = np.zeros((n, 64), dtype=bool)
+        self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
+
+    # ------------------------------------------------------------------ own looks
+    def record_visits(self, t: int, uavs: np.ndarray, cells: np.ndarray, blocks: np.ndarray) -> None:
+        """The airborne ``uavs`` looked at padded flat ``cells`` ``(k, w * w)`` and flew over ``blocks`` ``(k,)`` at ``t``."""
+        own = (uavs[:, None] * self.cells_padded + cells).ravel()
+        self.own_last.ravel()[own] = t
+        first = self.own_first.ravel()
+        first[own] = np.minimum(first[own], t)
+        self._block_stamps[0, uavs, blocks] = t
+        self._block_stamps[1, uavs, blocks] = np.minimum(self._block_stamps[1, uavs, blocks], t)
+        self.knowledge[uavs, uavs] = t
+
+    def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
+        """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""
+        if len(uavs):
+            fresh = np.column_stack([np.full(len(uavs), t), uavs, blocks])
+            self.events = np.concatenate([self.events, fresh])
+        self.events = self.events[self.events[:, 0] > t - self.horizon]
+
+    def learn_signs(self, uavs: np.ndarray, signs: np.ndarray, sign_blocks: np.ndarray) -> None:
+        """Each of ``uavs`` found sign record ``signs`` (lying in ``sign_blocks``)."""
+        if not len(uavs):
+            return
+        self._fit(int(signs.max()) + 1)
+        new = ~self.known_signs[uavs, signs]
+        uavs, signs, blocks = uavs[new], signs[new], sign_blocks[new]
+        self.known_signs[uavs, signs] = True
+        np.add.at(self.sign_counts, (uavs, blocks), 1.0)  # (uav, sign) pairs repeat only if listed twice
+
+    def _fit(self, size: int) -> None:
+        if size > self.known_signs.shape[1]:
+            grown = np.zeros((self.n, max(size, 2 * self.known_signs.shape[1])), dtype=bool)
+            grown[:, :self.known_signs.shape[1]] = self.known_signs
+            self.known_signs = grown
+
+    # ------------------------------------------------------------------ links and messages
+    def in_range(self, uav_pos: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """``(n, n)`` bool: s and r (s != r) both ``ok`` (airborne, unjammed) and within ``R_c`` of each other."""
+        diff = uav_pos[:, None, :] - uav_pos[None, :, :]
+        self.dist = np.sqrt((diff**2).sum(-1))
+        links = (self.dist <= self.comm_radius) & ok[:, None] & ok[None, :]
+        np.fill_diagonal(links, False)
+        return links
+
+    def update_beacons(self, rng: np.random.Generator, links: np.ndarray) -> None:
+        """Position beacons heard this step, each lost with probability ``comm_loss``."""
+        self.beacons = links & (rng.random(links.shape) >= self.comm_loss)
+
+    def communicate(self, rng: np.random.Generator, comm: np.ndarray, links: np.ndarray, sign_blocks: np.ndarray) -> None:
+        """Broadcasts push and queries pull each UAV's knowledge; each message is lost with ``comm_loss``.
+
+        :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query)
+        :param links: ``(n, n)`` links in range this step (see :meth:`in_range`)
+        :param sign_blocks: block of every sign record (for the sign counts)
+        """
+        sent = links & (comm == COMM_BROADCAST)[:, None]
+        asking = np.flatnonzero(comm == COMM_QUERY)
+        if len(asking):
+            dist = np.where(links[:, asking], self.dist[:, asking], np.inf)
+            source = dist.argmin(axis=0)
+            reachable = np.isfinite(dist[source, np.arange(len(asking))])
+            sent[source[reachable], asking[reachable]] = True
+        delivered = sent & (rng.random(sent.shape) >= self.comm_loss)
+        self.comm_links = delivered
+        if not delivered.any():
+            return
+        senders, receivers = np.flatnonzero(delivered.any(1)), np.flatnonzero(delivered.any(0))
+        heard = delivered[np.ix_(senders, receivers)].T  # heard[r, s]
+        # knowledge[r] = max(knowledge[r], knowledge[s] for every s whose message reached r)
+        incoming = np.where(heard[:, :, None], self.knowledge[senders][None, :, :], NEVER).max(axis=1)
+        known = self.known_signs[:, :len(sign_blocks)]
+        # What the senders knew before this step's messages reaches the receivers.
+        learned = (heard.astype(np.float32) @ known[senders].astype(np.float32) > 0) & ~known[receivers]
+        self.knowledge[receivers] = np.maximum(self.knowledge[receivers], incoming)
+        who, sign = np.nonzero(learned)
+        if len(who):
+            self.learn_signs(receivers[who], sign, sign_blocks[sign])
+
+    # ------------------------------------------------------------------ maps
+    def _known_age(self, t: int, last: np.ndarray, first: np.ndarray) -> np.ndarray:
+        """Age in [0, 1] (1 = never) of the newest visit each receiver knows of, from per-source stamps.
+
+        UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else
+        s's first visit if that one is, else nothing.
+
+        :param last: ``(source, receiver, ...)`` last-visit times
+        :param first: ``(source, receiver, ...)`` first-visit times
+        :return: ``(receiver, ...)`` ages scaled by ``max_cycles``
+        """
+        known_to = self.knowledge.T.reshape(self.n, self.n, *([1] * (last.ndim - 2)))  # knowledge[receiver, source]
+        seen = np.where(last <= known_to, last, np.where(first <= known_to, first, NEVER)).max(axis=0)
+        return np.minimum((np.float32(t) - seen) * np.float32(1.0 / self.max_cycles), np.float32(1.0))
+
+    def staleness(self, t: int, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Time since each window cell and each coarse block was seen, as far as each UAV knows.
+
+        :param window: ``(n, w, w)`` padded flat indices of each UAV's window
+        :return: ``(n, w, w)`` and ``(n, blocks)`` ages in [0, 1]
+        """
+        n, w = self.n, window.shape[-1]
+        cells = np.take(self._stamps.reshape(2, -1), self._sources + window.reshape(1, n, -1), axis=1)
+        blocks = np.broadcast_to(self._block_stamps[:, :, None, :], (2, n, n, self.n_blocks))
+        last, first = np.concatenate([cells, blocks], axis=-1)  # (source, receiver, w * w + blocks)
+        ages = self._known_age(t, last, first)
+        return ages[:, :w * w].reshape(n, w, w), ages[:, w * w:]
+
+    def belief(self, t: int) -> np.ndarray:
+        """``(n, blocks)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
+        if not len(self.events):
+            return np.zeros((self.n, self.n_blocks), dtype=np.float32)
+        times, who, block = self.events.T
+        known = times[None, :] <= self.knowledge[:, who.astype(np.int64)]
+        weight = known * self.belief_decay ** (t - times)[None, :]
+        mass = np.zeros((self.n, self.n_blocks))
+        np.add.at(mass.T, block.astype(np.int64), weight.T)
+        return 1.0 - np.exp(-mass)
+
+    def sign_map(self) -> np.ndarray:
+        """``(n, blocks)`` signs of poacher activity each UAV knows of, as ``1 - exp(-count / SIGN_MAP_SCALE)``."""
+        return 1.0 - np.exp(-self.sign_counts * (1.0 / SIGN_MAP_SCALE))
+
+    def heard_from(self) -> list[tuple[int, ...]]:
+        """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
+        receivers, senders = np.nonzero(self.comm_links.T)
+        split = np.searchsorted(receivers, np.arange(1, self.n))
+        return [tuple(part.tolist()) for part in np.split(senders, split)]

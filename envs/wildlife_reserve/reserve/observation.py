@@ -1,0 +1,130 @@
+"""Observation building: the layout of the flat per-UAV vector, the vector itself and the global state."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from wildlife_reserve.reserve.config import ReserveConfig
+from wildlife_reserve.reserve.constants import (
+    CH_LEOPARD,
+    CH_OCCLUSION,
+    CH_POACHER,
+    CH_RISK,
+    CH_SIGN,
+    CH_STALENESS,
+    CH_UAV,
+    N_CHANNELS,
+    POACHER_ACTIVE,
+    POACHER_GONE,
+)
+from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE
+
+if TYPE_CHECKING:
+    from wildlife_reserve.reserve.reserve import ReserveParallelEnv
+
+#: Number of own features: row, col, d_row, d_col, battery, progress.
+N_OWN = 6
+#: Coarse maps at the end of the observation, in order.
+MAP_NAMES = ("block_staleness", "belief", "signs")
+
+
+def observation_layout(config: ReserveConfig) -> dict[str, tuple[slice, tuple[int, ...]]]:
+    """Where each part of the flat observation lives: name -> (slice, shape).
+
+    ``window`` (7, w, w) channels (occlusion, risk, staleness, poacher, leopard, UAVs, signs); ``own``
+    (row, col, d_row, d_col, battery, progress); ``neighbours`` (max_neighbors, 3) as (d_row, d_col,
+    present) / ``R_c``; ``block_staleness`` (time since each block was flown over, as far as the UAV
+    knows), ``belief`` (poacher activity) and ``signs`` (signs of poacher activity the UAV knows of)
+    maps, each (belief_size, belief_size).
+    """
+    w, k, b = 2 * config.sensor_radius + 1, config.max_neighbors, config.belief_size
+    shapes = {"window": (N_CHANNELS, w, w), "own": (N_OWN,), "neighbours": (k, 3)} | dict.fromkeys(MAP_NAMES, (b, b))
+    layout, start = {}, 0
+    for name, shape in shapes.items():
+        size = int(np.prod(shape))
+        layout[name] = (slice(start, start + size), shape)
+        start += size
+    return layout
+
+
+def observation_size(config: ReserveConfig) -> int:
+    """Length of the flat observation."""
+    return max(part.stop for part, _ in observation_layout(config).values())
+
+
+def state_size(config: ReserveConfig) -> int:
+    """Length of the global state (see :func:`global_state`)."""
+    return 4 * config.n_uavs + 4 * config.n_poachers + 3 * config.n_leopards + 2 * config.belief_size**2 + 1
+
+
+def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarray:
+    """``(n, obs_dim)`` observations of every UAV.
+
+    :param env: the reserve, after this step's sensing and communication
+    :param signals: ``(n, 3, w, w)`` this step's poacher, leopard and sign readings, as the sensors report them
+    """
+    cfg, n, r, team = env.config, env.n, env.r, env.team
+    layout = env.observation_layout
+    obs = np.empty((n, env.obs_dim), dtype=np.float32)
+    win = obs[:, layout["window"][0]].reshape(n, N_CHANNELS, env.window, env.window)
+    win[:, CH_OCCLUSION] = env._occ_pad[env._window]
+    win[:, CH_RISK] = env._risk_pad[env._window]
+    win[:, CH_STALENESS] = env._stale_window
+    win[:, CH_POACHER] = signals[:, 0]
+    win[:, CH_LEOPARD] = signals[:, 1]
+    win[:, CH_SIGN] = signals[:, 2]
+    # Other airborne UAVs inside the window (seen, not communicated).
+    cells = env._uav_cells()
+    delta = cells[None, :, :] - cells[:, None, :]  # delta[i, j] = cell_j - cell_i
+    visible = (np.abs(delta).max(-1) <= r) & ~env.grounded[None, :]
+    np.fill_diagonal(visible, False)
+    i, j = np.nonzero(visible)
+    win[:, CH_UAV] = 0.0
+    win[i, CH_UAV, delta[i, j, 0] + r, delta[i, j, 1] + r] = 1.0
+    if env.grounded.any():
+        win[env.grounded, CH_POACHER:] = 0.0
+
+    own = obs[:, layout["own"][0]]
+    own[:, :2] = np.minimum(env.uav_pos * env._inv_scale, 1.0)
+    own[:, 2:4] = env.velocity
+    own[:, 4] = env.battery
+    own[:, 5] = min(env.t / env.max_cycles, 1.0)
+    # Neighbours heard through beacons, nearest first.
+    k = cfg.max_neighbors
+    neighbours = obs[:, layout["neighbours"][0]].reshape(n, k, 3)
+    neighbours[:] = 0.0
+    if k and n > 1:
+        diff = env.uav_pos[None, :, :] - env.uav_pos[:, None, :]  # diff[r, s] = pos_s - pos_r
+        dist = np.where(team.beacons.T, team.dist, np.inf)
+        order = np.argsort(dist, axis=1, kind="stable")[:, :k]
+        rows = np.arange(n)[:, None]
+        present = dist[rows, order] < np.inf
+        rel = diff[rows, order] * (1.0 / max(cfg.comm_radius, 1.0))
+        m = order.shape[1]
+        neighbours[:, :m, :2] = np.minimum(np.maximum(rel, -1.0), 1.0) * present[:, :, None]
+        neighbours[:, :m, 2] = present
+    obs[:, layout["block_staleness"][0]] = env._stale_blocks
+    obs[:, layout["belief"][0]] = team.belief(env.t)
+    obs[:, layout["signs"][0]] = team.sign_map()
+    return obs
+
+
+def global_state(env: ReserveParallelEnv) -> np.ndarray:
+    """The global state (UAVs, poachers, leopards, coverage and live signs by block, progress), in [-1, 1]."""
+    size = env.config.belief_size**2
+    scale = np.array([max(env.height - 1, 1), max(env.width - 1, 1)])
+    uavs = np.column_stack([env.uav_pos / scale, env.battery, env.grounded])
+    poachers = np.column_stack([env.poacher_pos / scale, env.poacher_status == POACHER_ACTIVE,
+                                env.poacher_status / POACHER_GONE])
+    leopards = np.column_stack([env.leopard_pos / scale, env.leopard_alive])
+    inner = env.visited[env.r:env.r + env.height, env.r:env.r + env.width] & env.high_risk
+    blocks = env._block.ravel()
+    seen = np.bincount(blocks, weights=inner.ravel(), minlength=size)
+    total = np.bincount(blocks, weights=env.high_risk.ravel(), minlength=size)
+    coverage = np.divide(seen, total, out=np.zeros(size), where=total > 0)
+    live = env.signs.live(env.t)
+    signs = 1.0 - np.exp(-np.bincount(env.signs.block[live], minlength=size) / SIGN_MAP_SCALE)
+    parts = [uavs.ravel(), poachers.ravel(), leopards.ravel(), coverage, signs, [min(env.t / env.max_cycles, 1.0)]]
+    return np.clip(np.concatenate(parts), -1.0, 1.0).astype(np.float32)
