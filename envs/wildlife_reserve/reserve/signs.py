@@ -12,7 +12,7 @@ strategy           signs laid before the episode (besides the in-episode tracks 
 hotspot_raid       ``SNARES_PER_DEN`` snares around every den; a track from the nearest edge to each den
 edge_infiltration  ``EDGE_ROUTES`` vehicles along the infiltrators' side, each with a track inward
 coordinated_group  one camp of ``CAMP_SIGNS`` signs on the way to the target den, a vehicle at the group's
-                   entry point and a track from it to the camp
+                   entry point, a track from it to the camp and tracks from the camp to every den
 dispersed_evasion  ``SCATTERED_SIGNS`` isolated signs anywhere in the reserve, half tracks, half snares
 ================== ==================================================================================
 
@@ -38,16 +38,16 @@ TRACK_AGE = 40
 TRACK_PROB = 0.5
 #: Spacing in cells of the signs along a pre-episode track.
 TRACK_SPACING = 2
-SNARES_PER_DEN = 6
+SNARES_PER_DEN = 12
 #: Snares lie at Chebyshev distance in ``[2, SNARE_RADIUS]`` of their den.
-SNARE_RADIUS = 6
-EDGE_ROUTES = 5
+SNARE_RADIUS = 8
+EDGE_ROUTES = 12
 #: Depth in cells (low, high) of an infiltration track from the edge inward.
-EDGE_DEPTH = (10, 25)
-CAMP_SIGNS = 10
+EDGE_DEPTH = (5, 20)
+CAMP_SIGNS = 24
 #: The camp lies at this fraction (low, high) of the way from the group's entry point to its den.
 CAMP_POSITION = (0.4, 0.6)
-SCATTERED_SIGNS = 30
+SCATTERED_SIGNS = 100
 #: Fake signs planted around each decoy (adversarial condition).
 DECOY_SIGNS = 4
 
@@ -110,7 +110,9 @@ def plan_signs(
         camp = np.rint(entry[0] + rng.uniform(*CAMP_POSITION) * (target[0] - entry[0])).astype(np.int64)
         add(entry[0], VEHICLE)
         add(route(entry[0], camp)[1:-1], TRACK)
-        add(np.vstack([camp, around(rng, camp, CAMP_SIGNS - 1, 1, 2)]), CAMP)
+        for den in dens:  # the group's trails radiate from its camp to every den
+            add(route(camp, den)[1:-1], TRACK)
+        add(np.vstack([camp, around(rng, camp, CAMP_SIGNS - 1, 1, 3)]), CAMP)
     else:  # "perimeter": dispersed traces anywhere
         spots = np.stack([rng.integers(0, height, SCATTERED_SIGNS), rng.integers(0, width, SCATTERED_SIGNS)], axis=-1)
         add(spots, TRACK)
