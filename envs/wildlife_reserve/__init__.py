@@ -1,3 +1,3 @@
 """PettingZoo environments for UAV-based wildlife protection."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
