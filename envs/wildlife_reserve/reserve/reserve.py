@@ -469,7 +469,8 @@ class ReserveParallelEnv(ParallelEnv):
 
     def _sense_signs(self, airborne: np.ndarray, channel: np.ndarray) -> int:
         """Signs seen this step (marked in ``channel`` ``(n, w, w)``, learned by the UAVs that saw them), and
-        false sign readings under sensor noise; returns how many signs the team found for the first time."""
+        false sign readings under sensor noise; returns how many real signs (neither false readings nor the
+        decoys' fake signs) the team found for the first time."""
         ids = self.signs.live_at(self._window.reshape(self.n, -1), self.t)
         uav, cell = np.nonzero((ids >= 0) & airborne[:, None])
         sign = ids[uav, cell]
@@ -487,7 +488,7 @@ class ReserveParallelEnv(ParallelEnv):
             cell = np.concatenate([cell, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r])
         channel.reshape(self.n, -1)[uav, cell] = 1.0
         self.team.learn_signs(uav, sign, self.signs.block[sign])
-        true = sign[self.signs.kind[sign] != signs_lib.FALSE_READING]
+        true = sign[~np.isin(self.signs.kind[sign], (signs_lib.FALSE_READING, signs_lib.DECOY))]
         if len(self._found) < self.signs.capacity:
             self._found = np.concatenate([self._found, np.zeros(self.signs.capacity - len(self._found), dtype=bool)])
         fresh = np.unique(true[~self._found[true]])

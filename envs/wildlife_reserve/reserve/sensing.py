@@ -25,7 +25,7 @@ FALSE_ALARM_PER_NOISE = 0.05
 #: Chance that a decoy in range reads as a poacher (adversarial condition), times the range falloff.
 DECOY_PEAK = 0.5
 #: Peak probability of seeing a sign of poacher activity (at range <= 1, open ground, clear weather).
-SIGN_PEAK = 0.9
+SIGN_PEAK = 1.0
 #: Standard deviation of the noise on the signal channels per unit of ``sensor_noise``.
 SIGNAL_NOISE_STD = 0.3
 

@@ -108,11 +108,11 @@ def plan_signs(
             add(route(start, start + inward * rng.integers(EDGE_DEPTH[0], EDGE_DEPTH[1] + 1))[1:], TRACK)
     elif strategy.entry == "group":
         camp = np.rint(entry[0] + rng.uniform(*CAMP_POSITION) * (target[0] - entry[0])).astype(np.int64)
+        add(np.vstack([camp, around(rng, camp, CAMP_SIGNS - 1, 1, 3)]), CAMP)
         add(entry[0], VEHICLE)
         add(route(entry[0], camp)[1:-1], TRACK)
         for den in dens:  # the group's trails radiate from its camp to every den
             add(route(camp, den)[1:-1], TRACK)
-        add(np.vstack([camp, around(rng, camp, CAMP_SIGNS - 1, 1, 3)]), CAMP)
     else:  # "perimeter": dispersed traces anywhere
         spots = np.stack([rng.integers(0, height, SCATTERED_SIGNS), rng.integers(0, width, SCATTERED_SIGNS)], axis=-1)
         add(spots, TRACK)
