@@ -16,6 +16,7 @@ TEAM_METRICS: tuple[str, ...] = (
     "collisions",
     "energy",
     "time_to_first_detection",
+    "signs_found",
 )
 
 
