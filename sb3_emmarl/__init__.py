@@ -2,6 +2,7 @@
 
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
+from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.version import __version__
 
-__all__ = ["EMDDPG", "EMPPO", "__version__"]
+__all__ = ["EMDDPG", "EMPPO", "OraclePPO", "__version__"]

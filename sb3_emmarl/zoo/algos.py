@@ -12,6 +12,7 @@ from sb3_contrib import RecurrentPPO
 
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
+from sb3_emmarl.oracle_ppo import OraclePPO
 
 #: Algorithms trained with one policy shared by all UAVs (the parameter-sharing vector environment).
 SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
@@ -23,6 +24,7 @@ SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ppo_lstm": RecurrentPPO,
     "em_ppo": EMPPO,  # the paper's method, with PPO as the M-step
     "em_ddpg": EMDDPG,  # the paper's method, with DDPG as the M-step (continuous action mode)
+    "oracle_ppo": OraclePPO,  # PPO told the true hidden mode: the upper bound of every latent method
 }
 #: Algorithms that read a history window (the zoo adds the HistoryWrapper to their environments).
 LATENT_ALGOS = ("em_ppo", "em_ddpg")
@@ -31,6 +33,8 @@ CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "cppo": PPO,  # Centralized PPO
 }
 ZOO_ALGOS: dict[str, type[BaseAlgorithm]] = {**SHARED_ALGOS, **CENTRALIZED_ALGOS}
+#: Algorithms trained with another algorithm's hyperparameter file (the same settings by construction).
+SHARED_HYPERPARAMS: dict[str, str] = {"oracle_ppo": "ppo"}
 
 
 def register_algorithms() -> None:
@@ -40,6 +44,6 @@ def register_algorithms() -> None:
 
     for name, algo in ZOO_ALGOS.items():
         rl_zoo3.ALGOS.setdefault(name, algo)
-    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg")):
+    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg"), ("oracle_ppo", "ppo")):
         hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, hyperparams_opt.HYPERPARAMS_SAMPLER[like])
         hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, hyperparams_opt.HYPERPARAMS_CONVERTER[like])

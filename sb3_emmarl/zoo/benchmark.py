@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
+
 import numpy as np
 import yaml
 from scipy import stats
@@ -106,52 +108,100 @@ def compare_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Compare variants at the same budget over seeds (train in fresh processes).")
     parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS),
                         help="NAME=ALGO:key=value,... (hyperparameter overrides)")
-    parser.add_argument("-n", "--n-timesteps", type=int, default=1_000_000, help="budget of every run, agent-steps")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
-    parser.add_argument("--eval-episodes", type=int, default=10, help="evaluation episodes per run")
-    parser.add_argument("--eval-seed", type=int, default=50_000, help="seed of the evaluation episodes")
-    parser.add_argument("-f", "--log-folder", default="logs/compare", help="where the runs are saved")
-    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
+    add_run_arguments(parser, n_timesteps=1_000_000, seeds=[0, 1, 2], eval_episodes=10, log_folder="logs/compare")
     parser.add_argument("--ratio", nargs=2, default=["em_ppo", "ppo"], metavar=("A", "B"),
                         help="print the wall-time ratio of variant A to variant B")
     return parser
 
 
-def compare_main(argv: list[str] | None = None) -> int:
-    """Train every variant on every seed (each in a fresh process), evaluate, print mean +- std per variant."""
+def add_run_arguments(parser: argparse.ArgumentParser, n_timesteps: int, seeds: list[int], eval_episodes: int,
+                      log_folder: str) -> None:
+    """The flags of every multi-seed comparison: budget, seeds, evaluation, folder, environment, parallel jobs."""
+    parser.add_argument("-n", "--n-timesteps", type=int, default=n_timesteps, help="budget of every run, agent-steps")
+    parser.add_argument("--seeds", type=int, nargs="+", default=seeds, help="training seeds")
+    parser.add_argument("--eval-episodes", type=int, default=eval_episodes, help="evaluation episodes per run")
+    parser.add_argument("--eval-seed", type=int, default=50_000, help="seed of the evaluation episodes")
+    parser.add_argument("-f", "--log-folder", default=log_folder, help="where the runs are saved")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
+    parser.add_argument("--n-jobs", type=int, default=1,
+                        help="runs trained at once, each in its own process with one torch thread")
+
+
+def check_run_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Reject bad values of :func:`add_run_arguments`' flags, naming them."""
+    if args.n_timesteps < 1:
+        parser.error(f"-n/--n-timesteps must be >= 1, got {args.n_timesteps}")
+    if args.eval_episodes < 1:
+        parser.error(f"--eval-episodes must be >= 1, got {args.eval_episodes}")
+    if args.n_jobs < 1:
+        parser.error(f"--n-jobs must be >= 1, got {args.n_jobs}")
+    if len(set(args.seeds)) != len(args.seeds):
+        parser.error(f"--seeds must be distinct, got {args.seeds}")
+
+
+def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args: argparse.Namespace) -> dict:
+    """Train one run in a fresh process, then evaluate it; returns its metrics and run statistics."""
     import json
     import subprocess
-    import sys
 
     from rl_zoo3.utils import get_latest_run_id
 
+    folder = str(Path(args.log_folder) / name / f"seed_{seed}")
+    env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] if args.env_kwargs else []
+    command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
+               "--seed", str(seed), "-f", folder, "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0",
+               *env_flags, *(["-params", *params] if params else [])]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
+    run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
+    stats = json.loads((run / "run_stats.json").read_text())
+    model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
+    config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
+    row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
+    print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()),
+          flush=True)
+    return {**row, **stats, "seed": seed}
+
+
+def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Namespace) -> dict[str, list[dict]]:
+    """Train every variant on every seed (each run in a fresh process, ``args.n_jobs`` at once) and evaluate it.
+
+    Runs are started interleaved by seed, so that machine load drifts hit every variant alike.
+
+    :param variants: ``(name, algo, -params items)`` as :func:`parse_variant` returns them
+    :param args: the flags of :func:`add_run_arguments`
+    :return: ``{name: [one record per seed, in the order of args.seeds]}``
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    import torch as th
+
+    th.set_num_threads(1)  # evaluation runs here, beside the training processes
+    tasks = [(name, algo, params, seed) for seed in args.seeds for name, algo, params in variants]
+    with ThreadPoolExecutor(max_workers=args.n_jobs) as pool:
+        futures = [(task[0], pool.submit(_train_and_evaluate, *task, args)) for task in tasks]
+        results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
+        for name, future in futures:
+            results[name].append(future.result())
+    return results
+
+
+def compare_main(argv: list[str] | None = None) -> int:
+    """Train every variant on every seed (each in a fresh process), evaluate, print mean +- std per variant."""
     parser = compare_parser()
     args = parser.parse_args(argv)
+    check_run_arguments(parser, args)
     try:
         variants = [parse_variant(v) for v in args.variants]
     except ValueError as error:
         parser.error(str(error))
-    env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] if args.env_kwargs else []
-    results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
-    for seed in args.seeds:
-        for name, algo, params in variants:  # interleaved, so that machine load drifts hit every variant alike
-            folder = str(Path(args.log_folder) / name)
-            command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
-                       "--seed", str(seed), "-f", folder, "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0",
-                       *env_flags, *(["-params", *params] if params else [])]
-            done = subprocess.run(command, capture_output=True, text=True)
-            if done.returncode != 0:
-                print(done.stderr[-2000:], file=sys.stderr)
-                return 2
-            run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
-            stats = json.loads((run / "run_stats.json").read_text())
-            model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
-            config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
-            records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
-            row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
-            results[name].append({**row, **stats})
-            print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " +
-                  ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+    try:
+        results = run_variants(variants, args)
+    except RuntimeError as error:
+        print(error, file=sys.stderr)
+        return 2
     print(f"\n{len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; {args.eval_episodes} evaluation "
           f"episodes from seed {args.eval_seed} per run; mean +- std over seeds")
     columns = (*COMPARE_METRICS, "train_seconds", "peak_rss_mib")

@@ -4,8 +4,10 @@ rl_zoo3 reads the YAML hyperparameters, builds schedules, callbacks and action n
 its folder layout and tunes with optuna; all of that is reused. What changes:
 
 - ``create_envs`` builds :func:`~sb3_emmarl.common.vec_env.make_vec_env` (``n_envs`` reserve copies,
-  one vector entry per UAV) instead of ``gym.make`` copies; the centralised algorithms keep
-  rl_zoo3's own path through the Gymnasium id ``WildlifeReserve-v0``;
+  one vector entry per UAV) instead of ``gym.make`` copies, with the history wrapper of the EM
+  algorithms or the true mode of ``oracle_ppo``; the centralised algorithms keep rl_zoo3's own path
+  through the Gymnasium id ``WildlifeReserve-v0``;
+- ``oracle_ppo`` reads ``ppo.yml``: the same settings as PPO by construction;
 - ``n_envs`` is counted in vector entries (copies x UAVs) once the YAML is read, so that rl_zoo3's
   ``--eval-freq`` / ``--save-freq`` / optuna arithmetic, which divides by ``n_envs``, stays right;
 - the environment's arguments are validated before any folder is written;
@@ -27,7 +29,9 @@ from sb3_emmarl.common.callbacks import TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.common.latent.algorithm import wrap_with_history
-from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, ZOO_ALGOS, register_algorithms
+from sb3_emmarl.common.mode_aware import wrap_with_mode
+from sb3_emmarl.oracle_ppo import OraclePPO
+from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -50,7 +54,7 @@ class ReserveExperimentManager(ExperimentManager):
         if env_id != ENV_ID:
             raise ValueError(f"the zoo trains on {ENV_ID!r}, got env {env_id!r}")
         if kwargs.get("config") is None:
-            kwargs["config"] = str(HYPERPARAMS_DIR / f"{algo}.yml")
+            kwargs["config"] = str(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml")
         if not Path(kwargs["config"]).is_file():
             raise ValueError(f"no hyperparameter file {kwargs['config']!r} for algorithm {algo!r}")
         self.num_cpus = 0
@@ -108,6 +112,8 @@ class ReserveExperimentManager(ExperimentManager):
         env = self._maybe_normalize(env, eval_env)
         if self.algo in LATENT_ALGOS:
             env = wrap_with_history(env, self.history_length)
+        if ZOO_ALGOS[self.algo] is OraclePPO:
+            env = wrap_with_mode(env)
         return env
 
     def create_callbacks(self) -> None:

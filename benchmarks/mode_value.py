@@ -1,0 +1,79 @@
+"""How much knowing the hidden mode pays: PPO told the true mode against plain PPO, paired over seeds.
+
+Both variants train with the zoo's ``ppo.yml`` settings (``oracle_ppo`` reads the same file) on the same
+seeds, each run in a fresh process with one torch thread, then play the same evaluation episodes
+(actions sampled, as ``evaluate_team`` does). The table gives mean +- std over seeds of each metric, the
+paired difference (told minus plain) with its mean +- std, and the p-value of the paired t-test over seeds
+(``scipy.stats.ttest_rel``), then the per-seed rows. The told-the-mode team is the upper bound every
+latent method is measured against; the difference is what inferring the mode can win at most.
+
+Example: ``python benchmarks/mode_value.py`` (or ``make benchmark-mode-value``; 5 seeds x 500k agent-steps)
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+
+import numpy as np
+from scipy import stats
+
+from sb3_emmarl.zoo.benchmark import add_run_arguments, check_run_arguments, run_variants
+
+#: The two variants: (table name, zoo algorithm, hyperparameter overrides).
+VARIANTS = [("told_mode", "oracle_ppo", []), ("ppo", "ppo", [])]
+#: Metrics of the table.
+METRICS = ("team_reward", "detection_rate", "coverage_efficiency")
+
+
+def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METRICS) -> str:
+    """Mean +- std of each variant, and the paired difference (first variant minus second) with its p-value.
+
+    :param results: ``{variant: [record per seed, same seed order for every variant]}``, two variants
+    :param metrics: the metrics to compare
+    """
+    (a_name, a_runs), (b_name, b_runs) = results.items()
+    if [r["seed"] for r in a_runs] != [r["seed"] for r in b_runs]:
+        raise ValueError("the two variants must be evaluated on the same seeds, in the same order")
+    lines = [f"{'metric':<22}{a_name:>20}{b_name:>20}{'difference':>20}{'p (paired t)':>14}{'higher on':>11}"]
+    for metric in metrics:
+        a = np.array([r[metric] for r in a_runs])
+        b = np.array([r[metric] for r in b_runs])
+        diff = a - b
+        p_value = float(stats.ttest_rel(a, b).pvalue) if len(a) > 1 and np.any(diff != 0) else 1.0
+        lines.append(f"{metric:<22}{a.mean():>11.3f} +- {a.std():<5.3f}{b.mean():>11.3f} +- {b.std():<5.3f}"
+                     f"{diff.mean():>11.3f} +- {diff.std():<5.3f}{p_value:>14.3g}{f'{(diff > 0).sum()}/{len(diff)}':>11}")
+    lines.append("")
+    lines.append(f"{'seed':<6}" + "".join(f"{f'{name} {metric}':>34}" for name in (a_name, b_name) for metric in metrics))
+    for a_run, b_run in zip(a_runs, b_runs):
+        lines.append(f"{a_run['seed']:<6}" + "".join(f"{run[metric]:>34.3f}" for run in (a_run, b_run) for metric in metrics))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=20, log_folder="logs/mode_value")
+    parser.set_defaults(n_jobs=2)
+    args = parser.parse_args(argv)
+    check_run_arguments(parser, args)
+    if len(args.seeds) < 2:
+        parser.error(f"--seeds must name at least 2 seeds for a paired test, got {args.seeds}")
+    start = time.perf_counter()
+    try:
+        results = run_variants(VARIANTS, args)
+    except RuntimeError as error:
+        print(error, file=sys.stderr)
+        return 2
+    command = shlex.join(["python", "benchmarks/mode_value.py", *(sys.argv[1:] if argv is None else argv)])
+    print(f"\n$ {command}")
+    print(f"ppo.yml settings for both; {len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; "
+          f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
+          f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
+    print(paired_table({name: results[name] for name, _, _ in VARIANTS}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

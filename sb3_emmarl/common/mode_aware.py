@@ -1,0 +1,84 @@
+"""The true hidden mode as part of the observation: what a policy that is *told* the mode sees.
+
+A policy told the mode is the upper bound every latent method is measured against (how much knowing
+the mode pays). :class:`ModeObservationWrapper` appends a one-hot of the episode's true mode to every
+entry's observation, read from the reserve's infos (``infos[i]["mode"]``), which no UAV observes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+
+from wildlife_reserve.reserve.modes import N_MODES
+
+
+class ModeObservationWrapper(VecEnvWrapper):
+    """Appends a one-hot of the true hidden mode (``n_modes`` floats) to each entry's observation.
+
+    The mode comes from the infos: the reset infos of the innermost vector environment, and each step's
+    ``infos[i]["mode"]``, which after an automatic reset is already the new episode's mode (SuperSuit
+    merges the reset's infos into the last step's). The terminal observation of a finished episode gets
+    that episode's mode, from ``infos[i]["metrics"]["mode"]``.
+
+    :param venv: a parameter-sharing vector environment of the reserve (flat ``Box`` observations)
+    :param n_modes: number of modes (the one-hot's length)
+    """
+
+    def __init__(self, venv: VecEnv, n_modes: int = N_MODES) -> None:
+        space = venv.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise ValueError(f"ModeObservationWrapper needs flat Box observations, got {space}")
+        if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
+            raise ValueError(f"n_modes must be an int >= 1, got {n_modes!r}")
+        self.n_modes = int(n_modes)
+        low = np.concatenate([space.low, np.zeros(self.n_modes, dtype=space.dtype)])
+        high = np.concatenate([space.high, np.ones(self.n_modes, dtype=space.dtype)])
+        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
+        self.modes = np.zeros(venv.num_envs, dtype=np.int64)
+
+    def _one_hot(self, modes: np.ndarray) -> np.ndarray:
+        if modes.min() < 0 or modes.max() >= self.n_modes:
+            raise ValueError(f"modes must be in [0, {self.n_modes - 1}], got {modes}")
+        return np.eye(self.n_modes, dtype=self.observation_space.dtype)[modes]
+
+    def _read_modes(self, infos: list[dict[str, Any]]) -> np.ndarray:
+        try:
+            return np.array([info["mode"] for info in infos], dtype=np.int64)
+        except KeyError as error:
+            raise KeyError("ModeObservationWrapper needs infos[i]['mode'] (the wildlife reserve's infos)") from error
+
+    def reset(self) -> VecEnvObs:
+        observations = self.venv.reset()
+        self.modes = self._read_modes(self.venv.unwrapped.reset_infos)
+        return np.concatenate([observations, self._one_hot(self.modes)], axis=1)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        observations, rewards, dones, infos = self.venv.step_wait()
+        for i in np.flatnonzero(dones):
+            if "terminal_observation" in infos[i]:
+                finished = np.array([infos[i]["metrics"]["mode"]])
+                infos[i]["terminal_observation"] = np.concatenate([infos[i]["terminal_observation"],
+                                                                   self._one_hot(finished)[0]])
+        self.modes = self._read_modes(infos)
+        return np.concatenate([observations, self._one_hot(self.modes)], axis=1), rewards, dones, infos
+
+
+def find_mode_wrapper(venv: VecEnv) -> ModeObservationWrapper | None:
+    """The :class:`ModeObservationWrapper` in a chain of vector-env wrappers, if any."""
+    while isinstance(venv, VecEnvWrapper):
+        if isinstance(venv, ModeObservationWrapper):
+            return venv
+        venv = venv.venv
+    return None
+
+
+def wrap_with_mode(env: Any, verbose: int = 0) -> VecEnv:
+    """``env`` as a vector environment whose observations end with the true mode (kept if already wrapped)."""
+    venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
+    return venv if find_mode_wrapper(venv) is not None else ModeObservationWrapper(venv)

@@ -1,0 +1,44 @@
+"""Oracle PPO: parameter-shared PPO whose observation carries the true hidden mode."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3 import PPO
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_emmarl.common.mode_aware import wrap_with_mode
+
+
+class OraclePPO(PPO):
+    """PPO that is told the episode's true hidden mode: the upper bound every latent method is measured against.
+
+    The environment (and any environment given to ``load``, ``set_env`` or :meth:`wrap_env`) is wrapped in a
+    :class:`~sb3_emmarl.common.mode_aware.ModeObservationWrapper`, which appends a one-hot of the mode from the
+    reserve's infos. No UAV can observe the mode, so this is a reference, not a deployable team: the gap
+    between it and plain PPO is what inferring the mode can win at most (``benchmarks/mode_value.py``).
+    Unlike the other algorithms it cannot act through ``predict`` on the plain environment's observations
+    alone; evaluate it on ``model.wrap_env(env)`` (``evaluate_team`` does).
+
+    Every argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
+    """
+
+    def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, **kwargs: Any) -> None:
+        env = wrap_with_mode(env, kwargs.get("verbose", 0)) if env is not None and not isinstance(env, str) else env
+        super().__init__(policy, env, *args, **kwargs)
+
+    def wrap_env(self, venv: VecEnv) -> VecEnv:
+        """``venv`` with the true mode appended to its observations (for evaluation and recording)."""
+        return wrap_with_mode(venv)
+
+    def set_env(self, env: Any, force_reset: bool = True) -> None:
+        super().set_env(wrap_with_mode(env, self.verbose), force_reset=force_reset)
+
+    @classmethod
+    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
+             print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> OraclePPO:
+        """As SB3's ``load``; ``env`` gets the mode appended to its observations."""
+        env = wrap_with_mode(env) if env is not None else None
+        return super().load(path, env=env, device=device, custom_objects=custom_objects,
+                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)

@@ -1,0 +1,3 @@
+from stable_baselines3.common.policies import ActorCriticPolicy
+
+MlpPolicy = ActorCriticPolicy

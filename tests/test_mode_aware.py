@@ -1,0 +1,99 @@
+"""The true mode in the observation (ModeObservationWrapper, OraclePPO) and the value-of-information benchmark."""
+
+import numpy as np
+import pytest
+from stable_baselines3 import PPO
+from stable_baselines3.common.evaluation import evaluate_policy
+
+from sb3_emmarl import OraclePPO
+from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
+from sb3_emmarl.common.vec_env import make_vec_env
+from wildlife_reserve.reserve.modes import N_MODES
+
+SMALL = {"n_uavs": 2, "grid_size": 20, "max_cycles": 5}
+
+
+def true_modes(venv):
+    return np.array(venv.get_attr("mode"))
+
+
+def test_the_one_hot_is_the_true_mode_at_reset_after_steps_and_across_episode_ends():
+    venv = ModeObservationWrapper(make_vec_env(3, seed=0, env_kwargs=SMALL))
+    assert venv.observation_space.shape == (venv.venv.observation_space.shape[0] + N_MODES,)
+    obs = venv.reset()
+    seen_modes = set()
+    for step in range(23):  # crosses four episode ends
+        one_hot = obs[:, -N_MODES:]
+        assert (one_hot.sum(axis=1) == 1).all()
+        np.testing.assert_array_equal(one_hot.argmax(axis=1), true_modes(venv))
+        seen_modes |= set(one_hot.argmax(axis=1).tolist())
+        obs, _, dones, infos = venv.step(np.random.default_rng(step).integers(0, 15, venv.num_envs))
+        for i in np.flatnonzero(dones):
+            terminal = infos[i]["terminal_observation"]
+            assert terminal.shape == obs[i].shape
+            assert terminal[-N_MODES:].argmax() == infos[i]["metrics"]["mode"]  # the finished episode's mode
+    assert len(seen_modes) > 1  # the modes change from episode to episode, and the one-hot follows
+
+
+def test_wrap_with_mode_wraps_once_and_rejects_what_it_cannot_read():
+    venv = wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL))
+    assert wrap_with_mode(venv) is venv
+    with pytest.raises(ValueError, match="n_modes must be an int >= 1"):
+        ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), n_modes=0)
+
+
+def test_oracle_ppo_learns_saves_loads_and_evaluates_on_the_plain_environment(tmp_path):
+    model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0)
+    model.learn(128)
+    plain = PPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0)
+    assert model.observation_space.shape[0] == plain.observation_space.shape[0] + N_MODES
+    model.save(tmp_path / "oracle")
+    loaded = OraclePPO.load(tmp_path / "oracle", env=make_vec_env(1, seed=1, env_kwargs=SMALL), device="cpu")
+    env = loaded.get_env()
+    obs = env.reset()
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    mean, _ = evaluate_policy(loaded, env, n_eval_episodes=2)
+    assert np.isfinite(mean)
+
+
+def load_benchmark():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "mode_value.py"
+    spec = importlib.util.spec_from_file_location("mode_value", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_paired_table_on_hand_built_records():
+    mode_value = load_benchmark()
+    told = [{"seed": s, "team_reward": r, "detection_rate": 0.5, "coverage_efficiency": 0.5} for s, r in enumerate([3, 5, 4])]
+    plain = [{"seed": s, "team_reward": r, "detection_rate": 0.5, "coverage_efficiency": 0.5} for s, r in enumerate([1, 2, 2])]
+    table = mode_value.paired_table({"told_mode": told, "ppo": plain})
+    row = next(line for line in table.splitlines() if line.startswith("team_reward"))
+    # Differences 2, 3, 2: mean 2.333; ttest_rel p = 0.0198; higher on 3 of 3 seeds.
+    assert "2.333 +- 0.471" in row and "0.0198" in row and "3/3" in row
+    assert "1" in next(line for line in table.splitlines() if line.startswith("detection_rate")).split()[-2]
+    with pytest.raises(ValueError, match="same seeds"):
+        mode_value.paired_table({"told_mode": told, "ppo": plain[::-1]})
+
+
+def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
+    mode_value = load_benchmark()
+    code = mode_value.main(["-n", "200", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path),
+                            "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "told_mode" in out and "p (paired t)" in out and "team_reward" in out
+    assert len([line for line in out.splitlines() if line.startswith(("0 ", "1 "))]) == 2
+
+
+@pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"), (["-n", "0"], "n-timesteps must be >= 1"),
+                                            (["--n-jobs", "0"], "n-jobs must be >= 1"),
+                                            (["--seeds", "1", "1"], "must be distinct")])
+def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        load_benchmark().main(flags)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
