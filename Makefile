@@ -4,7 +4,8 @@ PYTHON ?= python
 TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-probe
+.PHONY: install main test pytest lint format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-probe \
+	benchmark-mode-evidence benchmark-mode-value
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -35,14 +36,22 @@ benchmark-env: install
 	$(PIP) -e ".[tests,bench]"
 	$(PYTHON) benchmarks/env_speed.py
 
-# Issue 3's benchmark: decentralized PPO against the random team (about 10-15 minutes).
+# Decentralized PPO against the random team on the same episodes (about 10-15 minutes).
 benchmark-ppo: install
 	$(PYTHON) zoo/benchmark.py --algos ppo -n 3000000 --seeds 0 --eval-episodes 20
 
-# Issue 4's benchmark: EM-PPO, its frozen-E-step and no-latent ablations and PPO, 3 seeds at the same budget (about 30 minutes).
+# EM-PPO, its frozen-E-step and no-latent ablations and PPO, 3 seeds at the same budget (about 30 minutes).
 benchmark-em: install
 	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2 --eval-episodes 10
 
 # How much of the hidden mode the encoder's history window holds: a supervised ceiling (about 5 minutes).
 benchmark-latent-probe: install
 	$(PYTHON) benchmarks/latent_probe.py --history-lengths 8 32
+
+# Does the hidden mode show in what a team observes? A supervised probe by patrol, source and time (about 10 minutes).
+benchmark-mode-evidence: install
+	$(PYTHON) benchmarks/mode_evidence.py
+
+# How much knowing the hidden mode pays: PPO told the mode against plain PPO, 5 seeds x 500k agent-steps (about 25 minutes).
+benchmark-mode-value: install
+	$(PYTHON) benchmarks/mode_value.py
