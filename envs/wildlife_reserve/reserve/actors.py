@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wildlife_reserve.reserve import kernels
 from wildlife_reserve.reserve.modes import PoacherStrategy
 from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
@@ -71,14 +72,6 @@ def plan_poachers(
     return times.astype(np.int64), entry, np.asarray(target, dtype=np.int64)
 
 
-def _toward(rng: np.random.Generator, pos: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """One unit step along a random axis on which ``target`` differs from ``pos``."""
-    delta = np.sign(target - pos)
-    pick_row = rng.random(len(pos)) < 0.5
-    use_row = np.where(delta[:, 0] == 0, False, np.where(delta[:, 1] == 0, True, pick_row))
-    return np.where(use_row[:, None], delta * [1, 0], delta * [0, 1])
-
-
 def step_poachers(
     rng: np.random.Generator,
     pos: np.ndarray,
@@ -102,27 +95,10 @@ def step_poachers(
     :return: new cells and a ``(P,)`` bool of who moved
     """
     n = len(pos)
-    draw = rng.random(n)
-    wander = STEPS[1 + (rng.random(n) * 4).astype(np.int64)]
-    step = np.where(
-        (draw < strategy.move_prob)[:, None],
-        _toward(rng, pos, target),
-        np.where((draw < strategy.move_prob + strategy.wander_prob)[:, None], wander, 0),
-    )
-    evade_draw = rng.random(n)
-    if len(uav_cells):
-        dist = np.abs(pos[:, None, :] - uav_cells[None, :, :]).max(-1)
-        nearest = dist.argmin(axis=1)
-        noticed = dist[np.arange(n), nearest] <= notice_radius
-        evade = noticed & (evade_draw < strategy.evasion_prob)
-        flee = np.sign(pos - uav_cells[nearest])
-        flee = np.where((flee == 0).all(-1, keepdims=True), wander, flee)
-        hide = evade & strategy.hide_in_cover & cover[pos[:, 0], pos[:, 1]]
-        step = np.where((evade & ~hide)[:, None], flee, step)
-        step = np.where(hide[:, None], 0, step)
-    step = np.where(mobile[:, None], step, 0)
-    new = np.minimum(np.maximum(pos + step, 0), np.array(cover.shape) - 1)
-    return new, (new != pos).any(-1)
+    draw, wander_draw, pick, evade_draw = rng.random(n), rng.random(n), rng.random(n), rng.random(n)
+    return kernels.move_poachers(pos, mobile, target, uav_cells, notice_radius, strategy.move_prob, strategy.wander_prob,
+                                 strategy.evasion_prob, strategy.hide_in_cover, cover, STEPS, draw, wander_draw, pick,
+                                 evade_draw)
 
 
 def step_leopards(
@@ -137,9 +113,6 @@ def step_leopards(
     :param shape: ``(height, width)``
     """
     n = len(pos)
-    moves = rng.random(n) < LEOPARD_MOVE_PROB
-    step = STEPS[1 + (rng.random(n) * 4).astype(np.int64)]
-    far = np.abs(pos - home).max(-1) > home_range
-    step = np.where(far[:, None], _toward(rng, pos, home), step)
-    step = np.where(moves[:, None], step, 0)
-    return np.minimum(np.maximum(pos + step, 0), np.array(shape) - 1)
+    move_draw, step_draw, pick = rng.random(n), rng.random(n), rng.random(n)
+    return kernels.move_leopards(pos, home, home_range, shape[0], shape[1], LEOPARD_MOVE_PROB, STEPS, move_draw, step_draw,
+                                 pick)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import COMM_BROADCAST, COMM_QUERY, NEVER
+from wildlife_reserve.reserve.kernels import answer_queries, known_ages, links_in_range, look, merge_messages
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -48,7 +49,7 @@ class TeamKnowledge:
         self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
         self._stamps = np.empty((2, n, *padded_shape), dtype=np.float32)
         self._block_stamps = np.empty((2, n, n_blocks), dtype=np.float32)
-        self._sources = np.arange(n)[:, None, None] * self.cells_padded
+        self._all_blocks = np.broadcast_to(np.arange(n_blocks), (n, n_blocks))
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
@@ -65,15 +66,19 @@ class TeamKnowledge:
         self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
 
     # ------------------------------------------------------------------ own looks
-    def record_visits(self, t: int, uavs: np.ndarray, cells: np.ndarray, blocks: np.ndarray) -> None:
-        """The airborne ``uavs`` looked at padded flat ``cells`` ``(k, w * w)`` and flew over ``blocks`` ``(k,)`` at ``t``."""
-        own = (uavs[:, None] * self.cells_padded + cells).ravel()
-        self.own_last.ravel()[own] = t
-        first = self.own_first.ravel()
-        first[own] = np.minimum(first[own], t)
+    def record_visits(self, t: int, uavs: np.ndarray, cells: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray,
+                      visited: np.ndarray) -> tuple[np.ndarray, int]:
+        """The airborne ``uavs`` looked at padded flat ``cells`` ``(k, w * w)`` and flew over ``blocks`` ``(k,)`` at ``t``;
+        the team's coverage ``visited`` (flat padded bool, updated in place) counts ``high_risk`` cells.
+
+        :return: high-risk cells each of ``uavs`` saw that nobody had seen before ``(k,)``, and the team's new ones
+        """
+        last, first = self._stamps.reshape(2, self.n, -1)
+        fresh, new = look(uavs, cells, high_risk, visited, last, first, np.float32(t))
         self._block_stamps[0, uavs, blocks] = t
         self._block_stamps[1, uavs, blocks] = np.minimum(self._block_stamps[1, uavs, blocks], t)
         self.knowledge[uavs, uavs] = t
+        return fresh, new
 
     def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
         """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""
@@ -101,10 +106,7 @@ class TeamKnowledge:
     # ------------------------------------------------------------------ links and messages
     def in_range(self, uav_pos: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """``(n, n)`` bool: s and r (s != r) both ``ok`` (airborne, unjammed) and within ``R_c`` of each other."""
-        diff = uav_pos[:, None, :] - uav_pos[None, :, :]
-        self.dist = np.sqrt((diff**2).sum(-1))
-        links = (self.dist <= self.comm_radius) & ok[:, None] & ok[None, :]
-        np.fill_diagonal(links, False)
+        self.dist, links = links_in_range(uav_pos, ok, self.comm_radius)
         return links
 
     def update_beacons(self, rng: np.random.Generator, links: np.ndarray) -> None:
@@ -119,55 +121,32 @@ class TeamKnowledge:
         :param sign_blocks: block of every sign record (for the sign counts)
         """
         sent = links & (comm == COMM_BROADCAST)[:, None]
-        asking = np.flatnonzero(comm == COMM_QUERY)
-        if len(asking):
-            dist = np.where(links[:, asking], self.dist[:, asking], np.inf)
-            source = dist.argmin(axis=0)
-            reachable = np.isfinite(dist[source, np.arange(len(asking))])
-            sent[source[reachable], asking[reachable]] = True
+        answer_queries(sent, np.flatnonzero(comm == COMM_QUERY), links, self.dist)
         delivered = sent & (rng.random(sent.shape) >= self.comm_loss)
         self.comm_links = delivered
         if not delivered.any():
             return
-        senders, receivers = np.flatnonzero(delivered.any(1)), np.flatnonzero(delivered.any(0))
-        heard = delivered[np.ix_(senders, receivers)].T  # heard[r, s]
-        # knowledge[r] = max(knowledge[r], knowledge[s] for every s whose message reached r)
-        incoming = np.where(heard[:, :, None], self.knowledge[senders][None, :, :], NEVER).max(axis=1)
-        known = self.known_signs[:, :len(sign_blocks)]
-        # What the senders knew before this step's messages reaches the receivers.
-        learned = (heard.astype(np.float32) @ known[senders].astype(np.float32) > 0) & ~known[receivers]
-        self.knowledge[receivers] = np.maximum(self.knowledge[receivers], incoming)
+        self.knowledge, learned = merge_messages(delivered, self.knowledge, self.known_signs[:, :len(sign_blocks)])
         who, sign = np.nonzero(learned)
         if len(who):
-            self.learn_signs(receivers[who], sign, sign_blocks[sign])
+            self.learn_signs(who, sign, sign_blocks[sign])
 
     # ------------------------------------------------------------------ maps
-    def _known_age(self, t: int, last: np.ndarray, first: np.ndarray) -> np.ndarray:
-        """Age in [0, 1] (1 = never) of the newest visit each receiver knows of, from per-source stamps.
-
-        UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else
-        s's first visit if that one is, else nothing.
-
-        :param last: ``(source, receiver, ...)`` last-visit times
-        :param first: ``(source, receiver, ...)`` first-visit times
-        :return: ``(receiver, ...)`` ages scaled by ``max_cycles``
-        """
-        known_to = self.knowledge.T.reshape(self.n, self.n, *([1] * (last.ndim - 2)))  # knowledge[receiver, source]
-        seen = np.where(last <= known_to, last, np.where(first <= known_to, first, NEVER)).max(axis=0)
-        return np.minimum((np.float32(t) - seen) * np.float32(1.0 / self.max_cycles), np.float32(1.0))
-
     def staleness(self, t: int, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Time since each window cell and each coarse block was seen, as far as each UAV knows.
+
+        UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's
+        first visit if that one is, else nothing. Ages are ``min((t - newest known visit) / max_cycles, 1)``.
 
         :param window: ``(n, w, w)`` padded flat indices of each UAV's window
         :return: ``(n, w, w)`` and ``(n, blocks)`` ages in [0, 1]
         """
         n, w = self.n, window.shape[-1]
-        cells = np.take(self._stamps.reshape(2, -1), self._sources + window.reshape(1, n, -1), axis=1)
-        blocks = np.broadcast_to(self._block_stamps[:, :, None, :], (2, n, n, self.n_blocks))
-        last, first = np.concatenate([cells, blocks], axis=-1)  # (source, receiver, w * w + blocks)
-        ages = self._known_age(t, last, first)
-        return ages[:, :w * w].reshape(n, w, w), ages[:, w * w:]
+        t32, scale = np.float32(t), np.float32(1.0 / self.max_cycles)
+        last, first = self._stamps.reshape(2, n, -1)
+        cells = known_ages(last, first, self.knowledge, window.reshape(n, -1), t32, scale)
+        blocks = known_ages(self._block_stamps[0], self._block_stamps[1], self.knowledge, self._all_blocks, t32, scale)
+        return cells.reshape(n, w, w), blocks
 
     def belief(self, t: int) -> np.ndarray:
         """``(n, blocks)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
@@ -186,6 +165,8 @@ class TeamKnowledge:
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
-        receivers, senders = np.nonzero(self.comm_links.T)
-        split = np.searchsorted(receivers, np.arange(1, self.n))
-        return [tuple(part.tolist()) for part in np.split(senders, split)]
+        heard: list[list[int]] = [[] for _ in range(self.n)]
+        if self.comm_links.any():
+            for receiver, sender in zip(*np.nonzero(self.comm_links.T)):
+                heard[receiver].append(int(sender))
+        return [tuple(senders) for senders in heard]

@@ -7,18 +7,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from wildlife_reserve.reserve.config import ReserveConfig
-from wildlife_reserve.reserve.constants import (
-    CH_LEOPARD,
-    CH_OCCLUSION,
-    CH_POACHER,
-    CH_RISK,
-    CH_SIGN,
-    CH_STALENESS,
-    CH_UAV,
-    N_CHANNELS,
-    POACHER_ACTIVE,
-    POACHER_GONE,
-)
+from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
+from wildlife_reserve.reserve.kernels import fill_neighbours, fill_window
 from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE
 
 if TYPE_CHECKING:
@@ -69,22 +59,7 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarr
     layout = env.observation_layout
     obs = np.empty((n, env.obs_dim), dtype=np.float32)
     win = obs[:, layout["window"][0]].reshape(n, N_CHANNELS, env.window, env.window)
-    win[:, CH_OCCLUSION] = env._occ_pad[env._window]
-    win[:, CH_RISK] = env._risk_pad[env._window]
-    win[:, CH_STALENESS] = env._stale_window
-    win[:, CH_POACHER] = signals[:, 0]
-    win[:, CH_LEOPARD] = signals[:, 1]
-    win[:, CH_SIGN] = signals[:, 2]
-    # Other airborne UAVs inside the window (seen, not communicated).
-    cells = env._uav_cells()
-    delta = cells[None, :, :] - cells[:, None, :]  # delta[i, j] = cell_j - cell_i
-    visible = (np.abs(delta).max(-1) <= r) & ~env.grounded[None, :]
-    np.fill_diagonal(visible, False)
-    i, j = np.nonzero(visible)
-    win[:, CH_UAV] = 0.0
-    win[i, CH_UAV, delta[i, j, 0] + r, delta[i, j, 1] + r] = 1.0
-    if env.grounded.any():
-        win[env.grounded, CH_POACHER:] = 0.0
+    fill_window(win, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._uav_cells(), env.grounded, r)
 
     own = obs[:, layout["own"][0]]
     own[:, :2] = np.minimum(env.uav_pos * env._inv_scale, 1.0)
@@ -92,19 +67,8 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarr
     own[:, 4] = env.battery
     own[:, 5] = min(env.t / env.max_cycles, 1.0)
     # Neighbours heard through beacons, nearest first.
-    k = cfg.max_neighbors
-    neighbours = obs[:, layout["neighbours"][0]].reshape(n, k, 3)
-    neighbours[:] = 0.0
-    if k and n > 1:
-        diff = env.uav_pos[None, :, :] - env.uav_pos[:, None, :]  # diff[r, s] = pos_s - pos_r
-        dist = np.where(team.beacons.T, team.dist, np.inf)
-        order = np.argsort(dist, axis=1, kind="stable")[:, :k]
-        rows = np.arange(n)[:, None]
-        present = dist[rows, order] < np.inf
-        rel = diff[rows, order] * (1.0 / max(cfg.comm_radius, 1.0))
-        m = order.shape[1]
-        neighbours[:, :m, :2] = np.minimum(np.maximum(rel, -1.0), 1.0) * present[:, :, None]
-        neighbours[:, :m, 2] = present
+    neighbours = obs[:, layout["neighbours"][0]].reshape(n, cfg.max_neighbors, 3)
+    fill_neighbours(neighbours, env.uav_pos, team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0))
     obs[:, layout["block_staleness"][0]] = env._stale_blocks
     obs[:, layout["belief"][0]] = team.belief(env.t)
     obs[:, layout["signs"][0]] = team.sign_map()

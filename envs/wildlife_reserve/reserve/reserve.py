@@ -62,7 +62,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.reserve import actors, sensing, signs as signs_lib, terrain as terrain_lib
+from wildlife_reserve.reserve import actors, kernels, sensing, signs as signs_lib, terrain as terrain_lib
 from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig, check_int
 from wildlife_reserve.reserve.constants import (
     COMM_BROADCAST,
@@ -84,6 +84,10 @@ from wildlife_reserve.reserve.observation import (
     observation_size,
     state_size,
 )
+
+
+#: Unit displacement (row, col) of each discrete move.
+_MOVES = actors.STEPS.astype(np.float64)
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
@@ -164,6 +168,7 @@ class ReserveParallelEnv(ParallelEnv):
         self._renderer = None
         self._upper = np.array([self.height, self.width]) - 1e-6
         self._inv_scale = 1.0 / np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
+        self._comm_costs = np.array([0.0, ENERGY_COSTS["broadcast"], ENERGY_COSTS["query"]])  # by COMM_* choice
         self.t = 0
 
     # ------------------------------------------------------------------ spaces
@@ -243,8 +248,8 @@ class ReserveParallelEnv(ParallelEnv):
         self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
         self._risk_pad = self._pad(self.risk, 0.0).ravel()
         self._high_risk_pad = self._pad(self.high_risk, False).ravel()
-        self._high_risk_flat = np.flatnonzero(self._high_risk_pad)
         self.visited = np.zeros(self._padded_shape, dtype=bool)
+        self._n_covered = 0
 
         # The hidden mode.
         mode = options.get("mode", cfg.mode)
@@ -372,23 +377,16 @@ class ReserveParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------ the phases of a step
     def _fly(self, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray) -> np.ndarray:
         """Move the UAVs, spend their energy and ground those whose battery ran out; returns ``(n,)`` energy spent."""
-        speed = self.config.uav_speed
-        old = self.uav_pos
-        self.uav_pos = np.minimum(np.maximum(old + move * speed, 0.0), self._upper)
-        self.velocity = (self.uav_pos - old) / speed
-        energy = airborne * ENERGY_COSTS["hover"] + ENERGY_COSTS["move"] * np.sqrt((self.velocity**2).sum(-1))
-        energy += np.where(comm == COMM_BROADCAST, ENERGY_COSTS["broadcast"],
-                           np.where(comm == COMM_QUERY, ENERGY_COSTS["query"], 0.0))
-        energy = np.minimum(energy, self.battery)
-        self.battery = self.battery - energy
+        self.uav_pos, self.velocity, energy, self.battery = kernels.fly(
+            self.uav_pos, move, comm, airborne, self.battery, self.config.uav_speed, self._upper, ENERGY_COSTS["hover"],
+            ENERGY_COSTS["move"], self._comm_costs)
         self.grounded = self.battery <= 1e-12
         self._set_window(self._uav_cells())
         return energy
 
     def _collisions(self, cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:
         """``(n,)`` other airborne UAVs in each UAV's cell."""
-        flat = np.where(airborne, cells[:, 0] * self.width + cells[:, 1], -1 - np.arange(self.n))
-        return (flat[:, None] == flat[None, :]).sum(axis=1) - 1
+        return kernels.collisions(cells, airborne)
 
     def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
         """Leopards walk, poachers enter and move (leaving tracks), the jammer follows them."""
@@ -406,7 +404,9 @@ class ReserveParallelEnv(ParallelEnv):
         active = self.poacher_status == POACHER_ACTIVE
         if active.any():
             self.poacher_pos, self.poacher_moved = actors.step_poachers(
-                self.rng, self.poacher_pos, active & (self.poaching_timer == 0), self._poacher_targets(), uav_cells,
+                self.rng, self.poacher_pos, active & (self.poaching_timer == 0),
+                kernels.poacher_targets(self.poacher_pos, self.leopard_pos, self.leopard_alive, self.poacher_target,
+                                        actors.POACHER_SIGHT), uav_cells,
                 actors.NOTICE_RADIUS * self.weather.notice_factor, self.strategy, self.cover)
             tracks = self.poacher_moved & (self.rng.random(len(self.poacher_pos)) < signs_lib.TRACK_PROB)
             if tracks.any():
@@ -428,30 +428,27 @@ class ReserveParallelEnv(ParallelEnv):
         """
         cfg, r = self.config, self.r
         signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
-        active = self.poacher_status == POACHER_ACTIVE
         n_poachers = len(self.poacher_pos)
         targets = np.concatenate([self.poacher_pos, self.leopard_pos])
         seen = np.zeros((self.n, n_poachers), dtype=bool)
         if len(targets):
-            present = np.concatenate([active, self.leopard_alive])
+            present = np.concatenate([self.poacher_status == POACHER_ACTIVE, self.leopard_alive])
             moved = np.concatenate([self.poacher_moved, self.leopard_moved]).astype(np.int64)
-            delta = targets[None, :, :] - cells[:, None, :]
-            dist = np.minimum(np.abs(delta).max(-1), r + 1)
-            p = self._detect_table[dist, self.terrain[targets[:, 0], targets[:, 1]][None], moved[None]]
-            hit = sensing.detect(self.rng, p) & present[None] & airborne[:, None]
-            uav, tgt = np.nonzero(hit)
-            signals[uav, (tgt >= n_poachers).astype(np.int64), delta[uav, tgt, 0] + r, delta[uav, tgt, 1] + r] = 1.0
+            p = kernels.detection_probabilities(targets, cells, self._detect_table, self.terrain, moved, present, airborne, r)
+            hit = sensing.detect(self.rng, p)
+            kernels.mark_targets(hit, targets, cells, n_poachers, r, signals)
             seen = hit[:, :n_poachers]
 
         # Spurious poacher readings: sensor noise everywhere, decoys in the adversarial condition.
-        uav, offsets = sensing.false_readings(self.rng, airborne, self._reach_offsets, cfg.sensor_noise)
+        shape = (self.height, self.width)
+        uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, cfg.sensor_noise, cells, shape)
         if len(self.decoy_pos):
             d_uav, d_offsets = sensing.decoy_readings(self.rng, self.decoy_pos[None, :, :] - cells[:, None, :], airborne,
                                                       r, self.reach, cfg.sensor_noise)
-            uav, offsets = np.concatenate([uav, d_uav]), np.concatenate([offsets, d_offsets])
-        where = cells[uav] + offsets
-        keep = (where >= 0).all(-1) & (where < [self.height, self.width]).all(-1)  # no readings off the map
-        uav, offsets, where = uav[keep], offsets[keep], where[keep]
+            d_where = cells[d_uav] + d_offsets
+            keep = (d_where >= 0).all(-1) & (d_where < shape).all(-1)  # no readings off the map
+            uav = np.concatenate([uav, d_uav[keep]])
+            offsets, where = np.concatenate([offsets, d_offsets[keep]]), np.concatenate([where, d_where[keep]])
         signals[uav, 0, offsets[:, 0] + r, offsets[:, 1] + r] = 1.0
         self.metrics["false_alarms"] += len(uav)
 
@@ -471,24 +468,21 @@ class ReserveParallelEnv(ParallelEnv):
         """Signs seen this step (marked in ``channel`` ``(n, w, w)``, learned by the UAVs that saw them), and
         false sign readings under sensor noise; returns how many real signs (neither false readings nor the
         decoys' fake signs) the team found for the first time."""
-        ids = self.signs.live_at(self._window.reshape(self.n, -1), self.t)
-        uav, cell = np.nonzero((ids >= 0) & airborne[:, None])
-        sign = ids[uav, cell]
-        p = self._sign_table[cell, self._terrain_pad[self._window.reshape(self.n, -1)[uav, cell]]]
+        signs, window = self.signs, self._window.reshape(self.n, -1)
+        uav, cell, sign, p = kernels.sign_candidates(signs.grid.reshape(-1), signs.born, signs.expires, window, self.t,
+                                                     airborne, self._sign_table, self._terrain_pad)
         hit = sensing.detect(self.rng, p)
         uav, cell, sign = uav[hit], cell[hit], sign[hit]
         # False sign readings: phantom records that only the reading UAV knows of.
-        f_uav, offsets = sensing.false_readings(self.rng, airborne, self._reach_offsets, self.config.sensor_noise)
-        where = self._uav_cells()[f_uav] + offsets
-        keep = (where >= 0).all(-1) & (where < [self.height, self.width]).all(-1)
-        f_uav, offsets, where = f_uav[keep], offsets[keep], where[keep]
+        f_uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, self.config.sensor_noise,
+                                                       self._uav_cells(), (self.height, self.width))
         if len(f_uav):
-            phantom = self.signs.add(where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
+            phantom = signs.add(where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
             uav, sign = np.concatenate([uav, f_uav]), np.concatenate([sign, phantom])
             cell = np.concatenate([cell, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r])
         channel.reshape(self.n, -1)[uav, cell] = 1.0
         self.team.learn_signs(uav, sign, self.signs.block[sign])
-        true = sign[~np.isin(self.signs.kind[sign], (signs_lib.FALSE_READING, signs_lib.DECOY))]
+        true = sign[signs_lib.REAL[self.signs.kind[sign]]]
         if len(self._found) < self.signs.capacity:
             self._found = np.concatenate([self._found, np.zeros(self.signs.capacity - len(self._found), dtype=bool)])
         fresh = np.unique(true[~self._found[true]])
@@ -501,9 +495,8 @@ class ReserveParallelEnv(ParallelEnv):
         returns the poaching events of this step."""
         if not len(self.leopard_pos):
             return 0
-        active = self.poacher_status == POACHER_ACTIVE
-        near = (np.abs(self.poacher_pos[:, None] - self.leopard_pos[None]).max(-1) <= 1) & self.leopard_alive[None]
-        near &= active[:, None]
+        near = kernels.poachers_near_leopards(self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.leopard_pos,
+                                              self.leopard_alive)
         self.poaching_timer = np.where(near.any(axis=1), self.poaching_timer + 1, 0)
         done = self.poaching_timer >= self.config.poaching_time
         if not done.any():
@@ -519,10 +512,8 @@ class ReserveParallelEnv(ParallelEnv):
     def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray) -> tuple[np.ndarray, int]:
         """Each UAV looks (coverage, visit stamps), then the team talks; returns the high-risk cells each UAV
         saw first ``(n,)`` and the team's new ones."""
-        before = self._covered()
         self._stale_window, self._stale_blocks = self.team.staleness(self.t, self._window)  # before this step's look
-        own_new = self._mark_visits(airborne)
-        new_cells = self._covered() - before
+        own_new, new_cells = self._mark_visits(airborne)
         ok = airborne.copy()
         if self.jammer_on:
             self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
@@ -577,7 +568,8 @@ class ReserveParallelEnv(ParallelEnv):
             act = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
         if act.size != self.n or act.min() < 0 or act.max() >= N_MOVES * N_COMMS:
             raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {act}")
-        return actors.STEPS[act % N_MOVES].astype(np.float64), act // N_MOVES
+        comm, move = np.divmod(act, N_MOVES)
+        return _MOVES[move], comm
 
     def _uav_cells(self) -> np.ndarray:
         return np.floor(self.uav_pos).astype(np.int64)
@@ -586,35 +578,23 @@ class ReserveParallelEnv(ParallelEnv):
         """Flat indices ``(n, w, w)`` of each UAV's observation window in the padded grids."""
         self._window = (cells[:, 0] * self._padded_shape[1] + cells[:, 1])[:, None, None] + self._win_offsets
 
-    def _poacher_targets(self) -> np.ndarray:
-        """Each poacher heads for a live leopard within sight, else for its planned den."""
-        target = self.poacher_target
-        if self.leopard_alive.any() and len(self.poacher_pos):
-            d = np.abs(self.poacher_pos[:, None] - self.leopard_pos[None]).max(-1).astype(np.float64)
-            d[:, ~self.leopard_alive] = np.inf
-            nearest = d.argmin(axis=1)
-            in_sight = d[np.arange(len(d)), nearest] <= actors.POACHER_SIGHT
-            target = np.where(in_sight[:, None], self.leopard_pos[nearest], target)
-        return target
-
     def _covered(self) -> int:
         """High-risk cells seen so far this episode."""
-        return int(np.count_nonzero(self.visited.ravel()[self._high_risk_flat]))
+        return self._n_covered
 
-    def _mark_visits(self, airborne: np.ndarray) -> np.ndarray:
+    def _mark_visits(self, airborne: np.ndarray) -> tuple[np.ndarray, int]:
         """Record what each airborne UAV sees now: the team's coverage and each UAV's own visit history.
 
-        :return: ``(n,)`` high-risk cells each UAV saw for the first time in the episode
+        :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
         """
         idx = np.flatnonzero(airborne)
-        seen = self._window.reshape(self.n, -1)[idx]
-        visited = self.visited.ravel()
-        fresh = np.zeros(self.n, dtype=np.int64)
-        fresh[idx] = (self._high_risk_pad[seen] & ~visited[seen]).sum(axis=1)
-        visited[seen] = True
         cells = self._uav_cells()[idx]
-        self.team.record_visits(self.t, idx, seen, self._block[cells[:, 0], cells[:, 1]])
-        return fresh
+        fresh = np.zeros(self.n, dtype=np.int64)
+        fresh[idx], new = self.team.record_visits(self.t, idx, self._window.reshape(self.n, -1)[idx],
+                                                  self._block[cells[:, 0], cells[:, 1]], self._high_risk_pad,
+                                                  self.visited.reshape(-1))
+        self._n_covered += new
+        return fresh, new
 
     # ------------------------------------------------------------------ public extras
     def split_observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wildlife_reserve.reserve import kernels
 from wildlife_reserve.reserve.modes import Weather
 from wildlife_reserve.reserve.terrain import THERMAL_OCCLUSION, VISUAL_OCCLUSION
 
@@ -119,20 +120,22 @@ def detect(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
 
 
 def false_readings(
-    rng: np.random.Generator, airborne: np.ndarray, reach_offsets: np.ndarray, noise: float
-) -> tuple[np.ndarray, np.ndarray]:
+    rng: np.random.Generator, airborne: np.ndarray, reach_offsets: np.ndarray, noise: float, cells: np.ndarray,
+    shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Spurious readings: each airborne UAV reads one with :func:`false_alarm_probability`, at a uniform
-    offset within the sensing reach.
+    offset within the sensing reach; readings that would fall off the map are dropped.
 
     :param airborne: ``(n,)`` which UAVs sense
     :param reach_offsets: ``(m, 2)`` offsets within the reach
-    :return: the reading UAVs ``(k,)`` and their offsets ``(k, 2)``
+    :param cells: ``(n, 2)`` the UAVs' cells
+    :param shape: ``(height, width)`` of the map
+    :return: the reading UAVs ``(k,)``, their offsets ``(k, 2)`` and the cells read ``(k, 2)``
     """
     n = len(airborne)
-    alarm = (rng.random(n) < false_alarm_probability(noise)) & airborne
-    spot = (rng.random(n) * len(reach_offsets)).astype(np.int64)
-    uav = np.flatnonzero(alarm)
-    return uav, reach_offsets[spot[uav]]
+    alarm_draw, spot_draw = rng.random(n), rng.random(n)
+    return kernels.false_reading_cells(alarm_draw, spot_draw, false_alarm_probability(noise), airborne, reach_offsets,
+                                       cells, shape[0], shape[1])
 
 
 def decoy_readings(

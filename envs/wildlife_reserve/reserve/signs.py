@@ -32,6 +32,8 @@ TRACK, SNARE, CAMP, VEHICLE, CARCASS, DECOY, FALSE_READING = range(len(SIGN_KIND
 #: Steps each kind of sign stays visible after it is made (``inf``: until the episode ends).
 #: A false reading is a sensor artefact: it exists only in the memory of the UAV that made it.
 LIFETIME = np.array([100, np.inf, np.inf, np.inf, np.inf, np.inf, 0], dtype=np.float64)
+#: Which kinds are real signs of poachers (what the ``sign`` reward counts): not decoys, not false readings.
+REAL = np.array([kind not in ("decoy", "false_reading") for kind in SIGN_KINDS])
 #: Pre-episode tracks were made up to this many steps before the episode started.
 TRACK_AGE = 40
 #: Chance per step that an active poacher that moved leaves a track on its new cell.
@@ -198,12 +200,6 @@ class Signs:
         self.count = start + len(new)
         index[new] = ids
         return index
-
-    def live_at(self, flat_cells: np.ndarray, t: float) -> np.ndarray:
-        """Record index of the live sign at each padded flat cell, or -1."""
-        ids = self._flat[flat_cells]
-        safe = np.maximum(ids, 0)
-        return np.where((ids >= 0) & (self.born[safe] <= t) & (self.expires[safe] > t), ids, -1)
 
     def live(self, t: float) -> np.ndarray:
         """Record indices of the signs on the ground at step ``t``."""

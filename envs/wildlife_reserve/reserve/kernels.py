@@ -1,0 +1,420 @@
+"""The reserve's hot loops, compiled with numba.
+
+At 10 UAVs a step of the reserve is dominated by fixed numpy call overhead on small arrays, not by
+arithmetic; these loops replace chains of small array operations with one compiled call each. Each
+kernel computes exactly what the numpy expression in its docstring computes (same float32/float64
+arithmetic, same order of random draws, which stay in numpy), so results are bit-identical.
+Compiled code is cached beside this file (``cache=True``): the first import on a machine compiles
+for a few seconds, later ones load the cache.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from wildlife_reserve.reserve.constants import NEVER
+
+
+@njit(cache=True)
+def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells: np.ndarray, t: np.float32,
+               scale: np.float32) -> np.ndarray:  # pragma: no cover - compiled
+    """Age in [0, 1] of the newest visit each receiver knows of, at its own cells.
+
+    ``ages[r, c] = min((t - max_s seen[s, r, c]) * scale, 1)`` with ``seen = last[s, cells[r, c]]`` if that
+    is ``<= knowledge[r, s]``, else ``first[s, cells[r, c]]`` if that is, else ``NEVER``.
+
+    :param last: ``(n, m)`` float32 last-visit time of each source at each cell
+    :param first: ``(n, m)`` float32 first-visit times
+    :param knowledge: ``(n, n)`` float32, ``knowledge[r, s]``
+    :param cells: ``(n, c)`` cell indices (into the second axis of ``last``) per receiver
+    """
+    n, c = cells.shape
+    ages = np.empty((n, c), dtype=np.float32)
+    one = np.float32(1.0)
+    for r in range(n):
+        for j in range(c):
+            cell = cells[r, j]
+            best = NEVER
+            for s in range(n):
+                known = knowledge[r, s]
+                value = last[s, cell]
+                if value > known:
+                    value = first[s, cell]
+                    if value > known:
+                        value = NEVER
+                if value > best:
+                    best = value
+            age = (t - best) * scale
+            ages[r, j] = age if age < one else one
+    return ages
+
+
+@njit(cache=True)
+def merge_messages(delivered: np.ndarray, knowledge: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What each receiver knows after this step's messages (one hop: what the senders knew before them).
+
+    ``knowledge[r] = max(knowledge[r], knowledge[s] for every s with delivered[s, r])``, and ``learned[r, i]``:
+    some sender of ``r`` knew of sign ``i`` and ``r`` did not.
+
+    :param delivered: ``(n, n)`` bool, ``delivered[s, r]``
+    :param knowledge: ``(n, n)`` float32
+    :param known: ``(n, k)`` bool, which signs each UAV knows of
+    :return: the new knowledge ``(n, n)`` and ``learned`` ``(n, k)``
+    """
+    n, k = known.shape
+    merged = knowledge.copy()
+    learned = np.zeros((n, k), dtype=np.bool_)
+    for r in range(n):
+        for s in range(n):
+            if delivered[s, r]:
+                for j in range(n):
+                    if knowledge[s, j] > merged[r, j]:
+                        merged[r, j] = knowledge[s, j]
+                for i in range(k):
+                    if known[s, i] and not known[r, i]:
+                        learned[r, i] = True
+    return merged, learned
+
+
+@njit(cache=True)
+def _sign(x: np.int64) -> np.int64:  # pragma: no cover - compiled
+    return (x > 0) - (x < 0)
+
+
+@njit(cache=True)
+def _toward_step(pos: np.ndarray, target: np.ndarray, pick: float) -> tuple[np.int64, np.int64]:  # pragma: no cover
+    """One unit step along an axis on which ``target`` differs from ``pos``: the row axis if only it differs, the
+    column axis if only it does, else the row axis when ``pick < 0.5`` (how poachers and leopards head for a target)."""
+    d_row, d_col = _sign(target[0] - pos[0]), _sign(target[1] - pos[1])
+    use_row = False if d_row == 0 else (True if d_col == 0 else pick < 0.5)
+    return (d_row, np.int64(0)) if use_row else (np.int64(0), d_col)
+
+
+@njit(cache=True)
+def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_cells: np.ndarray, notice_radius: float,
+                  move_prob: float, wander_prob: float, evasion_prob: float, hide_in_cover: bool, cover: np.ndarray,
+                  steps: np.ndarray, draw: np.ndarray, wander_draw: np.ndarray, pick: np.ndarray,
+                  evade_draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The arithmetic of :func:`~wildlife_reserve.reserve.actors.step_poachers`, given its uniform draws."""
+    n = len(pos)
+    new = pos.copy()
+    moved = np.zeros(n, dtype=np.bool_)
+    height, width = cover.shape
+    for i in range(n):
+        wander = steps[1 + np.int64(wander_draw[i] * 4)]
+        if draw[i] < move_prob:
+            d_row, d_col = _toward_step(pos[i], target[i], pick[i])
+        elif draw[i] < move_prob + wander_prob:
+            d_row, d_col = wander[0], wander[1]
+        else:
+            d_row, d_col = np.int64(0), np.int64(0)
+        if len(uav_cells):
+            nearest, best = 0, np.int64(-1)
+            for u in range(len(uav_cells)):
+                d = max(abs(pos[i, 0] - uav_cells[u, 0]), abs(pos[i, 1] - uav_cells[u, 1]))
+                if best < 0 or d < best:
+                    nearest, best = u, d
+            if best <= notice_radius and evade_draw[i] < evasion_prob:
+                if hide_in_cover and cover[pos[i, 0], pos[i, 1]]:
+                    d_row, d_col = np.int64(0), np.int64(0)
+                else:
+                    f_row, f_col = _sign(pos[i, 0] - uav_cells[nearest, 0]), _sign(pos[i, 1] - uav_cells[nearest, 1])
+                    if f_row == 0 and f_col == 0:
+                        f_row, f_col = wander[0], wander[1]
+                    d_row, d_col = f_row, f_col
+        if not mobile[i]:
+            d_row, d_col = np.int64(0), np.int64(0)
+        new[i, 0] = min(max(pos[i, 0] + d_row, 0), height - 1)
+        new[i, 1] = min(max(pos[i, 1] + d_col, 0), width - 1)
+        moved[i] = new[i, 0] != pos[i, 0] or new[i, 1] != pos[i, 1]
+    return new, moved
+
+
+@njit(cache=True)
+def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: int, width: int, move_prob: float,
+                  steps: np.ndarray, move_draw: np.ndarray, step_draw: np.ndarray,
+                  pick: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """The arithmetic of :func:`~wildlife_reserve.reserve.actors.step_leopards`, given its uniform draws."""
+    new = pos.copy()
+    for i in range(len(pos)):
+        step = steps[1 + np.int64(step_draw[i] * 4)]
+        d_row, d_col = step[0], step[1]
+        if max(abs(pos[i, 0] - home[i, 0]), abs(pos[i, 1] - home[i, 1])) > home_range:
+            d_row, d_col = _toward_step(pos[i], home[i], pick[i])
+        if not move_draw[i] < move_prob:
+            d_row, d_col = np.int64(0), np.int64(0)
+        new[i, 0] = min(max(pos[i, 0] + d_row, 0), height - 1)
+        new[i, 1] = min(max(pos[i, 1] + d_col, 0), width - 1)
+    return new
+
+
+@njit(cache=True)
+def detection_probabilities(targets: np.ndarray, cells: np.ndarray, table: np.ndarray, terrain: np.ndarray,
+                            moved: np.ndarray, present: np.ndarray, airborne: np.ndarray,
+                            radius: int) -> np.ndarray:  # pragma: no cover - compiled
+    """``p[u, i] = table[min(chebyshev(target i - cell u), radius + 1), terrain at target i, moved[i]]``, and 0 for
+    targets not present or UAVs not airborne (which then never detect, whatever their draw)."""
+    n, m = len(cells), len(targets)
+    p = np.zeros((n, m))
+    for u in range(n):
+        if not airborne[u]:
+            continue
+        for i in range(m):
+            if present[i]:
+                d = min(max(abs(targets[i, 0] - cells[u, 0]), abs(targets[i, 1] - cells[u, 1])), radius + 1)
+                p[u, i] = table[d, terrain[targets[i, 0], targets[i, 1]], moved[i]]
+    return p
+
+
+@njit(cache=True)
+def mark_targets(hit: np.ndarray, targets: np.ndarray, cells: np.ndarray, n_poachers: int, radius: int,
+                 signals: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Mark each detection ``hit[u, i]`` in ``signals[u, channel, row, col]`` (channel 0 poachers, 1 leopards)."""
+    n, m = hit.shape
+    for u in range(n):
+        for i in range(m):
+            if hit[u, i]:
+                channel = 0 if i < n_poachers else 1
+                signals[u, channel, targets[i, 0] - cells[u, 0] + radius, targets[i, 1] - cells[u, 1] + radius] = 1.0
+
+
+@njit(cache=True)
+def false_reading_cells(alarm_draw: np.ndarray, spot_draw: np.ndarray, probability: float, airborne: np.ndarray,
+                        reach_offsets: np.ndarray, cells: np.ndarray, height: int,
+                        width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Spurious readings: UAV ``u`` reads one if airborne and ``alarm_draw[u] < probability``, at offset
+    ``reach_offsets[int(spot_draw[u] * len(reach_offsets))]``; readings off the map are dropped.
+
+    :return: reading UAVs ``(k,)``, offsets ``(k, 2)`` and cells ``(k, 2)``
+    """
+    n = len(cells)
+    uav = np.empty(n, dtype=np.int64)
+    offsets = np.empty((n, 2), dtype=np.int64)
+    where = np.empty((n, 2), dtype=np.int64)
+    k = 0
+    for u in range(n):
+        if alarm_draw[u] < probability and airborne[u]:
+            offset = reach_offsets[np.int64(spot_draw[u] * len(reach_offsets))]
+            row, col = cells[u, 0] + offset[0], cells[u, 1] + offset[1]
+            if 0 <= row < height and 0 <= col < width:
+                uav[k], offsets[k, 0], offsets[k, 1], where[k, 0], where[k, 1] = u, offset[0], offset[1], row, col
+                k += 1
+    return uav[:k], offsets[:k], where[:k]
+
+
+@njit(cache=True)
+def sign_candidates(grid: np.ndarray, born: np.ndarray, expires: np.ndarray, window: np.ndarray, t: float,
+                    airborne: np.ndarray, table: np.ndarray,
+                    terrain: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """The live signs in each airborne UAV's window and the chance of seeing each, in (UAV, window cell) order.
+
+    :param grid: flat padded grid of sign record indices (-1: none)
+    :param window: ``(n, c)`` padded flat cells of each UAV's window
+    :param table: ``(c, terrain types)`` chance of seeing a sign at each window cell on each terrain
+    :param terrain: flat padded terrain types
+    :return: UAVs, window cells, sign records and probabilities ``(k,)``
+    """
+    n, c = window.shape
+    size = n * c
+    uav = np.empty(size, dtype=np.int64)
+    cell = np.empty(size, dtype=np.int64)
+    sign = np.empty(size, dtype=np.int64)
+    p = np.empty(size)
+    k = 0
+    for u in range(n):
+        if not airborne[u]:
+            continue
+        for j in range(c):
+            flat = window[u, j]
+            i = grid[flat]
+            if i >= 0 and born[i] <= t and expires[i] > t:
+                uav[k], cell[k], sign[k], p[k] = u, j, i, table[j, terrain[flat]]
+                k += 1
+    return uav[:k], cell[:k], sign[:k], p[:k]
+
+
+@njit(cache=True)
+def look(uavs: np.ndarray, seen: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray,
+         first: np.ndarray, t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)``: stamp each one's own visit history
+    (``last[u, cell] = t``, ``first[u, cell] = min(first[u, cell], t)``) and mark the team's coverage.
+
+    :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
+        once count for both), and the number of high-risk cells the team sees for the first time
+    """
+    k, c = seen.shape
+    fresh = np.zeros(k, dtype=np.int64)
+    for a in range(k):
+        for j in range(c):
+            cell = seen[a, j]
+            if high_risk[cell] and not visited[cell]:
+                fresh[a] += 1
+    new = 0
+    for a in range(k):
+        u = uavs[a]
+        for j in range(c):
+            cell = seen[a, j]
+            if not visited[cell]:
+                visited[cell] = True
+                if high_risk[cell]:
+                    new += 1
+            last[u, cell] = t
+            if t < first[u, cell]:
+                first[u, cell] = t
+    return fresh, new
+
+
+@njit(cache=True)
+def links_in_range(pos: np.ndarray, ok: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """Euclidean distances ``(n, n)`` between the UAVs and the links: both ``ok`` and within ``radius``, not self."""
+    n = len(pos)
+    dist = np.empty((n, n))
+    links = np.zeros((n, n), dtype=np.bool_)
+    for s in range(n):
+        for r in range(n):
+            d_row, d_col = pos[s, 0] - pos[r, 0], pos[s, 1] - pos[r, 1]
+            dist[s, r] = np.sqrt(d_row * d_row + d_col * d_col)
+            links[s, r] = s != r and dist[s, r] <= radius and ok[s] and ok[r]
+    return dist, links
+
+
+@njit(cache=True)
+def answer_queries(sent: np.ndarray, asking: np.ndarray, links: np.ndarray, dist: np.ndarray) -> None:  # pragma: no cover
+    """Each asking UAV's nearest linked UAV (the first of equals) sends to it: ``sent[source, asker] = True``."""
+    n = len(links)
+    for asker in asking:
+        source, best = -1, np.inf
+        for s in range(n):
+            if links[s, asker] and dist[s, asker] < best:
+                source, best = s, dist[s, asker]
+        if source >= 0:
+            sent[source, asker] = True
+
+
+@njit(cache=True)
+def fill_window(win: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, window: np.ndarray, staleness: np.ndarray,
+                signals: np.ndarray, cells: np.ndarray, grounded: np.ndarray, radius: int) -> None:  # pragma: no cover
+    """The observation window ``win`` ``(n, 7, w, w)``: occlusion, risk, staleness, the three signal channels, and
+    the other airborne UAVs inside the window (channel 5); a grounded UAV's channels 3-6 are 0.
+
+    :param occlusion: flat padded visual occlusion
+    :param risk: flat padded risk
+    :param window: ``(n, w, w)`` padded flat cells of each UAV's window
+    :param staleness: ``(n, w, w)``
+    :param signals: ``(n, 3, w, w)`` poacher, leopard and sign readings
+    """
+    n, _, w, _ = win.shape
+    for u in range(n):
+        for a in range(w):
+            for b in range(w):
+                cell = window[u, a, b]
+                win[u, 0, a, b] = occlusion[cell]
+                win[u, 1, a, b] = risk[cell]
+                win[u, 2, a, b] = staleness[u, a, b]
+                win[u, 3, a, b] = signals[u, 0, a, b]
+                win[u, 4, a, b] = signals[u, 1, a, b]
+                win[u, 5, a, b] = 0.0
+                win[u, 6, a, b] = signals[u, 2, a, b]
+        for v in range(n):
+            d_row, d_col = cells[v, 0] - cells[u, 0], cells[v, 1] - cells[u, 1]
+            if v != u and not grounded[v] and abs(d_row) <= radius and abs(d_col) <= radius:
+                win[u, 5, d_row + radius, d_col + radius] = 1.0
+        if grounded[u]:
+            win[u, 3:] = 0.0
+
+
+@njit(cache=True)
+def fill_neighbours(neighbours: np.ndarray, pos: np.ndarray, heard: np.ndarray, dist: np.ndarray,
+                    scale: float) -> None:  # pragma: no cover - compiled
+    """Up to ``k`` UAVs each UAV heard (``heard[s, r]``), nearest first (the lower index among equals):
+    ``neighbours[r, slot] = (clip((pos_s - pos_r) * scale, -1, 1), 1)``; unused slots are 0.
+
+    :param neighbours: ``(n, k, 3)``
+    """
+    n, k, _ = neighbours.shape
+    neighbours[:] = 0.0
+    order = np.empty(n, dtype=np.int64)
+    for r in range(n):
+        m = 0
+        for s in range(n):  # insertion sort of the heard UAVs by (distance, index)
+            if heard[s, r]:
+                j = m
+                while j > 0 and dist[r, order[j - 1]] > dist[r, s]:
+                    order[j] = order[j - 1]
+                    j -= 1
+                order[j] = s
+                m += 1
+        for slot in range(min(m, k)):
+            s = order[slot]
+            for axis in range(2):
+                value = (pos[s, axis] - pos[r, axis]) * scale
+                neighbours[r, slot, axis] = min(max(value, -1.0), 1.0)
+            neighbours[r, slot, 2] = 1.0
+
+
+@njit(cache=True)
+def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray, battery: np.ndarray, speed: float,
+        upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds.
+
+    :param comm_costs: energy of each communication choice (none, broadcast, query)
+    :return: new positions, velocities (displacement / speed), energy spent and the batteries left
+    """
+    n = len(pos)
+    new, velocity = np.empty((n, 2)), np.empty((n, 2))
+    energy, left = np.empty(n), np.empty(n)
+    for u in range(n):
+        for axis in range(2):
+            new[u, axis] = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
+            velocity[u, axis] = (new[u, axis] - pos[u, axis]) / speed
+        e = (hover if airborne[u] else 0.0) + move_cost * np.sqrt(velocity[u, 0] ** 2 + velocity[u, 1] ** 2)
+        e += comm_costs[comm[u]]
+        energy[u] = min(e, battery[u])
+        left[u] = battery[u] - energy[u]
+    return new, velocity, energy, left
+
+
+@njit(cache=True)
+def collisions(cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``(n,)`` other airborne UAVs in each airborne UAV's cell."""
+    n = len(cells)
+    count = np.zeros(n, dtype=np.int64)
+    for u in range(n):
+        if airborne[u]:
+            for v in range(n):
+                if v != u and airborne[v] and cells[u, 0] == cells[v, 0] and cells[u, 1] == cells[v, 1]:
+                    count[u] += 1
+    return count
+
+
+@njit(cache=True)
+def poacher_targets(poachers: np.ndarray, leopards: np.ndarray, alive: np.ndarray, planned: np.ndarray,
+                    sight: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Each poacher heads for the nearest live leopard within ``sight`` (Chebyshev; the first of equals), else for
+    its planned den."""
+    target = planned.copy()
+    for i in range(len(poachers)):
+        nearest, best = -1, np.inf
+        for j in range(len(leopards)):
+            if alive[j]:
+                d = max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1]))
+                if d < best:
+                    nearest, best = j, d
+        if nearest >= 0 and best <= sight:
+            target[i, 0], target[i, 1] = leopards[nearest, 0], leopards[nearest, 1]
+    return target
+
+
+@njit(cache=True)
+def poachers_near_leopards(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarray,
+                           alive: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``(P, L)`` bool: active poacher next to (Chebyshev distance <= 1) live leopard."""
+    near = np.zeros((len(poachers), len(leopards)), dtype=np.bool_)
+    for i in range(len(poachers)):
+        if active[i]:
+            for j in range(len(leopards)):
+                if alive[j] and max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1])) <= 1:
+                    near[i, j] = True
+    return near
