@@ -54,7 +54,7 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=20, log_folder="logs/mode_value")
+    add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=50, log_folder="logs/mode_value")
     parser.set_defaults(n_jobs=2)
     args = parser.parse_args(argv)
     check_run_arguments(parser, args)

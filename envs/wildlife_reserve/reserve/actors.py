@@ -30,8 +30,13 @@ def plan_poachers(
     max_cycles: int,
     shape: tuple[int, int],
     dens: np.ndarray,
+    road_entries: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Draw when and where each poacher enters and which den it heads for.
+
+    Infiltrators and groups come by road: an edge infiltration enters along the side where one of the
+    reserve's roads enters it, a coordinated group at a road's entry point (one road drawn per episode;
+    with no roads, any side and any point).
 
     :param rng: random generator
     :param strategy: the episode's poacher strategy
@@ -39,16 +44,27 @@ def plan_poachers(
     :param max_cycles: episode length (entry times are fractions of it, never step 0)
     :param shape: ``(height, width)``
     :param dens: ``(k, 2)`` den cells
+    :param road_entries: ``(r, 2)`` edge cells where the roads enter the reserve
     :return: entry times ``(P,)``, entry cells ``(P, 2)``, target cells ``(P, 2)``
     """
     lo = max(1, int(strategy.entry_window[0] * max_cycles))
     hi = max(lo + 1, int(strategy.entry_window[1] * max_cycles))
     n = n_poachers
     jitter = rng.uniform(-0.05, 0.05, size=n)
+    roads = np.zeros((0, 2), dtype=np.int64) if road_entries is None else np.asarray(road_entries).reshape(-1, 2)
+
+    def by_road() -> tuple[int, float]:
+        """The side and the place along it of a road's entry drawn at random (a random point without roads)."""
+        if not len(roads):
+            return int(rng.integers(4)), float(rng.uniform())
+        road_side, road_frac = nearest_edge(roads[rng.integers(len(roads))][None], shape)
+        return int(road_side[0]), float(road_frac[0])
+
     if strategy.entry == "group":
         times = np.full(n, rng.integers(lo, hi))
-        side = np.full(n, rng.integers(4))
-        frac = np.clip(rng.uniform() + 0.3 * jitter, 0.0, 1.0)
+        group_side, group_frac = by_road()
+        side = np.full(n, group_side)
+        frac = np.clip(group_frac + 0.3 * jitter, 0.0, 1.0)
         target = np.repeat(dens[rng.integers(len(dens))][None], n, axis=0)
     elif strategy.entry == "near_den":
         times = rng.integers(lo, hi, size=n)
@@ -57,7 +73,7 @@ def plan_poachers(
         frac = np.clip(frac + jitter, 0.0, 1.0)
     elif strategy.entry == "one_side":
         times = rng.integers(lo, hi, size=n)
-        side = np.full(n, rng.integers(4))
+        side = np.full(n, by_road()[0])
         frac = rng.uniform(size=n)
         target = None
     else:  # "perimeter"

@@ -291,7 +291,7 @@ class ReserveParallelEnv(ParallelEnv):
         # Poachers, planned from the mode's strategy, and the signs their kind left before the episode.
         poacher_rng = np.random.default_rng(poacher_seed)
         self.poacher_entry_time, self.poacher_entry, self.poacher_target = actors.plan_poachers(
-            poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens)
+            poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens, self.hotspots.road_entries)
         self.poacher_pos = self.poacher_entry.copy()
         self.poacher_status = np.full(cfg.n_poachers, POACHER_WAITING, dtype=np.int8)
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)

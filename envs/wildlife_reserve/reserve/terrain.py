@@ -8,7 +8,7 @@ Everything here is vectorised over cells (no Python loop over cells).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -101,11 +101,13 @@ def _sample_cells(rng: np.random.Generator, weights: np.ndarray, count: int, min
 
 @dataclass
 class Hotspots:
-    """Where the risk comes from: leopard dens, water holes and road cells (``(k, 2)`` int arrays)."""
+    """Where the risk comes from: leopard dens, water holes and road cells, and the edge cells where the roads enter
+    the reserve (``(k, 2)`` int arrays)."""
 
     dens: np.ndarray
     waterholes: np.ndarray
     roads: np.ndarray
+    road_entries: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
 
 
 def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: RegionPreset) -> Hotspots:
@@ -124,7 +126,7 @@ def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: Reg
     dens = _sample_cells(rng, den_weight, max(1, preset.n_dens), spacing)
     water_weight = inner * np.where(terrain == OPEN, 1.0, 0.1)
     waterholes = _sample_cells(rng, water_weight, preset.n_waterholes, spacing / 2)
-    road_cells = []
+    road_cells, entries = [], []
     for _ in range(preset.n_roads):
         side = rng.integers(4)
         along = width if side < 2 else height
@@ -134,8 +136,10 @@ def generate_hotspots(rng: np.random.Generator, terrain: np.ndarray, preset: Reg
         n = int(np.abs(end - start).max()) + 1
         line = np.rint(np.linspace(start, end, n)).astype(np.int64)
         road_cells.append(line)
+        entries.append(line[0])
     roads = np.concatenate(road_cells) if road_cells else np.zeros((0, 2), dtype=np.int64)
-    return Hotspots(dens=dens, waterholes=waterholes, roads=roads)
+    road_entries = np.array(entries, dtype=np.int64).reshape(-1, 2)
+    return Hotspots(dens=dens, waterholes=waterholes, roads=roads, road_entries=road_entries)
 
 
 def edge_points(side: np.ndarray, frac: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
