@@ -168,18 +168,6 @@ def detection_probabilities(targets: np.ndarray, cells: np.ndarray, table: np.nd
 
 
 @njit(cache=True)
-def mark_targets(hit: np.ndarray, targets: np.ndarray, cells: np.ndarray, n_poachers: int, radius: int,
-                 signals: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Mark each detection ``hit[u, i]`` in ``signals[u, channel, row, col]`` (channel 0 poachers, 1 leopards)."""
-    n, m = hit.shape
-    for u in range(n):
-        for i in range(m):
-            if hit[u, i]:
-                channel = 0 if i < n_poachers else 1
-                signals[u, channel, targets[i, 0] - cells[u, 0] + radius, targets[i, 1] - cells[u, 1] + radius] = 1.0
-
-
-@njit(cache=True)
 def false_reading_cells(alarm_draw: np.ndarray, spot_draw: np.ndarray, probability: float, airborne: np.ndarray,
                         reach_offsets: np.ndarray, cells: np.ndarray, height: int,
                         width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
@@ -418,3 +406,114 @@ def poachers_near_leopards(poachers: np.ndarray, active: np.ndarray, leopards: n
                 if alive[j] and max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1])) <= 1:
                     near[i, j] = True
     return near
+
+
+@njit(cache=True)
+def place_signs(grid: np.ndarray, flat: np.ndarray, born: np.ndarray, expires: np.ndarray, t: float,
+                record_born: np.ndarray, record_expires: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
+    # pragma: no cover - compiled
+    """Signs made at padded flat cells ``flat`` (the first of repeated cells counts), in ascending cell order: a cell
+    whose sign is live keeps it, with the later expiry; any other gets a new record ``start, start + 1, ...``.
+
+    :param grid: flat padded grid of record indices (-1: none), updated in place
+    :param record_born: times the records were made (read, for liveness)
+    :param record_expires: expiry of every record (extended in place)
+    :return: for each input sign its new record or -1, and the inputs that got new records, in record order
+    """
+    k = len(flat)
+    index = np.full(k, -1, dtype=np.int64)
+    order = np.argsort(flat, kind="mergesort")
+    new = np.empty(k, dtype=np.int64)
+    m = 0
+    for a in range(k):
+        i = order[a]
+        if a > 0 and flat[i] == flat[order[a - 1]]:
+            continue
+        current = grid[flat[i]]
+        if current >= 0 and record_expires[current] > t:
+            if expires[i] > record_expires[current]:
+                record_expires[current] = expires[i]
+        else:
+            index[i] = start + m
+            grid[flat[i]] = start + m
+            new[m] = i
+            m += 1
+    return index, new[:m]
+
+
+@njit(cache=True)
+def learn_signs(known: np.ndarray, counts: np.ndarray, uavs: np.ndarray, signs: np.ndarray,
+                blocks: np.ndarray) -> None:  # pragma: no cover - compiled
+    """UAV ``uavs[a]`` learns of sign ``signs[a]`` (in block ``blocks[a]``): counted once per UAV."""
+    for a in range(len(uavs)):
+        if not known[uavs[a], signs[a]]:
+            known[uavs[a], signs[a]] = True
+            counts[uavs[a], blocks[a]] += 1.0
+
+
+@njit(cache=True)
+def count_found(signs: np.ndarray, real: np.ndarray, found: np.ndarray) -> int:  # pragma: no cover - compiled
+    """Mark the ``real`` ones among ``signs`` as found by the team; returns how many were not found before."""
+    fresh = 0
+    for i in signs:
+        if real[i] and not found[i]:
+            found[i] = True
+            fresh += 1
+    return fresh
+
+
+@njit(cache=True)
+def record_readings(hit: np.ndarray, poachers: np.ndarray, leopards: np.ndarray, cells: np.ndarray, radius: int,
+                    false_uav: np.ndarray, false_offsets: np.ndarray, false_cells: np.ndarray,
+                    signals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Mark this step's detections ``hit`` ``(n, P + L)`` (poachers, then leopards) and the false poacher readings in
+    ``signals`` (channels 0 and 1), and list the poacher readings.
+
+    :return: who detected which poacher ``(n, P)``, and the poacher readings ``(k, 3)`` ``(uav, row, col)``: the true
+        ones in (UAV, poacher) order, then the false ones
+    """
+    n = len(cells)
+    n_poachers = len(poachers)
+    seen = np.zeros((n, n_poachers), dtype=np.bool_)
+    readings = np.empty((int(hit[:, :n_poachers].sum()) + len(false_uav), 3), dtype=np.int64)
+    k = 0
+    for u in range(n):
+        for i in range(hit.shape[1]):
+            if hit[u, i]:
+                if i < n_poachers:
+                    row, col = poachers[i, 0], poachers[i, 1]
+                    seen[u, i] = True
+                    readings[k, 0], readings[k, 1], readings[k, 2] = u, row, col
+                    k += 1
+                    signals[u, 0, row - cells[u, 0] + radius, col - cells[u, 1] + radius] = 1.0
+                else:
+                    row, col = leopards[i - n_poachers, 0], leopards[i - n_poachers, 1]
+                    signals[u, 1, row - cells[u, 0] + radius, col - cells[u, 1] + radius] = 1.0
+    for a in range(len(false_uav)):
+        signals[false_uav[a], 0, false_offsets[a, 0] + radius, false_offsets[a, 1] + radius] = 1.0
+        readings[k, 0], readings[k, 1], readings[k, 2] = false_uav[a], false_cells[a, 0], false_cells[a, 1]
+        k += 1
+    return seen, readings
+
+
+@njit(cache=True)
+def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarray, channel: np.ndarray,
+              known: np.ndarray, counts: np.ndarray, blocks: np.ndarray, kind: np.ndarray, real: np.ndarray,
+              found: np.ndarray) -> int:  # pragma: no cover - compiled
+    """The candidate sightings that ``hit``: mark ``channel[uav, cell]``, the UAV learns of the sign (counted once
+    per UAV in ``counts`` by block), and the team finds it (``found``) if its kind is ``real``.
+
+    :return: how many real signs the team found for the first time
+    """
+    fresh = 0
+    for a in range(len(hit)):
+        if hit[a]:
+            u, i = uav[a], sign[a]
+            channel[u, cell[a]] = 1.0
+            if not known[u, i]:
+                known[u, i] = True
+                counts[u, blocks[i]] += 1.0
+            if real[kind[i]] and not found[i]:
+                found[i] = True
+                fresh += 1
+    return fresh

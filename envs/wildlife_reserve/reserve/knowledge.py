@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import COMM_BROADCAST, COMM_QUERY, NEVER
-from wildlife_reserve.reserve.kernels import answer_queries, known_ages, links_in_range, look, merge_messages
+from wildlife_reserve.reserve.kernels import answer_queries, known_ages, learn_signs, links_in_range, look, merge_messages
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -91,13 +91,11 @@ class TeamKnowledge:
         """Each of ``uavs`` found sign record ``signs`` (lying in ``sign_blocks``)."""
         if not len(uavs):
             return
-        self._fit(int(signs.max()) + 1)
-        new = ~self.known_signs[uavs, signs]
-        uavs, signs, blocks = uavs[new], signs[new], sign_blocks[new]
-        self.known_signs[uavs, signs] = True
-        np.add.at(self.sign_counts, (uavs, blocks), 1.0)  # (uav, sign) pairs repeat only if listed twice
+        self.fit_signs(int(signs.max()) + 1)
+        learn_signs(self.known_signs, self.sign_counts, uavs, signs, sign_blocks)
 
-    def _fit(self, size: int) -> None:
+    def fit_signs(self, size: int) -> None:
+        """Make room in ``known_signs`` for ``size`` sign records."""
         if size > self.known_signs.shape[1]:
             grown = np.zeros((self.n, max(size, 2 * self.known_signs.shape[1])), dtype=bool)
             grown[:, :self.known_signs.shape[1]] = self.known_signs

@@ -59,7 +59,7 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarr
     layout = env.observation_layout
     obs = np.empty((n, env.obs_dim), dtype=np.float32)
     win = obs[:, layout["window"][0]].reshape(n, N_CHANNELS, env.window, env.window)
-    fill_window(win, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._uav_cells(), env.grounded, r)
+    fill_window(win, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells, env.grounded, r)
 
     own = obs[:, layout["own"][0]]
     own[:, :2] = np.minimum(env.uav_pos * env._inv_scale, 1.0)

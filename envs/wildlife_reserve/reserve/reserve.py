@@ -347,7 +347,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.t += 1
 
         energy = self._fly(move, comm, airborne)
-        cells = self._uav_cells()
+        cells = self._cells
         own_collisions = self._collisions(cells, airborne)
         self._move_ground_actors(cells[airborne])
         signals, seen, readings, signs_found = self._sense(cells, airborne)
@@ -428,17 +428,11 @@ class ReserveParallelEnv(ParallelEnv):
         """
         cfg, r = self.config, self.r
         signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
-        n_poachers = len(self.poacher_pos)
         targets = np.concatenate([self.poacher_pos, self.leopard_pos])
-        seen = np.zeros((self.n, n_poachers), dtype=bool)
-        if len(targets):
-            present = np.concatenate([self.poacher_status == POACHER_ACTIVE, self.leopard_alive])
-            moved = np.concatenate([self.poacher_moved, self.leopard_moved]).astype(np.int64)
-            p = kernels.detection_probabilities(targets, cells, self._detect_table, self.terrain, moved, present, airborne, r)
-            hit = sensing.detect(self.rng, p)
-            kernels.mark_targets(hit, targets, cells, n_poachers, r, signals)
-            seen = hit[:, :n_poachers]
-
+        present = np.concatenate([self.poacher_status == POACHER_ACTIVE, self.leopard_alive])
+        moved = np.concatenate([self.poacher_moved, self.leopard_moved]).astype(np.int64)
+        p = kernels.detection_probabilities(targets, cells, self._detect_table, self.terrain, moved, present, airborne, r)
+        hit = sensing.detect(self.rng, p) if len(targets) else np.zeros((self.n, 0), dtype=bool)
         # Spurious poacher readings: sensor noise everywhere, decoys in the adversarial condition.
         shape = (self.height, self.width)
         uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, cfg.sensor_noise, cells, shape)
@@ -449,16 +443,14 @@ class ReserveParallelEnv(ParallelEnv):
             keep = (d_where >= 0).all(-1) & (d_where < shape).all(-1)  # no readings off the map
             uav = np.concatenate([uav, d_uav[keep]])
             offsets, where = np.concatenate([offsets, d_offsets[keep]]), np.concatenate([where, d_where[keep]])
-        signals[uav, 0, offsets[:, 0] + r, offsets[:, 1] + r] = 1.0
         self.metrics["false_alarms"] += len(uav)
-
+        seen, readings = kernels.record_readings(hit, self.poacher_pos, self.leopard_pos, cells, r, uav, offsets, where,
+                                                 signals)
         caught = seen.any(axis=0)
-        self.poacher_status[caught] = POACHER_CAUGHT
-        if caught.any() and self.first_detection_time is None:
-            self.first_detection_time = self.t
-        pairs = np.argwhere(seen)  # (uav, poacher) pairs become (uav, row, col) readings
-        readings = np.concatenate([np.column_stack([pairs[:, 0], self.poacher_pos[pairs[:, 1]]]),
-                                   np.column_stack([uav, where])]).astype(np.int64)
+        if caught.any():
+            self.poacher_status[caught] = POACHER_CAUGHT
+            if self.first_detection_time is None:
+                self.first_detection_time = self.t
         found = self._sense_signs(airborne, signals[:, 2])
         signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
         signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
@@ -472,23 +464,21 @@ class ReserveParallelEnv(ParallelEnv):
         uav, cell, sign, p = kernels.sign_candidates(signs.grid.reshape(-1), signs.born, signs.expires, window, self.t,
                                                      airborne, self._sign_table, self._terrain_pad)
         hit = sensing.detect(self.rng, p)
-        uav, cell, sign = uav[hit], cell[hit], sign[hit]
+        self.team.fit_signs(signs.count)
+        if len(self._found) < signs.capacity:
+            self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
+        channel = channel.reshape(self.n, -1)
+        fresh = kernels.see_signs(hit, uav, cell, sign, channel, self.team.known_signs, self.team.sign_counts, signs.block,
+                                  signs.kind, signs_lib.REAL, self._found)
         # False sign readings: phantom records that only the reading UAV knows of.
         f_uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, self.config.sensor_noise,
-                                                       self._uav_cells(), (self.height, self.width))
+                                                       self._cells, (self.height, self.width))
         if len(f_uav):
             phantom = signs.add(where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
-            uav, sign = np.concatenate([uav, f_uav]), np.concatenate([sign, phantom])
-            cell = np.concatenate([cell, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r])
-        channel.reshape(self.n, -1)[uav, cell] = 1.0
-        self.team.learn_signs(uav, sign, self.signs.block[sign])
-        true = sign[signs_lib.REAL[self.signs.kind[sign]]]
-        if len(self._found) < self.signs.capacity:
-            self._found = np.concatenate([self._found, np.zeros(self.signs.capacity - len(self._found), dtype=bool)])
-        fresh = np.unique(true[~self._found[true]])
-        self._found[fresh] = True
-        self.metrics["signs_found"] += len(fresh)
-        return len(fresh)
+            channel[f_uav, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r] = 1.0
+            self.team.learn_signs(f_uav, phantom, signs.block[phantom])
+        self.metrics["signs_found"] += fresh
+        return fresh
 
     def _poach(self) -> int:
         """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
@@ -575,7 +565,8 @@ class ReserveParallelEnv(ParallelEnv):
         return np.floor(self.uav_pos).astype(np.int64)
 
     def _set_window(self, cells: np.ndarray) -> None:
-        """Flat indices ``(n, w, w)`` of each UAV's observation window in the padded grids."""
+        """The UAVs' cells ``(n, 2)`` and the flat indices ``(n, w, w)`` of their observation windows in the padded grids."""
+        self._cells = cells
         self._window = (cells[:, 0] * self._padded_shape[1] + cells[:, 1])[:, None, None] + self._win_offsets
 
     def _covered(self) -> int:
@@ -588,7 +579,7 @@ class ReserveParallelEnv(ParallelEnv):
         :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
         """
         idx = np.flatnonzero(airborne)
-        cells = self._uav_cells()[idx]
+        cells = self._cells[idx]
         fresh = np.zeros(self.n, dtype=np.int64)
         fresh[idx], new = self.team.record_visits(self.t, idx, self._window.reshape(self.n, -1)[idx],
                                                   self._block[cells[:, 0], cells[:, 1]], self._high_risk_pad,

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wildlife_reserve.reserve.kernels import place_signs
 from wildlife_reserve.reserve.modes import PoacherStrategy
 from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
@@ -175,30 +176,18 @@ class Signs:
         born = np.broadcast_to(np.asarray(born, dtype=np.float64), (k,))
         kind = np.broadcast_to(np.asarray(kind, dtype=np.int64), (k,))
         expires = born + LIFETIME[kind]
-        index = np.full(k, -1, dtype=np.int64)
+        if self.count + k > self.capacity:
+            self._grow(max(2 * self.capacity, self.count + k))
+        start = self.count
         if on_grid:
             flat = (pos[:, 0] + self.pad) * self.width + pos[:, 1] + self.pad
-            flat, first = np.unique(flat, return_index=True)  # one new sign per cell
-            current = self._flat[flat]
-            live = (current >= 0) & (self.expires[np.maximum(current, 0)] > t)
-            keep = current[live]
-            self.expires[keep] = np.maximum(self.expires[keep], expires[first[live]])
-            new = first[~live]
-            flat = flat[~live]
+            index, new = place_signs(self._flat, flat, born, expires, t, self.born, self.expires, start)
         else:
-            new = np.arange(k)
-        if not len(new):
-            return index
-        start = self.count
-        if start + len(new) > self.capacity:
-            self._grow(max(2 * self.capacity, start + len(new)))
+            index, new = np.arange(start, start + k), np.arange(k)
         ids = np.arange(start, start + len(new))
         self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos[new], born[new], expires[new], kind[new]
         self.block[ids] = self._block_of[pos[new, 0], pos[new, 1]]
-        if on_grid:
-            self._flat[flat] = ids
         self.count = start + len(new)
-        index[new] = ids
         return index
 
     def live(self, t: float) -> np.ndarray:
