@@ -223,10 +223,12 @@ def sign_candidates(grid: np.ndarray, born: np.ndarray, expires: np.ndarray, win
 
 
 @njit(cache=True)
-def look(uavs: np.ndarray, seen: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray,
-         first: np.ndarray, t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
-    """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)``: stamp each one's own visit history
-    (``last[u, cell] = t``, ``first[u, cell] = min(first[u, cell], t)``) and mark the team's coverage.
+def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray, visited: np.ndarray,
+         last: np.ndarray, first: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
+         t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
+    one's own visit history of cells and blocks (``last = t``, ``first = min(first, t)``), set its knowledge of
+    itself to ``t``, and mark the team's coverage ``visited``.
 
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
         once count for both), and the number of high-risk cells the team sees for the first time
@@ -250,6 +252,10 @@ def look(uavs: np.ndarray, seen: np.ndarray, high_risk: np.ndarray, visited: np.
             last[u, cell] = t
             if t < first[u, cell]:
                 first[u, cell] = t
+        block_last[u, blocks[a]] = t
+        if t < block_first[u, blocks[a]]:
+            block_first[u, blocks[a]] = t
+        knowledge[u, u] = t
     return fresh, new
 
 
@@ -396,49 +402,43 @@ def poacher_targets(poachers: np.ndarray, leopards: np.ndarray, alive: np.ndarra
 
 
 @njit(cache=True)
-def poachers_near_leopards(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarray,
-                           alive: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """``(P, L)`` bool: active poacher next to (Chebyshev distance <= 1) live leopard."""
-    near = np.zeros((len(poachers), len(leopards)), dtype=np.bool_)
-    for i in range(len(poachers)):
-        if active[i]:
-            for j in range(len(leopards)):
-                if alive[j] and max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1])) <= 1:
-                    near[i, j] = True
-    return near
-
-
-@njit(cache=True)
-def place_signs(grid: np.ndarray, flat: np.ndarray, born: np.ndarray, expires: np.ndarray, t: float,
-                record_born: np.ndarray, record_expires: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
-    # pragma: no cover - compiled
-    """Signs made at padded flat cells ``flat`` (the first of repeated cells counts), in ascending cell order: a cell
-    whose sign is live keeps it, with the later expiry; any other gets a new record ``start, start + 1, ...``.
+def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, pos: np.ndarray, born: np.ndarray,
+                kind: np.ndarray, lifetime: np.ndarray, t: float, start: int, record_pos: np.ndarray,
+                record_born: np.ndarray, record_expires: np.ndarray, record_kind: np.ndarray,
+                record_block: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Signs made at cells ``pos`` at times ``born`` (the first of repeated cells counts), in ascending cell order: a
+    cell whose sign is live keeps it, with the later expiry; any other gets a new record ``start, start + 1, ...``
+    (the record arrays must have room for all of them).
 
     :param grid: flat padded grid of record indices (-1: none), updated in place
-    :param record_born: times the records were made (read, for liveness)
-    :param record_expires: expiry of every record (extended in place)
-    :return: for each input sign its new record or -1, and the inputs that got new records, in record order
+    :param block_of: ``(height, width)`` block of each cell
+    :param lifetime: lifetime of each kind of sign
+    :return: for each input sign its new record or -1
     """
-    k = len(flat)
+    k = len(pos)
+    flat = np.empty(k, dtype=np.int64)
+    for i in range(k):
+        flat[i] = (pos[i, 0] + pad) * width + pos[i, 1] + pad
     index = np.full(k, -1, dtype=np.int64)
     order = np.argsort(flat, kind="mergesort")
-    new = np.empty(k, dtype=np.int64)
-    m = 0
+    m = start
     for a in range(k):
         i = order[a]
         if a > 0 and flat[i] == flat[order[a - 1]]:
             continue
+        expires = born[i] + lifetime[kind[i]]
         current = grid[flat[i]]
         if current >= 0 and record_expires[current] > t:
-            if expires[i] > record_expires[current]:
-                record_expires[current] = expires[i]
+            if expires > record_expires[current]:
+                record_expires[current] = expires
         else:
-            index[i] = start + m
-            grid[flat[i]] = start + m
-            new[m] = i
+            index[i] = m
+            grid[flat[i]] = m
+            record_pos[m, 0], record_pos[m, 1] = pos[i, 0], pos[i, 1]
+            record_born[m], record_expires[m], record_kind[m] = born[i], expires, kind[i]
+            record_block[m] = block_of[pos[i, 0], pos[i, 1]]
             m += 1
-    return index, new[:m]
+    return index
 
 
 @njit(cache=True)
@@ -517,3 +517,37 @@ def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarr
                 found[i] = True
                 fresh += 1
     return fresh
+
+
+@njit(cache=True)
+def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: float, t: float) -> np.ndarray:
+    # pragma: no cover - compiled
+    """``(n, blocks)`` poacher activity ``1 - exp(-sum decay^(t - t_e))`` over the readings ``e`` (rows ``(time, uav,
+    block)``) each UAV knows of (``time <= knowledge[r, uav]``), summed in event order."""
+    n = len(knowledge)
+    mass = np.zeros((n, n_blocks))
+    for e in range(len(events)):
+        time, who, block = events[e, 0], np.int64(events[e, 1]), np.int64(events[e, 2])
+        weight = decay ** (t - time)
+        for r in range(n):
+            if time <= knowledge[r, who]:
+                mass[r, block] += weight
+    return 1.0 - np.exp(-mass)
+
+
+@njit(cache=True)
+def poaching_timers(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarray, alive: np.ndarray,
+                    timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Which active poacher is next to (Chebyshev distance <= 1) which live leopard ``(P, L)``, and each poacher's
+    timer: one more step if it is next to one, else 0."""
+    near = np.zeros((len(poachers), len(leopards)), dtype=np.bool_)
+    timer = timer.copy()
+    for i in range(len(poachers)):
+        any_near = False
+        if active[i]:
+            for j in range(len(leopards)):
+                if alive[j] and max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1])) <= 1:
+                    near[i, j] = True
+                    any_near = True
+        timer[i] = timer[i] + 1 if any_near else 0
+    return near, timer

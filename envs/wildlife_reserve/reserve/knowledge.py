@@ -12,7 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import COMM_BROADCAST, COMM_QUERY, NEVER
-from wildlife_reserve.reserve.kernels import answer_queries, known_ages, learn_signs, links_in_range, look, merge_messages
+from wildlife_reserve.reserve.kernels import (
+    answer_queries,
+    beliefs,
+    known_ages,
+    learn_signs,
+    links_in_range,
+    look,
+    merge_messages,
+)
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -64,6 +72,7 @@ class TeamKnowledge:
         self.events = np.zeros((0, 3))  # (time, reading UAV, block) of the poacher readings
         self.known_signs = np.zeros((n, 64), dtype=bool)
         self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
+        self._sign_map, self._sign_map_total = np.zeros((n, self.n_blocks)), 0.0
 
     # ------------------------------------------------------------------ own looks
     def record_visits(self, t: int, uavs: np.ndarray, cells: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray,
@@ -74,11 +83,8 @@ class TeamKnowledge:
         :return: high-risk cells each of ``uavs`` saw that nobody had seen before ``(k,)``, and the team's new ones
         """
         last, first = self._stamps.reshape(2, self.n, -1)
-        fresh, new = look(uavs, cells, high_risk, visited, last, first, np.float32(t))
-        self._block_stamps[0, uavs, blocks] = t
-        self._block_stamps[1, uavs, blocks] = np.minimum(self._block_stamps[1, uavs, blocks], t)
-        self.knowledge[uavs, uavs] = t
-        return fresh, new
+        return look(uavs, cells, blocks, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1],
+                    self.knowledge, np.float32(t))
 
     def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
         """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""
@@ -150,16 +156,15 @@ class TeamKnowledge:
         """``(n, blocks)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
         if not len(self.events):
             return np.zeros((self.n, self.n_blocks), dtype=np.float32)
-        times, who, block = self.events.T
-        known = times[None, :] <= self.knowledge[:, who.astype(np.int64)]
-        weight = known * self.belief_decay ** (t - times)[None, :]
-        mass = np.zeros((self.n, self.n_blocks))
-        np.add.at(mass.T, block.astype(np.int64), weight.T)
-        return 1.0 - np.exp(-mass)
+        return beliefs(self.events, self.knowledge, self.n_blocks, self.belief_decay, float(t))
 
     def sign_map(self) -> np.ndarray:
         """``(n, blocks)`` signs of poacher activity each UAV knows of, as ``1 - exp(-count / SIGN_MAP_SCALE)``."""
-        return 1.0 - np.exp(-self.sign_counts * (1.0 / SIGN_MAP_SCALE))
+        total = float(self.sign_counts.sum())  # counts only grow within an episode: their sum tells when to recompute
+        if total != self._sign_map_total:
+            self._sign_map = 1.0 - np.exp(-self.sign_counts * (1.0 / SIGN_MAP_SCALE))
+            self._sign_map_total = total
+        return self._sign_map
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""

@@ -363,11 +363,11 @@ class ReserveParallelEnv(ParallelEnv):
             info["metrics"] = self.episode_metrics()
         agents = self.agents
         heard = self.team.heard_from()
-        observations = {a: obs[i] for i, a in enumerate(agents)}
-        rewards = {a: float(rewards_arr[i]) for i, a in enumerate(agents)}
+        observations = dict(zip(agents, obs))
+        rewards = dict(zip(agents, rewards_arr.tolist()))
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated and not terminated)
-        infos = {a: {**info, "heard_from": heard[i]} for i, a in enumerate(agents)}
+        infos = {a: {**info, "heard_from": senders} for a, senders in zip(agents, heard)}
         if truncated or terminated:
             self.agents = []
         if self.render_mode == "human":
@@ -485,9 +485,8 @@ class ReserveParallelEnv(ParallelEnv):
         returns the poaching events of this step."""
         if not len(self.leopard_pos):
             return 0
-        near = kernels.poachers_near_leopards(self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.leopard_pos,
-                                              self.leopard_alive)
-        self.poaching_timer = np.where(near.any(axis=1), self.poaching_timer + 1, 0)
+        near, self.poaching_timer = kernels.poaching_timers(self.poacher_pos, self.poacher_status == POACHER_ACTIVE,
+                                                            self.leopard_pos, self.leopard_alive, self.poaching_timer)
         done = self.poaching_timer >= self.config.poaching_time
         if not done.any():
             return 0

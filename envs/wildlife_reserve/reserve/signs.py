@@ -175,20 +175,19 @@ class Signs:
         k = len(pos)
         born = np.broadcast_to(np.asarray(born, dtype=np.float64), (k,))
         kind = np.broadcast_to(np.asarray(kind, dtype=np.int64), (k,))
-        expires = born + LIFETIME[kind]
         if self.count + k > self.capacity:
             self._grow(max(2 * self.capacity, self.count + k))
         start = self.count
         if on_grid:
-            flat = (pos[:, 0] + self.pad) * self.width + pos[:, 1] + self.pad
-            index, new = place_signs(self._flat, flat, born, expires, t, self.born, self.expires, start)
-        else:
-            index, new = np.arange(start, start + k), np.arange(k)
-        ids = np.arange(start, start + len(new))
-        self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos[new], born[new], expires[new], kind[new]
-        self.block[ids] = self._block_of[pos[new, 0], pos[new, 1]]
-        self.count = start + len(new)
-        return index
+            index = place_signs(self._flat, self.pad, self.width, self._block_of, pos, born, kind, LIFETIME, t, start,
+                                self.pos, self.born, self.expires, self.kind, self.block)
+            self.count = start + int((index >= 0).sum())
+            return index
+        ids = np.arange(start, start + k)
+        self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos, born, born + LIFETIME[kind], kind
+        self.block[ids] = self._block_of[pos[:, 0], pos[:, 1]]
+        self.count = start + k
+        return ids
 
     def live(self, t: float) -> np.ndarray:
         """Record indices of the signs on the ground at step ``t``."""
