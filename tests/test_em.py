@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv
+from synthetic import ModeSpin
 
 from sb3_emmarl import EMDDPG, EMPPO
 from sb3_emmarl.common.latent.em import EStep, LatentBatch, transitions_from_rollout
@@ -11,7 +12,6 @@ from sb3_emmarl.common.latent.history import HistoryWrapper
 from sb3_emmarl.common.latent.metrics import latent_report
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.vec_env import make_vec_env
-from synthetic import ModeSpin
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
 

@@ -8,8 +8,8 @@ from scipy import stats
 
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve import actors
-from wildlife_reserve.reserve.modes import MODE_NAMES, N_MODES, STRATEGIES, WEATHERS, decode_mode
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_POACHER, POACHER_ACTIVE
+from wildlife_reserve.reserve.modes import MODE_NAMES, N_MODES, STRATEGIES, WEATHERS, decode_mode
 
 
 def test_mode_indices_decode_to_strategy_and_weather():

@@ -5,7 +5,8 @@ import pytest
 from scipy import stats
 
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve import sensing, signs as signs_lib
+from wildlife_reserve.reserve import sensing
+from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve.constants import CH_SIGN, COMM_BROADCAST, N_MOVES, POACHER_ACTIVE, STAY
 from wildlife_reserve.reserve.modes import STRATEGIES, WEATHERS
 from wildlife_reserve.reserve.terrain import FOREST, OPEN

@@ -1,6 +1,6 @@
 """Train algorithms on the reserve and compare each with the random team on the same evaluation episodes.
 
-Example (issue 3's benchmark, about 10 minutes): ``python zoo/benchmark.py --algos ppo -n 3000000 --seeds 0``
+Example (trained PPO against the random team, about 10 minutes): ``python zoo/benchmark.py --algos ppo -n 3000000 --seeds 0``
 """
 
 import sys

@@ -1,6 +1,6 @@
 """Compare variants (EM-PPO, its no-latent ablation, PPO by default) at the same budget over seeds.
 
-Example (issue 4's benchmark): ``python zoo/compare.py -n 1000000 --seeds 0 1 2``
+Example (EM-PPO, its ablations and PPO over 3 seeds): ``python zoo/compare.py -n 1000000 --seeds 0 1 2``
 """
 
 import sys

@@ -6,9 +6,9 @@ rl_zoo3 takes new algorithms by insertion into ``rl_zoo3.ALGOS`` (and, for ``-op
 
 from __future__ import annotations
 
+from sb3_contrib import RecurrentPPO
 from stable_baselines3 import A2C, DDPG, DQN, PPO, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
-from sb3_contrib import RecurrentPPO
 
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO

@@ -196,8 +196,7 @@ def enjoy_parser() -> argparse.ArgumentParser:
 
 def enjoy_main(argv: list[str] | None = None) -> int:
     """Load a saved run, print its team metrics on evaluation episodes and record one episode."""
-    from rl_zoo3.utils import get_model_path
-    from rl_zoo3.utils import EnvironmentName
+    from rl_zoo3.utils import EnvironmentName, get_model_path
 
     from sb3_emmarl.common.recording import record_episode
 

@@ -27,9 +27,9 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.callbacks import TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
-from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.common.latent.algorithm import wrap_with_history
 from sb3_emmarl.common.mode_aware import wrap_with_mode
+from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0

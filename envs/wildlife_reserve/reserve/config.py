@@ -119,12 +119,13 @@ class ReserveConfig:
                 raise ValueError(f"terrain must be a 2-D array (height, width), got shape {self.terrain.shape}")
         if self.grid_size is None:
             self.grid_size = tuple(self.terrain.shape) if self.terrain is not None else 100
-        size = (self.grid_size, self.grid_size) if np.ndim(self.grid_size) == 0 else tuple(self.grid_size)
+        size = (self.grid_size, self.grid_size) if np.ndim(self.grid_size) == 0 else tuple(self.grid_size)  # type: ignore[arg-type]
         if len(size) != 2:
             raise ValueError(f"grid_size must be an int or (height, width), got {self.grid_size!r}")
         name = "grid_size" if np.ndim(self.grid_size) == 0 else "grid_size[{}]"
-        self.grid_size = tuple(check_int(name.format(i), s, 1) for i, s in enumerate(size))
-        if min(self.grid_size) < window:
+        grid = (check_int(name.format(0), size[0], 1), check_int(name.format(1), size[1], 1))
+        self.grid_size = grid
+        if min(grid) < window:
             raise ValueError(f"grid_size must be at least the sensing window 2 * sensor_radius + 1 = {window} on each side, "
                              f"got {self.grid_size}")
         if self.terrain is not None:
@@ -167,7 +168,7 @@ class ReserveConfig:
         self.jam_radius = check_float("jam_radius", self.jam_radius, 0.0)
         self.uav_speed = check_float("uav_speed", self.uav_speed, 1e-6)
         self.max_neighbors = check_int("max_neighbors", self.max_neighbors, 0)
-        self.belief_size = check_int("belief_size", self.belief_size, 1, min(self.grid_size))
+        self.belief_size = check_int("belief_size", self.belief_size, 1, min(grid))
         self.belief_decay = check_float("belief_decay", self.belief_decay, 1e-6, 1.0)
         self.poaching_time = check_int("poaching_time", self.poaching_time, 1)
         self.leopard_range = check_float("leopard_range", self.leopard_range, 0.0)

@@ -79,7 +79,7 @@ def merge_messages(delivered: np.ndarray, knowledge: np.ndarray, known: np.ndarr
 
 @njit(cache=True)
 def _sign(x: np.int64) -> np.int64:  # pragma: no cover - compiled
-    return (x > 0) - (x < 0)
+    return np.int64(x > 0) - np.int64(x < 0)
 
 
 @njit(cache=True)

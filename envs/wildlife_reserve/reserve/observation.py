@@ -90,5 +90,6 @@ def global_state(env: ReserveParallelEnv) -> np.ndarray:
     coverage = np.divide(seen, total, out=np.zeros(size), where=total > 0)
     live = env.signs.live(env.t)
     signs = 1.0 - np.exp(-np.bincount(env.signs.block[live], minlength=size) / SIGN_MAP_SCALE)
-    parts = [uavs.ravel(), poachers.ravel(), leopards.ravel(), coverage, signs, [min(env.t / env.max_cycles, 1.0)]]
+    progress = np.array([min(env.t / env.max_cycles, 1.0)])
+    parts = [uavs.ravel(), poachers.ravel(), leopards.ravel(), coverage, signs, progress]
     return np.clip(np.concatenate(parts), -1.0, 1.0).astype(np.float32)

@@ -8,7 +8,7 @@ and the messages delivered this step), leopards, poachers, decoys, this step's r
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -44,9 +44,9 @@ class ReserveRenderer:
         self.mode = mode
         self.cell = max(2, TARGET_PIXELS // max(env.height, env.width))
         self.size = (env.width * self.cell, env.height * self.cell)
-        self.window = None
-        self.clock = None
-        self._background = None
+        self.window: Any = None
+        self.clock: Any = None
+        self._background: Any = None
         self._background_key: tuple | None = None
         pygame.init()
         if mode == "human":
@@ -89,7 +89,7 @@ class ReserveRenderer:
         for pos, alive in zip(env.leopard_pos, env.leopard_alive):
             pg.draw.circle(canvas, LEOPARD_COLOUR if alive else (0, 0, 0), self._centre(pos), max(2, cell), 0 if alive else 1)
         live = env.signs.live(env.t)
-        found = env.team.known_signs.any(axis=0)
+        found = np.asarray(env.team.known_signs.any(axis=0))
         for index in live:
             colour = FOUND_SIGN_COLOUR if index < len(found) and found[index] else SIGN_COLOUR
             x, y = self._centre(env.signs.pos[index])

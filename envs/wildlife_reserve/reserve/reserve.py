@@ -53,7 +53,7 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -62,7 +62,9 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.reserve import actors, kernels, sensing, signs as signs_lib, terrain as terrain_lib
+from wildlife_reserve.reserve import actors, kernels, sensing
+from wildlife_reserve.reserve import signs as signs_lib
+from wildlife_reserve.reserve import terrain as terrain_lib
 from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig, check_int
 from wildlife_reserve.reserve.constants import (
     COMM_BROADCAST,
@@ -77,6 +79,9 @@ from wildlife_reserve.reserve.constants import (
 )
 from wildlife_reserve.reserve.knowledge import TeamKnowledge
 from wildlife_reserve.reserve.modes import N_MODES, decode_mode
+
+if TYPE_CHECKING:
+    from wildlife_reserve.reserve.rendering import ReserveRenderer
 from wildlife_reserve.reserve.observation import (
     build_observations,
     global_state,
@@ -84,7 +89,6 @@ from wildlife_reserve.reserve.observation import (
     observation_size,
     state_size,
 )
-
 
 #: Unit displacement (row, col) of each discrete move.
 _MOVES = actors.STEPS.astype(np.float64)
@@ -137,7 +141,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.config = cfg = ReserveConfig(**kwargs)
         self.render_mode = cfg.render_mode
         self.max_cycles = cfg.max_cycles
-        self.height, self.width = cfg.grid_size
+        self.height, self.width = cfg.grid_size  # type: ignore[misc]  # a (height, width) tuple once validated
         self.n = cfg.n_uavs
         self.r = cfg.sensor_radius
         self.window = 2 * self.r + 1
@@ -165,7 +169,7 @@ class ReserveParallelEnv(ParallelEnv):
         if cfg.terrain_seed is not None:
             region_index = sorted(terrain_lib.REGIONS).index(cfg.region)
             self._static_map = self._build_map(np.random.default_rng([cfg.terrain_seed, region_index]))
-        self._renderer = None
+        self._renderer: ReserveRenderer | None = None
         self._upper = np.array([self.height, self.width]) - 1e-6
         self._inv_scale = 1.0 / np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
         self._comm_costs = np.array([0.0, ENERGY_COSTS["broadcast"], ENERGY_COSTS["query"]])  # by COMM_* choice
@@ -551,13 +555,14 @@ class ReserveParallelEnv(ParallelEnv):
             act = np.clip(act, -1.0, 1.0)
             comm = np.select([act[:, 2] > 1 / 3, act[:, 2] < -1 / 3], [COMM_BROADCAST, COMM_QUERY], COMM_NONE)
             return act[:, :2], comm
+        choices: np.ndarray
         try:
-            act = np.array([actions[agent] for agent in self.agents], dtype=np.int64).reshape(-1)
+            choices = np.array([actions[agent] for agent in self.agents], dtype=np.int64).reshape(-1)
         except (KeyError, TypeError):  # a missing or None action means "stay, no message"
-            act = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
-        if act.size != self.n or act.min() < 0 or act.max() >= N_MOVES * N_COMMS:
-            raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {act}")
-        comm, move = np.divmod(act, N_MOVES)
+            choices = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
+        if choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
+            raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
+        comm, move = np.divmod(choices, N_MOVES)
         return _MOVES[move], comm
 
     def _uav_cells(self) -> np.ndarray:

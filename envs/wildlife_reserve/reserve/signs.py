@@ -145,6 +145,8 @@ class Signs:
         self.grid = np.full(padded_shape, -1, dtype=np.int64)
         self._flat = self.grid.reshape(-1)
         self.count = 0
+        self.pos, self.born, self.expires = np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0)
+        self.kind, self.block = np.zeros(0, np.int64), np.zeros(0, np.int64)
         self._grow(64)
 
     def _grow(self, capacity: int) -> None:

@@ -21,7 +21,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sb3_emmarl.common.latent.history import HistoryLayout
 from sb3_emmarl.common.latent.model import LatentModel
 
-
 FIELDS = ("window", "next_slot", "groups")
 
 
