@@ -300,6 +300,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.poacher_status = np.full(cfg.n_poachers, POACHER_WAITING, dtype=np.int8)
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)
         self.poaching_timer = np.zeros(cfg.n_poachers, dtype=np.int64)
+        self._next_entry = int(self.poacher_entry_time.min()) if cfg.n_poachers else np.inf
         self.signs = signs_lib.Signs(self._padded_shape, self.r, self._block)
         self.signs.add(*signs_lib.plan_signs(sign_rng := np.random.default_rng([poacher_seed, 1]), self.strategy,
                                              self.poacher_entry, self.poacher_target, dens, shape), t=0)
@@ -346,8 +347,9 @@ class ReserveParallelEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished episode: call reset() first")
         move, comm = self._decode_actions(actions)
         airborne = ~self.grounded
-        move[~airborne] = 0.0
-        comm[~airborne] = COMM_NONE
+        if self.grounded.any():
+            move[self.grounded] = 0.0
+            comm[self.grounded] = COMM_NONE
         self.t += 1
 
         energy = self._fly(move, comm, airborne)
@@ -399,12 +401,15 @@ class ReserveParallelEnv(ParallelEnv):
         self.leopard_pos = actors.step_leopards(self.rng, self.leopard_pos, self.leopard_home, cfg.leopard_range,
                                                 (self.height, self.width))
         self.leopard_moved = (self.leopard_pos != old_leopards).any(-1)
-        entering = (self.poacher_status == POACHER_WAITING) & (self.poacher_entry_time <= self.t)
-        self.poacher_status[entering] = POACHER_ACTIVE
-        if entering.any():
-            self.metrics["poachers_entered"] += int(entering.sum())
-            if self.first_entry_time is None:
-                self.first_entry_time = self.t
+        if self.t >= self._next_entry:  # the earliest entry time of the poachers still waiting
+            entering = (self.poacher_status == POACHER_WAITING) & (self.poacher_entry_time <= self.t)
+            self.poacher_status[entering] = POACHER_ACTIVE
+            if entering.any():
+                self.metrics["poachers_entered"] += int(entering.sum())
+                if self.first_entry_time is None:
+                    self.first_entry_time = self.t
+            waiting = self.poacher_status == POACHER_WAITING
+            self._next_entry = int(self.poacher_entry_time[waiting].min()) if waiting.any() else np.inf
         active = self.poacher_status == POACHER_ACTIVE
         if active.any():
             self.poacher_pos, self.poacher_moved = actors.step_poachers(
@@ -526,9 +531,10 @@ class ReserveParallelEnv(ParallelEnv):
         cfg, weights = self.config, self.config.reward_weights
         n_detected = int(seen.any(axis=0).sum())
         collisions = int(own_collisions.sum()) // 2
+        spent = energy.sum()
         team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
                 - weights["poaching"] * poaching_events - weights["collision"] * collisions
-                - weights["energy"] * energy.sum())
+                - weights["energy"] * spent)
         rewards = np.full(self.n, team)
         if cfg.shaping > 0:
             own = (weights["detection"] * seen.sum(axis=1) + weights["coverage"] * own_new
@@ -538,7 +544,7 @@ class ReserveParallelEnv(ParallelEnv):
         m["team_reward"] += float(team)
         m["poaching_events"] += poaching_events
         m["collisions"] += collisions
-        m["energy"] += float(energy.sum())
+        m["energy"] += float(spent)
         m["poachers_detected"] += n_detected
         return rewards
 
