@@ -114,7 +114,8 @@ def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace)
 
 
 def train_main(argv: list[str] | None = None) -> int:
-    """Train, save the run in rl-zoo's layout, and print the team metrics of an evaluation on seeded episodes (actions sampled, as evaluate_team does)."""
+    """Train, save the run in rl-zoo's layout, and print the team metrics of an evaluation on seeded episodes
+    (actions sampled, as ``evaluate_team`` does)."""
     import torch as th
     from stable_baselines3.common.utils import set_random_seed
 
