@@ -319,3 +319,12 @@ def test_em_ddpg_computes_each_sample_posterior_once_with_the_same_result():
     for (name, a), b in zip(shared.policy.state_dict().items(), plain.policy.state_dict().values()):
         th.testing.assert_close(a, b, msg=name)
     assert 0 < shared_passes and 2 * shared_passes < plain_passes
+
+
+def test_the_e_step_defaults_are_estep_s_own():
+    import inspect
+
+    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+
+    parameters = inspect.signature(EStep).parameters
+    assert {key: parameters[key].default for key in E_STEP_DEFAULTS} == E_STEP_DEFAULTS

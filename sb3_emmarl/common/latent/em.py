@@ -78,7 +78,9 @@ class EStep:
     :param learning_rate: Adam learning rate of the encoder and decoder
     :param n_epochs: passes over the data per E-step
     :param batch_size: minibatch size
-    :param window: rollouts kept (the latest and ``window - 1`` before it)
+    :param window: data sets kept: the one added for this E-step and the ``window - 1`` added for the E-steps
+        before it (the algorithms add one rollout per E-step, so with ``e_step_interval > 1`` the rollouts
+        collected between E-steps never reach it)
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param temperature: initial Gumbel-softmax temperature
     :param min_temperature: floor of the annealed temperature
@@ -91,8 +93,8 @@ class EStep:
     """
 
     def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 2, batch_size: int = 1024,
-                 window: int = 3, estimator: str = "enumerate", temperature: float = 1.0, min_temperature: float = 0.1,
-                 anneal_rate: float = 0.05, team_pooling: bool = False, max_samples: int = 20_000,
+                 window: int = 2, estimator: str = "enumerate", temperature: float = 1.0, min_temperature: float = 0.1,
+                 anneal_rate: float = 0.05, team_pooling: bool = False, max_samples: int = 2048,
                  starved_share: float = 0.1, seed: int = 0) -> None:
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
@@ -118,7 +120,7 @@ class EStep:
         return max(self.min_temperature, self.initial_temperature * math.exp(-self.anneal_rate * self.n_updates))
 
     def add(self, batch: LatentBatch) -> None:
-        """Remember a rollout's data (the oldest leaves once ``window`` rollouts are kept)."""
+        """Remember one E-step's data (the oldest leaves once ``window`` data sets are kept)."""
         if len(batch):
             self.memory.append(batch)
 
