@@ -7,6 +7,11 @@ paired difference (told minus plain) with its mean +- std, and the p-value of th
 (``scipy.stats.ttest_rel``), then the per-seed rows. The told-the-mode team is the upper bound every
 latent method is measured against; the difference is what inferring the mode can win at most.
 
+Whether the mode *can* pay, whatever a learner makes of it, is measured first and without training:
+the stalest-block patrol told the strategy (``ToldModePatrol``: it holds stations where the strategy's
+poachers come from until their entry window closes) against the same patrol not told, on the same
+``--patrol-episodes`` episodes, paired over episodes.
+
 Example: ``python benchmarks/mode_value.py`` (or ``make benchmark-mode-value``; 5 seeds x 500k agent-steps)
 """
 
@@ -21,6 +26,8 @@ import numpy as np
 from scipy import stats
 
 from sb3_emmarl.zoo.benchmark import add_run_arguments, check_run_arguments, run_variants
+from wildlife_reserve import reserve_v0
+from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol, run_patrol
 
 #: The two variants: (table name, zoo algorithm, hyperparameter overrides).
 VARIANTS = [("told_mode", "oracle_ppo", []), ("ppo", "ppo", [])]
@@ -52,23 +59,46 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
     return "\n".join(lines)
 
 
+def patrol_comparison(episodes: int, seed: int, env_kwargs: dict | None = None) -> dict[str, list[dict]]:
+    """The stalest-block patrol told the strategy and not told, on the same episodes (seeds ``seed, seed + 1, ...``).
+
+    :return: ``{"told_mode": [metrics per episode], "not_told": [...]}``, each record with its episode's ``seed``
+    """
+    env = reserve_v0.parallel_env(**dict(env_kwargs or {}))
+    results = {}
+    for name, patrol in (("told_mode", ToldModePatrol), ("not_told", StalestBlockPatrol)):
+        records = run_patrol(env, patrol(env), episodes, seed=seed)
+        results[name] = [{**record, "seed": seed + i} for i, record in enumerate(records)]
+    return results
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=50, log_folder="logs/mode_value")
     parser.set_defaults(n_jobs=2)
+    parser.add_argument("--patrol-episodes", type=int, default=300,
+                        help="episodes of the scripted comparison (told the strategy or not); 0 skips it")
     args = parser.parse_args(argv)
     check_run_arguments(parser, args)
     if len(args.seeds) < 2:
         parser.error(f"--seeds must name at least 2 seeds for a paired test, got {args.seeds}")
+    if args.patrol_episodes == 1 or args.patrol_episodes < 0:
+        parser.error(f"--patrol-episodes must be 0 or >= 2 (a paired test), got {args.patrol_episodes}")
+    command = shlex.join(["python", "benchmarks/mode_value.py", *(sys.argv[1:] if argv is None else argv)])
+    print(f"$ {command}", flush=True)
+    if args.patrol_episodes:
+        patrols = patrol_comparison(args.patrol_episodes, args.eval_seed, args.env_kwargs)
+        print(f"\nScripted: the stalest-block patrol told the strategy or not, {args.patrol_episodes} episodes from seed "
+              f"{args.eval_seed}; mean +- std over episodes; p: paired t-test over episodes")
+        print(paired_table(patrols, METRICS + ("poaching_events",)).split("\n\nseed")[0], flush=True)
     start = time.perf_counter()
     try:
         results = run_variants(VARIANTS, args)
     except RuntimeError as error:
         print(error, file=sys.stderr)
         return 2
-    command = shlex.join(["python", "benchmarks/mode_value.py", *(sys.argv[1:] if argv is None else argv)])
-    print(f"\n$ {command}")
-    print(f"ppo.yml settings for both; {len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; "
+    print(f"\nPPO told the mode or not: ppo.yml settings for both; {len(args.seeds)} seeds x {args.n_timesteps:,} "
+          "agent-steps per run; "
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
     print(paired_table({name: results[name] for name, _, _ in VARIANTS}))

@@ -83,17 +83,41 @@ def test_the_paired_table_on_hand_built_records():
 def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     mode_value = load_benchmark()
     code = mode_value.main(["-n", "200", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path),
-                            "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
+                            "--patrol-episodes", "3", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
     out = capsys.readouterr().out
     assert code == 0
-    assert "told_mode" in out and "p (paired t)" in out and "team_reward" in out
-    assert len([line for line in out.splitlines() if line.startswith(("0 ", "1 "))]) == 2
+    scripted, trained = out.split("PPO told the mode or not")
+    assert "not_told" in scripted and "poaching_events" in scripted and "p (paired t)" in scripted
+    assert "told_mode" in trained and "p (paired t)" in trained and "team_reward" in trained
+    assert len([line for line in trained.splitlines() if line.startswith(("0 ", "1 "))]) == 2
 
 
 @pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"), (["-n", "0"], "n-timesteps must be >= 1"),
                                             (["--n-jobs", "0"], "n-jobs must be >= 1"),
-                                            (["--seeds", "1", "1"], "must be distinct")])
+                                            (["--seeds", "1", "1"], "must be distinct"),
+                                            (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2")])
 def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_benchmark().main(flags)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_told_mode_patrol_holds_stations_where_the_strategy_s_poachers_come_from():
+    from wildlife_reserve import reserve_v0
+    from wildlife_reserve.reserve.modes import STRATEGIES, WEATHERS
+    from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol
+
+    env = reserve_v0.parallel_env(n_poachers=0)
+    guarded = {"hotspot_raid": lambda: env.hotspots.dens, "edge_infiltration": lambda: env.hotspots.road_entries}
+    for strategy, spots in guarded.items():
+        index = [s.name for s in STRATEGIES].index(strategy)
+        obs, _ = env.reset(seed=0, options={"mode": index * len(WEATHERS)})
+        patrol = ToldModePatrol(env)
+        for _ in range(int(env.strategy.entry_window[1] * env.max_cycles) - 2):  # still inside the entry window
+            obs, *_ = env.step(patrol(obs))
+        distance = np.abs(env.uav_pos[:, None, :] - spots()[None] - 0.5).max(-1).min(axis=1)
+        # Stations ring the spot (or a point up to `spread` inside the map from it); the far-flung may still fly.
+        assert np.mean(distance <= 2 * patrol.spread + 2) >= 0.8, (strategy, distance)
+    # A dispersed evasion gives no place to guard: the told patrol acts as the stalest-block patrol.
+    obs, _ = env.reset(seed=0, options={"mode": 3 * len(WEATHERS)})
+    assert ToldModePatrol(env)(obs) == StalestBlockPatrol(env)(obs)

@@ -137,6 +137,21 @@ def test_multiprocess_copies_match_in_process_copies():
     assert all(not np.array_equal(copies[i], copies[j]) for i in range(4) for j in range(i + 1, 4))
 
 
+def test_reset_infos_are_one_dict_per_entry_with_worker_processes_too():
+    # SuperSuit fault: ProcConcatVec.reset returned each worker's compressed (index, info) pairs.
+    from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+
+    in_process = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, vec_env_wrapper=ModeObservationWrapper)
+    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2, vec_env_wrapper=ModeObservationWrapper)
+    try:
+        multi, expected = venv.reset(), in_process.reset()
+        infos = venv.unwrapped.reset_infos
+        assert len(infos) == 12 and all(isinstance(info, dict) and "mode" in info for info in infos)
+        assert infos == in_process.unwrapped.reset_infos
+        np.testing.assert_array_equal(multi, expected)  # the true mode appended, as in one process
+    finally:
+        venv.close()
+
 def test_bad_arguments_fail_early():
     with pytest.raises(ValueError, match="n_copies must be an int >= 1, got 0"):
         make_vec_env(n_copies=0, env_kwargs=SMALL)

@@ -1,12 +1,14 @@
 """Scripted patrols: reference behaviours that need no training.
 
-Both act on observations only (execution stays decentralised) and return PettingZoo action dicts
-for the discrete action mode.
+The first two act on observations only (execution stays decentralised); the third is told the hidden
+mode. All return PettingZoo action dicts for the discrete action mode.
 
 - :class:`RandomPatrol`: uniform random actions.
 - :class:`StalestBlockPatrol`: each UAV flies toward the coarse block it believes was flown over
   longest ago (ties to the nearest, leaving blocks to closer neighbours), heads for fresh poacher
   activity in its belief map when there is any, and broadcasts every ``broadcast_every`` steps.
+- :class:`ToldModePatrol`: the stalest-block patrol told the episode's poacher strategy (an oracle,
+  not a deployable team): it shows whether knowing the mode *can* pay, whatever a learner makes of it.
 """
 
 from __future__ import annotations
@@ -84,7 +86,56 @@ class StalestBlockPatrol:
         return dict(zip(agents, (move + N_MOVES * comm).tolist()))
 
 
-SCRIPTED_PATROLS = {"random": RandomPatrol, "stalest_block": StalestBlockPatrol}
+class ToldModePatrol(StalestBlockPatrol):
+    """The stalest-block patrol, told the episode's poacher strategy (read from the environment).
+
+    Until the strategy's entry window closes, each UAV holds a station near where that strategy's
+    poachers come from: the dens for a hotspot raid, the roads' entry points for an edge infiltration or a
+    coordinated group. The UAVs of one spot hold stations on a ring of radius ``spread`` around it (moved
+    inside the map when the spot is on its edge), and UAVs
+    of even and odd index fly row-first and column-first, so that the team neither piles up nor flies in
+    lockstep. After that, and throughout a dispersed evasion, it sweeps as :class:`StalestBlockPatrol` does;
+    it communicates as that patrol does all along.
+
+    :param env: the (parallel) reserve, discrete actions
+    :param spread: radius in cells of the ring of stations around each spot
+    :param kwargs: see :class:`StalestBlockPatrol`
+    """
+
+    def __init__(self, env: ReserveParallelEnv, spread: int = 6, **kwargs) -> None:
+        super().__init__(env, **kwargs)
+        self.spread = spread
+
+    def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, int]:
+        env = self.env
+        actions = super().__call__(observations)
+        strategy = env.strategy
+        if strategy.entry == "near_den":
+            spots = env.hotspots.dens
+        elif strategy.entry in ("one_side", "group"):
+            spots = env.hotspots.road_entries
+        else:
+            return actions
+        if not len(spots) or env.t >= strategy.entry_window[1] * env.max_cycles:
+            return actions
+        index = np.array([env.possible_agents.index(agent) for agent in observations])
+        spot, place = index % len(spots), index // len(spots)
+        around = -(-env.n // len(spots))  # UAVs per spot
+        angle = 2 * np.pi * (place + 0.5 * (spot % 2)) / around
+        ring = self.spread * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        centre = np.clip(spots[spot], self.spread, [env.height - 1 - self.spread, env.width - 1 - self.spread])
+        stations = np.clip(np.rint(centre + ring), 0, [env.height - 1, env.width - 1])  # the ring inside the map
+        heading = stations + 0.5 - env.uav_pos[index]
+        near = max(env.config.uav_speed / 2, 0.5)  # an axis is done once a move would overshoot its station
+        axis = np.where(index % 2 == 0, np.abs(heading[:, 0]) <= near, np.abs(heading[:, 1]) > near).astype(int)
+        step = np.sign(heading[np.arange(len(index)), axis])
+        move = np.where(axis == 0, np.where(step < 0, 1, 2), np.where(step < 0, 3, 4))  # up, down, left, right
+        move = np.where(np.abs(heading).max(-1) <= near, 0, move)
+        comm = np.array([actions[agent] for agent in observations]) // N_MOVES
+        return dict(zip(observations, (move + N_MOVES * comm).tolist()))
+
+
+SCRIPTED_PATROLS = {"random": RandomPatrol, "stalest_block": StalestBlockPatrol, "told_mode": ToldModePatrol}
 
 
 def run_patrol(env: ReserveParallelEnv, policy, episodes: int, seed: int = 0) -> list[dict[str, float]]:
