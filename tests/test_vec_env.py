@@ -152,6 +152,7 @@ def test_reset_infos_are_one_dict_per_entry_with_worker_processes_too():
     finally:
         venv.close()
 
+
 def test_bad_arguments_fail_early():
     with pytest.raises(ValueError, match="n_copies must be an int >= 1, got 0"):
         make_vec_env(n_copies=0, env_kwargs=SMALL)

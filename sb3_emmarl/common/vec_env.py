@@ -15,7 +15,9 @@ The adapter replaces SuperSuit's ``SB3VecEnvWrapper`` and mends its faults:
 - every copy is built fresh (not cloned) and an unseeded first reset draws one fresh base seed, so
   copies never replay the same episode;
 - an episode cut at ``max_cycles`` sets ``infos[i]["TimeLimit.truncated"]`` (SB3 then bootstraps);
-- ``dones`` are booleans, and ``get_attr`` / ``set_attr`` / ``env_method`` reach the reserves.
+- ``dones`` are booleans, and ``get_attr`` / ``set_attr`` / ``env_method`` reach the reserves;
+- the reset infos are one dict per vector entry with worker processes too (``ProcConcatVec.reset``
+  returned each worker's compressed ``(index, info)`` pairs).
 """
 
 from __future__ import annotations
@@ -103,11 +105,19 @@ class SharedPolicyVecEnv(VecEnv):
         if self._copy_seeds is not None:
             options[COPY_SEEDS_KEY] = self._copy_seeds
         observations, infos = self.venv.reset(options=options or None)
-        self.reset_infos = list(infos)
+        self.reset_infos = self._decompress_infos(infos) if self.multiprocess else list(infos)
         self._copy_seeds = None
         self._never_reset = False
         self._reset_options()
         return observations
+
+    def _decompress_infos(self, compressed: list[list[tuple[int, dict]]]) -> list[dict]:
+        """One info dict per vector entry from ``ProcConcatVec``'s per-worker ``(index, info)`` pairs."""
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        for start, pairs in zip(self.venv.idx_starts, compressed):
+            for index, info in pairs:
+                infos[start + index] = info
+        return infos
 
     # -------------------------------------------------------------- stepping
     def step_async(self, actions: np.ndarray) -> None:
