@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scripts import load_benchmark
 from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
@@ -56,19 +57,12 @@ def test_oracle_ppo_learns_saves_loads_and_evaluates_on_the_plain_environment(tm
     assert np.isfinite(mean)
 
 
-def load_benchmark():
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "mode_value.py"
-    spec = importlib.util.spec_from_file_location("mode_value", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def load_mode_value():
+    return load_benchmark("mode_value")
 
 
 def test_the_paired_table_on_hand_built_records():
-    mode_value = load_benchmark()
+    mode_value = load_mode_value()
     told = [{"seed": s, "team_reward": r, "detection_rate": 0.5, "coverage_efficiency": 0.5} for s, r in enumerate([3, 5, 4])]
     plain = [{"seed": s, "team_reward": r, "detection_rate": 0.5, "coverage_efficiency": 0.5} for s, r in enumerate([1, 2, 2])]
     table = mode_value.paired_table({"told_mode": told, "ppo": plain})
@@ -81,7 +75,7 @@ def test_the_paired_table_on_hand_built_records():
 
 
 def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
-    mode_value = load_benchmark()
+    mode_value = load_mode_value()
     code = mode_value.main(["-n", "200", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path),
                             "--patrol-episodes", "3", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
     out = capsys.readouterr().out
@@ -98,7 +92,7 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
                                             (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2")])
 def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        load_benchmark().main(flags)
+        load_mode_value().main(flags)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 

@@ -1,10 +1,8 @@
 """The mode-evidence benchmark: features of observation histories, accuracies, and the script end to end."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from scripts import load_benchmark
 
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.scripted import RandomPatrol
@@ -14,11 +12,7 @@ TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 8}
 
 @pytest.fixture(scope="module")
 def evidence():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "mode_evidence.py"
-    spec = importlib.util.spec_from_file_location("mode_evidence", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("mode_evidence")
 
 
 def test_features_are_running_means_and_maxima(evidence):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scripts import load_benchmark
 
 from sb3_emmarl.common.metrics import TEAM_METRICS, format_summary, summarize
 from wildlife_reserve import reserve_v0
@@ -85,12 +86,7 @@ def test_env_speed_benchmark_prints_its_table():
 
 
 def test_latent_probe_collects_modes_constant_within_episodes():
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "latent_probe.py"
-    spec = importlib.util.spec_from_file_location("latent_probe", path)
-    probe = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probe)
+    probe = load_benchmark("latent_probe")
     small = {"n_uavs": 2, "grid_size": 20, "max_cycles": 30}
     obs, modes, steps, layout = probe.collect(3, 70, 2, seed=0, env_kwargs=small)
     assert obs.shape == (70 * 4, layout.total_dim) and modes.shape == steps.shape == (280,)
