@@ -274,16 +274,32 @@ def links_in_range(pos: np.ndarray, ok: np.ndarray, radius: float) -> tuple[np.n
 
 
 @njit(cache=True)
-def answer_queries(sent: np.ndarray, asking: np.ndarray, links: np.ndarray, dist: np.ndarray) -> None:  # pragma: no cover
-    """Each asking UAV's nearest linked UAV (the first of equals) sends to it: ``sent[source, asker] = True``."""
+def deliver(links: np.ndarray, comm: np.ndarray, dist: np.ndarray, draws: np.ndarray,
+            loss: float) -> np.ndarray:  # pragma: no cover - compiled
+    """``delivered[s, r]``: a message of ``s`` reached ``r``. A broadcasting UAV sends to every UAV it is linked with;
+    the nearest linked UAV of a querying one (the first of equals) answers it; each message is lost when its
+    ``draws[s, r] < loss``.
+
+    :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query)
+    """
     n = len(links)
-    for asker in asking:
-        source, best = -1, np.inf
-        for s in range(n):
-            if links[s, asker] and dist[s, asker] < best:
-                source, best = s, dist[s, asker]
-        if source >= 0:
-            sent[source, asker] = True
+    sent = np.zeros((n, n), dtype=np.bool_)
+    for s in range(n):
+        if comm[s] == 1:
+            for r in range(n):
+                sent[s, r] = links[s, r]
+    for asker in range(n):
+        if comm[asker] == 2:
+            source, best = -1, np.inf
+            for s in range(n):
+                if links[s, asker] and dist[s, asker] < best:
+                    source, best = s, dist[s, asker]
+            if source >= 0:
+                sent[source, asker] = True
+    for s in range(n):
+        for r in range(n):
+            sent[s, r] = sent[s, r] and draws[s, r] >= loss
+    return sent
 
 
 @njit(cache=True)
@@ -551,3 +567,15 @@ def poaching_timers(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarr
                     any_near = True
         timer[i] = timer[i] + 1 if any_near else 0
     return near, timer
+
+
+@njit(cache=True)
+def fill_own(own: np.ndarray, pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
+             progress: float) -> None:  # pragma: no cover - compiled
+    """Own features ``(n, 6)``: position scaled to [0, 1] (capped at 1), velocity, battery, episode progress."""
+    for u in range(len(own)):
+        own[u, 0] = min(pos[u, 0] * inv_scale[0], 1.0)
+        own[u, 1] = min(pos[u, 1] * inv_scale[1], 1.0)
+        own[u, 2], own[u, 3] = velocity[u, 0], velocity[u, 1]
+        own[u, 4] = battery[u]
+        own[u, 5] = progress

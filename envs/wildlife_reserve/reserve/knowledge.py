@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from wildlife_reserve.reserve.constants import COMM_BROADCAST, COMM_QUERY, NEVER
+from wildlife_reserve.reserve.constants import NEVER
 from wildlife_reserve.reserve.kernels import (
-    answer_queries,
     beliefs,
+    deliver,
     known_ages,
     learn_signs,
     links_in_range,
@@ -91,7 +91,8 @@ class TeamKnowledge:
         if len(uavs):
             fresh = np.column_stack([np.full(len(uavs), t), uavs, blocks])
             self.events = np.concatenate([self.events, fresh])
-        self.events = self.events[self.events[:, 0] > t - self.horizon]
+        if len(self.events) and self.events[0, 0] <= t - self.horizon:  # events are in time order
+            self.events = self.events[self.events[:, 0] > t - self.horizon]
 
     def learn_signs(self, uavs: np.ndarray, signs: np.ndarray, sign_blocks: np.ndarray) -> None:
         """Each of ``uavs`` found sign record ``signs`` (lying in ``sign_blocks``)."""
@@ -124,9 +125,7 @@ class TeamKnowledge:
         :param links: ``(n, n)`` links in range this step (see :meth:`in_range`)
         :param sign_blocks: block of every sign record (for the sign counts)
         """
-        sent = links & (comm == COMM_BROADCAST)[:, None]
-        answer_queries(sent, np.flatnonzero(comm == COMM_QUERY), links, self.dist)
-        delivered = sent & (rng.random(sent.shape) >= self.comm_loss)
+        delivered = deliver(links, comm, self.dist, rng.random(links.shape), self.comm_loss)
         self.comm_links = delivered
         if not delivered.any():
             return

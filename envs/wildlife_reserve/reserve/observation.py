@@ -8,7 +8,7 @@ import numpy as np
 
 from wildlife_reserve.reserve.config import ReserveConfig
 from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
-from wildlife_reserve.reserve.kernels import fill_neighbours, fill_window
+from wildlife_reserve.reserve.kernels import fill_neighbours, fill_own, fill_window
 from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE
 
 if TYPE_CHECKING:
@@ -61,11 +61,8 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarr
     win = obs[:, layout["window"][0]].reshape(n, N_CHANNELS, env.window, env.window)
     fill_window(win, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells, env.grounded, r)
 
-    own = obs[:, layout["own"][0]]
-    own[:, :2] = np.minimum(env.uav_pos * env._inv_scale, 1.0)
-    own[:, 2:4] = env.velocity
-    own[:, 4] = env.battery
-    own[:, 5] = min(env.t / env.max_cycles, 1.0)
+    progress = min(env.t / env.max_cycles, 1.0)
+    fill_own(obs[:, layout["own"][0]], env.uav_pos, env._inv_scale, env.velocity, env.battery, progress)
     # Neighbours heard through beacons, nearest first.
     neighbours = obs[:, layout["neighbours"][0]].reshape(n, cfg.max_neighbors, 3)
     fill_neighbours(neighbours, env.uav_pos, team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0))

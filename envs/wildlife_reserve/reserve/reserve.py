@@ -522,7 +522,8 @@ class ReserveParallelEnv(ParallelEnv):
         self.team.update_beacons(self.rng, links)
         self.team.communicate(self.rng, comm, links, self.signs.block[:self.signs.count])
         self.detections = readings
-        self.team.add_readings(self.t, readings[:, 0], self._block[readings[:, 1], readings[:, 2]])
+        blocks = self._block[readings[:, 1], readings[:, 2]] if len(readings) else readings[:, 0]
+        self.team.add_readings(self.t, readings[:, 0], blocks)
         return own_new, new_cells
 
     def _rewards(self, seen: np.ndarray, signs_found: int, own_new: np.ndarray, new_cells: int, poaching_events: int,
