@@ -12,8 +12,11 @@ from sb3_emmarl.common.latent.history import HistoryWrapper
 from sb3_emmarl.common.latent.metrics import latent_report
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.vec_env import make_vec_env
+from wildlife_reserve import reserve_v0
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
+#: The reserve's observation size with these settings.
+OBS_DIM = reserve_v0.parallel_env(**SMALL).obs_dim
 
 
 def synthetic_env(n=16, continuous=False, seed=0):
@@ -30,10 +33,10 @@ def test_policy_shapes(continuous, k, h):
     model = algo("MlpPolicy", env, n_components=k, history_length=h, seed=0)
     obs = model.env.reset()
     layout = model.layout
-    assert obs.shape == (3, 440 + h * layout.step_dim) and layout.obs_dim == 440
+    assert obs.shape == (3, OBS_DIM + h * layout.step_dim) and layout.obs_dim == OBS_DIM
     extractor = model.policy.actor.features_extractor if continuous else model.policy.features_extractor
     features = extractor(th.as_tensor(obs))
-    assert features.shape == (3, 440 + k)
+    assert features.shape == (3, OBS_DIM + k)
     posterior = features[:, -k:]
     th.testing.assert_close(posterior.sum(-1), th.ones(3))
     np.testing.assert_allclose(model.posterior(obs), posterior.numpy(), rtol=1e-5)
@@ -120,7 +123,7 @@ def test_each_ablation_freezes_exactly_what_it_names(algo):
     assert not any(n.startswith("latent_model.") for n in snapshot(model.policy)) and moved
     feature_dim = model.policy.actor.features_extractor.features_dim if continuous else \
         model.policy.features_extractor.features_dim
-    assert feature_dim == 440  # the observation alone; the networks are otherwise the same
+    assert feature_dim == OBS_DIM  # the observation alone; the networks are otherwise the same
 
 
 @pytest.mark.parametrize("algo", [EMPPO, EMDDPG])
@@ -180,7 +183,7 @@ def test_the_m_step_sees_the_posteriors_the_actions_were_drawn_with(monkeypatch)
         with th.no_grad():
             _, log_prob, _ = self.policy.evaluate_actions(obs, actions)
             current = self.posterior(buffer.observations.reshape(len(obs), -1))
-        stored = buffer.observations.reshape(len(obs), -1)[:, 440:440 + self.n_components]
+        stored = buffer.observations.reshape(len(obs), -1)[:, OBS_DIM:OBS_DIM + self.n_components]
         assert np.abs(current - stored).max() > 1e-4  # the E-step did move the encoder
         np.testing.assert_allclose(log_prob.numpy(), buffer.log_probs.reshape(-1), atol=1e-5)
         checked.append(True)
