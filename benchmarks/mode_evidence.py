@@ -15,8 +15,9 @@ running maximum over steps ``0..t`` of its observation vector, elementwise (the 
 already accumulate what the UAV knows); for the team, the mean and the maximum over its UAVs of those.
 The classifier is :func:`latent_probe.probe_accuracy` (an MLP with 128 ReLU units on standardised
 inputs) predicting the 8-way mode; strategy and weather are read off the predicted mode
-(``mode // 2``, ``mode % 2``). One-UAV samples are all the UAVs of every episode; team samples one per
-episode. Held-out episodes have seeds disjoint from the training ones.
+(``mode // 2``, ``mode % 2``). One-UAV samples are all the UAVs of every episode (a random subset of
+each episode's UAVs when there would be more than ``--max-uav-samples``, as the script then says); team
+samples one per episode. Held-out episodes have seeds disjoint from the training ones.
 
 Example: ``python benchmarks/mode_evidence.py`` (or ``make benchmark-mode-evidence``)
 """
@@ -62,8 +63,31 @@ def team_features(per_uav: np.ndarray) -> np.ndarray:
     return np.concatenate([per_uav.mean(axis=0), per_uav.max(axis=0)])
 
 
+def parse_env_kwargs(text: str) -> dict:
+    """The reserve's arguments from a Python dict literal (``"{'n_uavs': 2}"``) or ``"dict(n_uavs=2)"``, read safely.
+
+    Only literals are evaluated (:func:`ast.literal_eval`); nothing is called, ``dict(...)`` is read as keywords.
+
+    :param text: the literal
+    :raises ValueError: if ``text`` is neither
+    """
+    try:
+        tree = ast.parse(text.strip(), mode="eval").body
+    except SyntaxError as error:
+        raise ValueError(f"not a Python literal ({error.msg})") from None
+    if isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" and not tree.args:
+        if any(keyword.arg is None for keyword in tree.keywords):
+            raise ValueError("dict(...) takes key=literal pairs only")
+        return {keyword.arg: ast.literal_eval(keyword.value) for keyword in tree.keywords}
+    value = ast.literal_eval(tree)
+    if not isinstance(value, dict):
+        raise ValueError(f"not a dict but a {type(value).__name__}")
+    return value
+
+
 def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[float, ...] = POINTS,
-                     patrol_seed: int = 0) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray], np.ndarray]:
+                     patrol_seed: int = 0, uavs_per_episode: int | None = None
+                     ) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray], np.ndarray]:
     """Play one episode per seed with a patrol and summarise the observations at each point.
 
     Running sums and maxima are kept instead of the whole history (the same numbers, less memory).
@@ -73,11 +97,14 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
     :param seeds: one episode per seed
     :param points: fractions of ``max_cycles`` (an episode that ends earlier is summarised at its end)
     :param patrol_seed: seed of the random patrol's draws
-    :return: one-UAV features ``{point: (episodes * n, f)}``, team features ``{point: (episodes, 2f)}``, and the
-        modes ``(episodes,)``
+    :param uavs_per_episode: one-UAV samples kept per episode, a random subset of its UAVs drawn from the
+        episode's seed (None: all); the team features always use all of them
+    :return: one-UAV features ``{point: (episodes * k, f)}`` (``k`` UAVs per episode, in their order),
+        team features ``{point: (episodes, 2f)}``, and the modes ``(episodes,)``
     """
     env = reserve_v0.parallel_env(**env_kwargs)
     policy = PATROLS[patrol](env, patrol_seed)
+    n = len(env.possible_agents)
     steps = {point: round(point * env.max_cycles) for point in points}
     single: dict[float, list] = {point: [] for point in points}
     team: dict[float, list] = {point: [] for point in points}
@@ -87,6 +114,9 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
         obs = np.stack([observations[a] for a in env.possible_agents]).astype(np.float64)
         total, peak, t = obs.copy(), obs.copy(), 0
         modes.append(infos[env.possible_agents[0]]["mode"])
+        kept = slice(None)
+        if uavs_per_episode is not None and uavs_per_episode < n:
+            kept = np.sort(np.random.default_rng(seed).choice(n, uavs_per_episode, replace=False))
         for point in points:
             while t < steps[point] and env.agents:
                 observations, *_ = env.step(policy(observations))
@@ -95,11 +125,11 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
                 np.maximum(peak, obs, out=peak)
                 t += 1
             per_uav = np.concatenate([total / (t + 1), peak], axis=-1)
-            single[point].append(per_uav)
-            team[point].append(team_features(per_uav))
+            single[point].append(per_uav[kept].astype(np.float32))
+            team[point].append(team_features(per_uav).astype(np.float32))
     env.close()
-    return ({p: np.concatenate(v).astype(np.float32) for p, v in single.items()},
-            {p: np.stack(v).astype(np.float32) for p, v in team.items()}, np.array(modes))
+    return ({p: np.concatenate(v) for p, v in single.items()}, {p: np.stack(v) for p, v in team.items()},
+            np.array(modes))
 
 
 def accuracies(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -113,13 +143,25 @@ def accuracies(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
 
 
 def evaluate(env_kwargs: dict, patrol: str, train_episodes: int, test_episodes: int, seed: int, epochs: int,
-             points: tuple[float, ...] = POINTS) -> list[dict]:
-    """Held-out accuracies of the supervised probe for one patrol: one row per (source, point)."""
+             points: tuple[float, ...] = POINTS, uavs_per_episode: int | None = None) -> list[dict]:
+    """Held-out accuracies of the supervised probe for one patrol: one row per (source, point).
+
+    :param env_kwargs: the reserve's arguments
+    :param patrol: ``"random"`` or ``"scripted"``
+    :param train_episodes: training episodes (seeds ``seed, seed + 1, ...``)
+    :param test_episodes: held-out episodes (seeds from ``TEST_SEED_OFFSET + seed``)
+    :param seed: seed of the first training episode, of the patrol's draws and of the classifier
+    :param epochs: classifier epochs
+    :param points: fractions of ``max_cycles``
+    :param uavs_per_episode: one-UAV samples per episode (None: all its UAVs), see :func:`collect_features`
+    :return: rows with the patrol, source, point, training samples and the :func:`accuracies`
+    """
     probe = _probe_accuracy()
     train_single, train_team, train_modes = collect_features(env_kwargs, patrol, range(seed, seed + train_episodes),
-                                                             points, patrol_seed=seed)
+                                                             points, patrol_seed=seed, uavs_per_episode=uavs_per_episode)
     test_seeds = range(TEST_SEED_OFFSET + seed, TEST_SEED_OFFSET + seed + test_episodes)
-    test_single, test_team, test_modes = collect_features(env_kwargs, patrol, test_seeds, points, patrol_seed=seed + 1)
+    test_single, test_team, test_modes = collect_features(env_kwargs, patrol, test_seeds, points, patrol_seed=seed + 1,
+                                                          uavs_per_episode=uavs_per_episode)
     n = len(train_single[points[0]]) // train_episodes
     rows = []
     for source, train, test, y_train, y_test in (
@@ -147,15 +189,19 @@ def format_rows(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Parse the flags, play and probe each patrol, print the budget, the table and the wall time."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=1500, help="training episodes per patrol")
     parser.add_argument("--test-episodes", type=int, default=300, help="held-out episodes per patrol")
     parser.add_argument("--patrols", nargs="+", default=list(PATROLS), help=f"patrols, among {sorted(PATROLS)}")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first training episode")
     parser.add_argument("--epochs", type=int, default=20, help="classifier epochs")
-    parser.add_argument("--env-kwargs", type=str, default="{}", help="the reserve's arguments as a Python dict literal")
+    parser.add_argument("--max-uav-samples", type=int, default=20_000,
+                        help="one-UAV training samples at most (beyond: a random subset of each episode's UAVs)")
+    parser.add_argument("--env-kwargs", type=str, default="{}",
+                        help="the reserve's arguments as a Python dict literal, e.g. \"{'n_uavs': 4}\" or \"dict(n_uavs=4)\"")
     args = parser.parse_args(argv)
-    for name in ("episodes", "test_episodes", "epochs"):
+    for name in ("episodes", "test_episodes", "epochs", "max_uav_samples"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.seed < 0:
@@ -164,19 +210,29 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"--patrols must be among {sorted(PATROLS)}, got {unknown}")
     try:
-        env_kwargs = ast.literal_eval(args.env_kwargs)
-        if not isinstance(env_kwargs, dict):
-            raise ValueError("not a dict")
-        reserve_v0.parallel_env(**env_kwargs)
-    except (ValueError, SyntaxError, TypeError) as error:
+        env_kwargs = parse_env_kwargs(args.env_kwargs)
+    except ValueError as error:
         parser.error(f"--env-kwargs must be a dict literal of the reserve's arguments, got {args.env_kwargs!r}: {error}")
+    try:
+        env = reserve_v0.parallel_env(**env_kwargs)
+        for patrol in args.patrols:
+            PATROLS[patrol](env, args.seed)
+    except (ValueError, TypeError) as error:
+        parser.error(f"--env-kwargs {args.env_kwargs!r} does not suit the reserve or the patrols {args.patrols}: {error}")
+    n_uavs = len(env.possible_agents)
+    env.close()
+    uavs_per_episode = min(n_uavs, max(1, args.max_uav_samples // args.episodes))
     th.set_num_threads(1)
     start = time.perf_counter()
     print(f"Supervised probe of the hidden mode: {args.episodes} training and {args.test_episodes} held-out episodes per "
           f"patrol (seeds {args.seed}.. and {TEST_SEED_OFFSET + args.seed}..), env_kwargs {env_kwargs}, "
           f"{args.epochs} epochs")
+    if uavs_per_episode < n_uavs:
+        print(f"One-UAV samples: a random {uavs_per_episode} of the {n_uavs} UAVs of each episode "
+              f"(--max-uav-samples {args.max_uav_samples}); the team rows use all of them")
     rows = [row for patrol in args.patrols
-            for row in evaluate(env_kwargs, patrol, args.episodes, args.test_episodes, args.seed, args.epochs)]
+            for row in evaluate(env_kwargs, patrol, args.episodes, args.test_episodes, args.seed, args.epochs,
+                                uavs_per_episode=None if uavs_per_episode == n_uavs else uavs_per_episode)]
     print(format_rows(rows))
     print(f"wall time {time.perf_counter() - start:.0f} s")
     return 0

@@ -40,6 +40,29 @@ def test_collected_features_summarise_the_episode_as_played(evidence):
             np.testing.assert_allclose(team[point][episode], evidence.team_features(expected), rtol=1e-5, atol=1e-6)
 
 
+def test_a_subset_of_uavs_gives_their_rows_and_leaves_the_team_whole(evidence):
+    points = (0.0, 1.0)
+    single, team, modes = evidence.collect_features(TINY, "random", range(3, 6), points=points, patrol_seed=7)
+    some, some_team, some_modes = evidence.collect_features(TINY, "random", range(3, 6), points=points, patrol_seed=7,
+                                                            uavs_per_episode=1)
+    np.testing.assert_array_equal(some_modes, modes)
+    for point in points:
+        assert some[point].shape == (3, single[point].shape[1])
+        np.testing.assert_array_equal(some_team[point], team[point])
+        for episode in range(3):  # each kept row is one of its episode's UAVs
+            assert (some[point][episode] == single[point][2 * episode:2 * episode + 2]).all(axis=1).any()
+
+
+def test_env_kwargs_are_read_as_literals_only(evidence):
+    assert evidence.parse_env_kwargs("dict(n_uavs=2, region='forest')") == {"n_uavs": 2, "region": "forest"}
+    assert evidence.parse_env_kwargs(" {'n_uavs': 2, 'grid_size': 20} ") == {"n_uavs": 2, "grid_size": 20}
+    assert evidence.parse_env_kwargs("dict()") == {}
+    for text in ("[1, 2]", "n_uavs:2", "dict(**{'n_uavs': 2})", "dict([('n_uavs', 2)])", "dict(n_uavs=len('ab'))",
+                 "__import__('os').getcwd()"):
+        with pytest.raises(ValueError):
+            evidence.parse_env_kwargs(text)
+
+
 def test_accuracies_and_commonest_class_rates(evidence):
     result = evidence.accuracies(np.array([0, 1, 2, 7]), np.array([0, 0, 3, 7]))
     assert result["mode"] == 0.5 and result["strategy"] == 1.0 and result["weather"] == 0.5
@@ -47,17 +70,40 @@ def test_accuracies_and_commonest_class_rates(evidence):
 
 
 def test_the_script_prints_every_row(evidence, capsys):
-    assert evidence.main(["--episodes", "6", "--test-episodes", "4", "--epochs", "1", "--env-kwargs", repr(TINY)]) == 0
+    tiny = "dict(n_uavs=2, grid_size=20, max_cycles=8)"
+    assert evidence.main(["--episodes", "6", "--test-episodes", "4", "--epochs", "1", "--env-kwargs", tiny]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith(("random", "scripted"))]
     assert len(rows) == 2 * 2 * len(evidence.POINTS)
-    assert any(" first " in row for row in rows) and any("50%" in row for row in rows)
+    for patrol in ("random", "scripted"):
+        for source in ("one UAV", "team"):
+            points = [row.split()[-8] for row in rows if row.startswith(patrol) and source in row]
+            assert points == ["first", "25%", "50%", "100%"]
+    assert "random subset" not in out and "wall time" in out.splitlines()[-1]
+    one_uav = [row for row in rows if "one UAV" in row]
+    assert all(row.split()[-1] == "12" for row in one_uav)  # 6 episodes x 2 UAVs
 
 
-@pytest.mark.parametrize("flags, message", [(["--episodes", "0"], "--episodes must be >= 1"),
+def test_the_script_says_when_it_keeps_a_subset_of_uavs(evidence, capsys):
+    flags = ["--episodes", "6", "--test-episodes", "4", "--epochs", "1", "--patrols", "random", "--max-uav-samples", "6"]
+    assert evidence.main([*flags, "--env-kwargs", repr(TINY)]) == 0
+    out = capsys.readouterr().out
+    assert "a random 1 of the 2 UAVs of each episode (--max-uav-samples 6)" in out
+    rows = [line for line in out.splitlines() if line.startswith("random")]
+    assert [row.split()[-1] for row in rows] == ["6"] * 4 + ["6"] * 4  # 6 episodes x 1 UAV; 6 team samples
+
+
+@pytest.mark.parametrize("flags, message", [(["--episodes", "0"], "--episodes must be >= 1, got 0"),
+                                            (["--test-episodes", "-3"], "--test-episodes must be >= 1, got -3"),
+                                            (["--max-uav-samples", "0"], "--max-uav-samples must be >= 1, got 0"),
+                                            (["--seed", "-1"], "--seed must be >= 0, got -1"),
                                             (["--patrols", "lawnmower"], "'lawnmower'"),
-                                            (["--env-kwargs", "dict(n_uavs=0)"], "--env-kwargs must be a dict literal"),
-                                            (["--env-kwargs", "{'n_uavs': 0}"], "n_uavs must be >= 1")])
+                                            (["--env-kwargs", "[1, 2]"], "must be a dict literal of the reserve's arguments, "
+                                                                         "got '[1, 2]'"),
+                                            (["--env-kwargs", "dict(n_uavs=0)"], "n_uavs must be >= 1"),
+                                            (["--env-kwargs", "{'n_uavs': 0}"], "n_uavs must be >= 1"),
+                                            (["--env-kwargs", "{'n_drones': 2}"], "n_drones"),
+                                            (["--env-kwargs", "{'continuous_actions': True}"], "continuous_actions=False")])
 def test_bad_arguments_are_rejected_by_name(evidence, flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         evidence.main(flags)
