@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 from wildlife_reserve.reserve.modes import N_MODES
@@ -71,11 +71,7 @@ class ModeObservationWrapper(VecEnvWrapper):
 
 def find_mode_wrapper(venv: VecEnv) -> ModeObservationWrapper | None:
     """The :class:`ModeObservationWrapper` in a chain of vector-env wrappers, if any."""
-    while isinstance(venv, VecEnvWrapper):
-        if isinstance(venv, ModeObservationWrapper):
-            return venv
-        venv = venv.venv
-    return None
+    return unwrap_vec_wrapper(venv, ModeObservationWrapper)
 
 
 def wrap_with_mode(env: Any, verbose: int = 0) -> VecEnv:

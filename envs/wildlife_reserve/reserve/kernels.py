@@ -468,17 +468,6 @@ def learn_signs(known: np.ndarray, counts: np.ndarray, uavs: np.ndarray, signs: 
 
 
 @njit(cache=True)
-def count_found(signs: np.ndarray, real: np.ndarray, found: np.ndarray) -> int:  # pragma: no cover - compiled
-    """Mark the ``real`` ones among ``signs`` as found by the team; returns how many were not found before."""
-    fresh = 0
-    for i in signs:
-        if real[i] and not found[i]:
-            found[i] = True
-            fresh += 1
-    return fresh
-
-
-@njit(cache=True)
 def record_readings(hit: np.ndarray, poachers: np.ndarray, leopards: np.ndarray, cells: np.ndarray, radius: int,
                     false_uav: np.ndarray, false_offsets: np.ndarray, false_cells: np.ndarray,
                     signals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled

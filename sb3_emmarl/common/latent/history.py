@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 #: Observations larger than this are reduced to this many compact features by a fixed projection.
@@ -216,8 +216,4 @@ class HistoryWrapper(VecEnvWrapper):
 
 def find_history_wrapper(venv: VecEnv) -> HistoryWrapper | None:
     """The :class:`HistoryWrapper` inside a stack of vector wrappers, if any."""
-    while isinstance(venv, VecEnvWrapper):
-        if isinstance(venv, HistoryWrapper):
-            return venv
-        venv = venv.venv
-    return None
+    return unwrap_vec_wrapper(venv, HistoryWrapper)
