@@ -4,7 +4,7 @@ PYTHON ?= python
 TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-probe \
+.PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
 	benchmark-mode-evidence benchmark-mode-value
 
 install:
@@ -46,13 +46,18 @@ benchmark-env: install
 benchmark-ppo: install
 	$(PYTHON) zoo/benchmark.py --algos ppo -n 3000000 --seeds 0 --eval-episodes 20
 
-# EM-PPO, its frozen-E-step and no-latent ablations and PPO, 3 seeds at the same budget (about 30 minutes).
+# EM-PPO, PPO, RecurrentPPO (memory without EM), PPO told the mode (the upper bound) and EM-PPO's no-latent and
+# frozen-E-step ablations, 3 seeds at the same budget, paired against PPO (about 50 minutes, estimated).
 benchmark-em: install
 	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2 --eval-episodes 10
 
-# How much of the hidden mode the encoder's history window holds: a supervised ceiling (about 5 minutes).
-benchmark-latent-probe: install
-	$(PYTHON) benchmarks/latent_probe.py --history-lengths 8 32
+# Wall time of EM-PPO against PPO and RecurrentPPO at equal agent-steps, taking turns in one process (about 15 minutes).
+benchmark-em-speed: install
+	$(PYTHON) benchmarks/em_speed.py
+
+# EM-PPO with default arguments on the two hidden-mode tasks, against PPO told the mode and plain PPO (about 15 minutes).
+benchmark-latent-tasks: install
+	$(PYTHON) benchmarks/latent_tasks.py
 
 # Does the hidden mode show in what a team observes? A supervised probe by patrol, source and time (about 10 minutes).
 benchmark-mode-evidence: install

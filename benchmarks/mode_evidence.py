@@ -13,7 +13,7 @@ at the first observation (the reset) and after 25 %, 50 % and 100 % of ``max_cyc
 "Observations so far" are summarised generically, whatever the layout: per UAV, the running mean and the
 running maximum over steps ``0..t`` of its observation vector, elementwise (the observation's own maps
 already accumulate what the UAV knows); for the team, the mean and the maximum over its UAVs of those.
-The classifier is :func:`latent_probe.probe_accuracy` (an MLP with 128 ReLU units on standardised
+The classifier is :func:`probe_accuracy` (an MLP with 128 ReLU units on standardised
 inputs) predicting the 8-way mode; strategy and weather are read off the predicted mode
 (``mode // 2``, ``mode % 2``). One-UAV samples are all the UAVs of every episode (a random subset of
 each episode's UAVs when there would be more than ``--max-uav-samples``, as the script then says); team
@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import argparse
 import ast
-import importlib.util
 import time
-from pathlib import Path
 
 import numpy as np
 import torch as th
+from torch import nn
 
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
@@ -44,14 +43,25 @@ PATROLS = {"random": lambda env, seed: RandomPatrol(env, seed=seed), "scripted":
 TEST_SEED_OFFSET = 1_000_000
 
 
-def _probe_accuracy():
-    """``probe_accuracy`` of the sibling ``latent_probe.py`` (benchmarks are scripts, not a package)."""
-    path = Path(__file__).resolve().parent / "latent_probe.py"
-    spec = importlib.util.spec_from_file_location("latent_probe", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.probe_accuracy
-
+def probe_accuracy(train_x: np.ndarray, train_y: np.ndarray, test_x: np.ndarray, n_classes: int, epochs: int,
+                   seed: int) -> np.ndarray:
+    """Predicted classes for ``test_x`` from an MLP (128 ReLU units) trained by cross-entropy on standardised inputs."""
+    th.manual_seed(seed)
+    x = th.as_tensor(train_x, dtype=th.float32)
+    y = th.as_tensor(train_y, dtype=th.long)
+    mean, std = x.mean(0), x.std(0) + 1e-6
+    net = nn.Sequential(nn.Linear(x.shape[1], 128), nn.ReLU(), nn.Linear(128, n_classes))
+    optimizer = th.optim.Adam(net.parameters(), lr=1e-3)
+    for _ in range(epochs):
+        order = th.randperm(len(x))
+        for start in range(0, len(x), 512):
+            idx = order[start:start + 512]
+            loss = nn.functional.cross_entropy(net((x[idx] - mean) / std), y[idx])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+    with th.no_grad():
+        return net((th.as_tensor(test_x, dtype=th.float32) - mean) / std).argmax(1).numpy()
 
 def summarise(observations: np.ndarray) -> np.ndarray:
     """Per-UAV features of an observation history ``(t + 1, n, d)``: running mean and max over time, ``(n, 2d)``."""
@@ -156,7 +166,7 @@ def evaluate(env_kwargs: dict, patrol: str, train_episodes: int, test_episodes: 
     :param uavs_per_episode: one-UAV samples per episode (None: all its UAVs), see :func:`collect_features`
     :return: rows with the patrol, source, point, training samples and the :func:`accuracies`
     """
-    probe = _probe_accuracy()
+    probe = probe_accuracy
     train_single, train_team, train_modes = collect_features(env_kwargs, patrol, range(seed, seed + train_episodes),
                                                              points, patrol_seed=seed, uavs_per_episode=uavs_per_episode)
     test_seeds = range(TEST_SEED_OFFSET + seed, TEST_SEED_OFFSET + seed + test_episodes)

@@ -22,10 +22,7 @@ import shlex
 import sys
 import time
 
-import numpy as np
-from scipy import stats
-
-from sb3_emmarl.zoo.benchmark import add_run_arguments, check_run_arguments, run_variants
+from sb3_emmarl.zoo.benchmark import add_run_arguments, check_run_arguments, paired_over_seeds, run_variants
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol, run_patrol
 
@@ -40,18 +37,15 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
 
     :param results: ``{variant: [record per seed, same seed order for every variant]}``, two variants
     :param metrics: the metrics to compare
+    :raises ValueError: if the two variants' seed lists differ (see :func:`~sb3_emmarl.zoo.benchmark.paired_over_seeds`)
     """
     (a_name, a_runs), (b_name, b_runs) = results.items()
-    if [r["seed"] for r in a_runs] != [r["seed"] for r in b_runs]:
-        raise ValueError("the two variants must be evaluated on the same seeds, in the same order")
     lines = [f"{'metric':<22}{a_name:>20}{b_name:>20}{'difference':>20}{'p (paired t)':>14}{'higher on':>11}"]
     for metric in metrics:
-        a = np.array([r[metric] for r in a_runs])
-        b = np.array([r[metric] for r in b_runs])
-        diff = a - b
-        p_value = float(stats.ttest_rel(a, b).pvalue) if len(a) > 1 and np.any(diff != 0) else 1.0
+        test = paired_over_seeds(results, a_name, b_name, metric)
+        a, b, diff = test.a, test.b, test.difference
         lines.append(f"{metric:<22}{a.mean():>11.3f} +- {a.std():<5.3f}{b.mean():>11.3f} +- {b.std():<5.3f}"
-                     f"{diff.mean():>11.3f} +- {diff.std():<5.3f}{p_value:>14.3g}{f'{(diff > 0).sum()}/{len(diff)}':>11}")
+                     f"{diff.mean():>11.3f} +- {diff.std():<5.3f}{test.p_value:>14.3g}{test.higher_on:>11}")
     lines.append("")
     lines.append(f"{'seed':<6}" + "".join(f"{f'{name} {metric}':>34}" for name in (a_name, b_name) for metric in metrics))
     for a_run, b_run in zip(a_runs, b_runs):

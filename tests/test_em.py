@@ -1,15 +1,19 @@
-"""EM-PPO and EM-DDPG: policy shapes, mode recovery by the E-step alone, save/load, ablations, logging."""
+"""EM-PPO and EM-DDPG: beliefs, fusion, the E-step, SB3's conventions, save/load, ablations, logging."""
+
+import warnings
 
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.vec_env import DummyVecEnv
-from synthetic import ModeSpin
+from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMPPO
-from sb3_emmarl.common.latent.em import EStep, LatentBatch, transitions_from_rollout
-from sb3_emmarl.common.latent.history import HistoryWrapper
-from sb3_emmarl.common.latent.metrics import latent_report
+from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
+from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper
+from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
+from sb3_emmarl.common.latent.layout import LatentLayout
+from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve import reserve_v0
@@ -19,76 +23,192 @@ SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
 OBS_DIM = reserve_v0.parallel_env(**SMALL).obs_dim
 
 
-def synthetic_env(n=16, continuous=False, seed=0):
-    venv = DummyVecEnv([lambda: ModeSpin(continuous=continuous)] * n)
-    venv.seed(seed)
-    return venv
+def task_env(task=ModeCueEnv, n=8, seed=0, **kwargs):
+    return sb3_make_vec_env(lambda: task(**kwargs), n_envs=n, seed=seed)
 
 
 @pytest.mark.parametrize("continuous", [False, True])
-@pytest.mark.parametrize(("k", "h"), [(2, 1), (4, 8), (6, 3)])
-def test_policy_shapes(continuous, k, h):
+@pytest.mark.parametrize("k", [2, 5])
+def test_policy_shapes_and_beliefs(continuous, k):
     env = make_vec_env(env_kwargs={**SMALL, "continuous_actions": continuous})
     algo = EMDDPG if continuous else EMPPO
-    model = algo("MlpPolicy", env, n_components=k, history_length=h, seed=0)
+    model = algo("MlpPolicy", env, n_components=k, seed=0)
     obs = model.env.reset()
-    layout = model.layout
-    assert obs.shape == (3, OBS_DIM + h * layout.step_dim) and layout.obs_dim == OBS_DIM
+    layout = model.latent_layout
+    assert obs.shape == (3, OBS_DIM + k) and layout.obs_dim == OBS_DIM and layout.total_dim == OBS_DIM + k
     extractor = model.policy.actor.features_extractor if continuous else model.policy.features_extractor
-    features = extractor(th.as_tensor(obs))
-    assert features.shape == (3, OBS_DIM + k)
-    posterior = features[:, -k:]
-    th.testing.assert_close(posterior.sum(-1), th.ones(3))
-    np.testing.assert_allclose(model.posterior(obs), posterior.numpy(), rtol=1e-5)
-    actions, _ = model.predict(obs)
-    assert actions.shape == ((3, 3) if continuous else (3,))
-    assert all(model.action_space.contains(a) for a in actions)
+    assert extractor(th.as_tensor(obs)).shape == (3, OBS_DIM + k)
+    np.testing.assert_allclose(model.posterior(obs).sum(-1), 1.0, rtol=1e-5)
+    np.testing.assert_allclose(model.posterior(obs), np.exp(model.policy.latent_model.log_prior.numpy())[None].repeat(3, 0),
+                               rtol=1e-5)  # nothing observed yet: the prior
+    for observation in (obs, obs[:, :OBS_DIM]):  # with the belief, and plain
+        actions, _ = model.predict(observation)
+        assert actions.shape == ((3, 3) if continuous else (3,))
+        assert all(model.action_space.contains(a) for a in actions)
+    with pytest.raises(ValueError, match=f"observations must have {OBS_DIM} values"):
+        model.predict(obs[:, :10])
 
 
-def collect(venv, steps, seed=0):
-    """Random-action rollout of an augmented env: (n_steps, n_envs, dim) observations, episode starts and modes."""
+def filtered(model, features, actions, temperature=1.0):
+    """Brute force: log pi + beta * sum of every transition's log-likelihood, normalised."""
+    with th.no_grad():
+        log_lik = model.transition_log_likelihood(features[:-1], actions, features[1:]).sum(0)
+        return th.log_softmax(model.log_prior + temperature * log_lik, -1).numpy()
+
+
+@pytest.mark.parametrize("temperature", [1.0, 0.3])
+def test_the_belief_is_the_exact_filtering_posterior_updated_one_step_at_a_time(temperature):
+    th.manual_seed(0)
+    layout = LatentLayout(obs_dim=5, feature_dim=3, action_dim=2, n_components=4)
+    model = LatentModel(layout)
+    model.set_prior(th.tensor([[0.1, 0.2, 0.3, 0.4]]))
+    features, actions = th.randn(7, 3), th.randn(6, 2)
+    tracker = BeliefTracker(1, 4, 3, 2, model=model, likelihood_temperature=temperature)
+    tracker.start(np.array([0]), features[:1].numpy())
+    np.testing.assert_allclose(tracker.log_beliefs()[0], model.log_prior.numpy(), atol=1e-6)
+    for t in range(6):
+        tracker.set_actions(actions[t:t + 1].numpy())
+        tracker.advance(np.array([0]), features[t + 1:t + 2].numpy())
+        expected = filtered(model, features[:t + 2], actions[:t + 1], temperature)
+        np.testing.assert_allclose(tracker.log_beliefs()[0], expected, atol=1e-4)
+    # The state round-trips, and a new episode forgets.
+    clone = BeliefTracker(1, 4, 3, 2, model=model, likelihood_temperature=temperature)
+    clone.set_state(tracker.get_state())
+    np.testing.assert_array_equal(clone.log_beliefs(), tracker.log_beliefs())
+    tracker.start(np.array([0]), features[:1].numpy())
+    np.testing.assert_allclose(tracker.log_beliefs()[0], model.log_prior.numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="belief state must have shape"):
+        clone.set_state(np.zeros((2, 3)))
+
+
+def test_fusion_adds_the_own_evidence_last_heard_from_each_teammate_once():
+    tracker = BeliefTracker(6, 2, 1, 1, agents_per_copy=3)  # two copies of three agents, no model: set evidence by hand
+    tracker.evidence[:] = [[1, 0], [0, 2], [3, 0], [0, 5], [7, 0], [0, 11]]
+    tracker.fuse([{"heard_from": (1,)}, {"heard_from": (2,)}, {}, {"heard_from": ()}, {"heard_from": (0, 2)}, {}])
+    fused = tracker.evidence + tracker.heard.sum(1)
+    np.testing.assert_array_equal(fused[0], [1, 2])  # its own and agent 1's own, not what 1 heard from 2
+    np.testing.assert_array_equal(fused[1], [3, 2])
+    np.testing.assert_array_equal(fused[2], [3, 0])  # heard nobody
+    np.testing.assert_array_equal(fused[3], [0, 5])
+    np.testing.assert_array_equal(fused[4], [7, 16])  # agents 0 and 2 of the second copy: entries 3 and 5
+    tracker.evidence[1] = [0, 4]  # agent 1 learns more; agent 0 keeps what it last heard until it hears again
+    tracker.fuse([{}] * 6)
+    np.testing.assert_array_equal((tracker.evidence + tracker.heard.sum(1))[0], [1, 2])
+    tracker.fuse([{"heard_from": (1,)}] + [{}] * 5)
+    np.testing.assert_array_equal((tracker.evidence + tracker.heard.sum(1))[0], [1, 4])  # replaced, not added
+    off = BeliefTracker(3, 2, 1, 1, agents_per_copy=3, fusion=False)
+    off.fuse([{"heard_from": (1, 2)}] * 3)
+    assert not off.heard.any()
+
+
+def evaluation_beliefs(model, env_kwargs, steps=30):
+    venv = model.wrap_env(make_vec_env(env_kwargs=env_kwargs, seed=7))
+    obs, beliefs = venv.reset(), []
+    th.manual_seed(0)
+    for _ in range(steps):
+        obs, *_ = venv.step(model.predict(obs)[0])
+        beliefs.append(model.posterior(obs))
+    return np.array(beliefs)
+
+
+def test_fusion_follows_the_links_and_changes_nothing_without_them():
+    model = EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), n_steps=32, batch_size=32, n_components=3, seed=0)
+    model.learn(96)  # a fitted decoder, so that evidence differs between agents
+    for comm_loss, same in ((1.0, True), (0.0, False)):
+        kwargs = {**SMALL, "comm_loss": comm_loss}
+        model.fusion = True
+        fused = evaluation_beliefs(model, kwargs)
+        model.fusion = False
+        alone = evaluation_beliefs(model, kwargs)
+        assert np.array_equal(fused, alone) == same, comm_loss
+
+
+def test_predict_with_a_state_equals_the_wrapped_environment_and_evaluate_policy_works_on_the_plain_one():
+    model = EMPPO("MlpPolicy", task_env(ModeDynamicsEnv, n=4), n_steps=64, seed=0)
+    model.learn(1024)
+    plain, wrapped = task_env(ModeDynamicsEnv, n=3, seed=5), model.wrap_env(task_env(ModeDynamicsEnv, n=3, seed=5))
+    obs_plain, obs_wrapped = plain.reset(), wrapped.reset()
+    state, starts = None, np.ones(3, dtype=bool)
+    for _ in range(60):  # more than two episodes of 25 steps: the state resets at episode starts
+        actions, state = model.predict(obs_plain, state, starts, deterministic=True)
+        np.testing.assert_allclose(np.exp(log_beliefs_of_state(model, state)), model.posterior(obs_wrapped), atol=1e-5)
+        np.testing.assert_array_equal(actions, model.predict(obs_wrapped, deterministic=True)[0])
+        obs_plain, _, starts, _ = plain.step(actions)
+        obs_wrapped, *_ = wrapped.step(actions)
+    mean_plain, _ = evaluate_policy(model, task_env(ModeDynamicsEnv, n=2, seed=9), n_eval_episodes=6, deterministic=True)
+    mean_wrapped, _ = evaluate_policy(model, model.wrap_env(task_env(ModeDynamicsEnv, n=2, seed=9)), n_eval_episodes=6,
+                                      deterministic=True)
+    assert mean_plain == pytest.approx(mean_wrapped, rel=1e-5)
+
+
+def log_beliefs_of_state(model, state):
+    """The log-beliefs held in a ``predict`` state."""
+    layout = model.latent_layout
+    tracker = BeliefTracker(len(state), layout.n_components, layout.feature_dim, layout.action_dim,
+                            model=model.policy.latent_model)
+    tracker.set_state(state)
+    return tracker.log_beliefs()
+
+
+def random_transitions(venv, steps, counters, seed=0):
+    """Random-action transitions of a plain vector env, as E-step data, with the true mode of each."""
     rng = np.random.default_rng(seed)
     obs = venv.reset()
-    observations, starts, modes = [], [], []
-    start = np.ones(venv.num_envs)
+    xs, acts, nexts, starts, modes = [], [], [], [], []
+    start = np.ones(venv.num_envs, dtype=bool)
     for _ in range(steps):
-        observations.append(obs)
-        starts.append(start)
-        modes.append([e.mode for e in venv.venv.envs])
-        obs, _, dones, _ = venv.step(rng.integers(0, 3, venv.num_envs))
-        start = dones.astype(float)
-    return np.array(observations), np.array(starts), np.array(modes)
+        actions = rng.integers(0, 4, venv.num_envs)
+        new_obs, _, dones, infos = venv.step(actions)
+        following = np.array([info["terminal_observation"] if d else o for o, d, info in zip(new_obs, dones, infos)])
+        xs.append(obs), acts.append(np.eye(4)[actions]), nexts.append(following), starts.append(start)
+        modes.append([info["mode"] for info in infos])  # the transition's episode, even at its end
+        obs, start = new_obs, dones
+    ids = episode_ids(counters, np.array(starts))
+    flat = lambda a: np.concatenate(a)  # noqa: E731
+    return Transitions.from_numpy(flat(xs), flat(acts), flat(nexts), ids.ravel()), np.array(modes).ravel()
 
 
-def test_the_e_step_alone_recovers_the_hidden_modes_and_the_elbo_rises():
+def test_the_e_step_alone_tells_the_mode_from_dynamics_and_its_likelihood_rises():
     th.manual_seed(0)
-    venv = HistoryWrapper(synthetic_env(), history_length=6)
-    model = LatentModel(venv.layout, n_components=4)
-    e_step = EStep(model, n_epochs=4, batch_size=256, window=3, learning_rate=3e-3)
-    elbos = []
-    for rollout in range(15):
-        observations, starts, _ = collect(venv, 64, seed=rollout)
-        e_step.add(transitions_from_rollout(venv.layout, observations, starts, agents_per_copy=1))
-        elbos.append(e_step.step()["elbo"])
-    assert elbos[-1] > elbos[0] + 1.0
-    assert np.mean(np.diff(elbos) > 0) >= 0.6  # rising across E-steps, not just at the ends
-    # Held-out episodes: align components to modes, then accuracy (from the 3rd step of an episode on).
-    held_out = HistoryWrapper(synthetic_env(seed=99), history_length=6)
-    observations, starts, modes = collect(held_out, 200, seed=1234)
-    step_in_episode = np.zeros_like(starts)
-    for t in range(1, len(starts)):
-        step_in_episode[t] = np.where(starts[t] > 0, 0, step_in_episode[t - 1] + 1)
-    keep = step_in_episode >= 3
-    with th.no_grad():
-        window = th.as_tensor(held_out.layout.split(observations[keep])[1])
-        posterior = model.posterior(window).numpy()
-    report = latent_report(posterior, modes[keep].astype(np.int64))
-    assert report["latent_accuracy"] >= 0.9, report
-    assert report["latent_nmi"] > 0.7
+    venv = task_env(ModeDynamicsEnv, n=16)
+    model = LatentModel(LatentLayout(obs_dim=2, feature_dim=2, action_dim=4, n_components=4))
+    e_step = EStep(model, window=2)
+    counters, likelihoods = np.zeros(16, dtype=np.int64), []
+    for rollout in range(10):
+        data, _ = random_transitions(venv, 50, counters, seed=rollout)
+        e_step.add(data)
+        likelihoods.append(e_step.step()["log_likelihood"])
+    assert likelihoods[-1] > likelihoods[0] + 0.5 and np.mean(np.diff(likelihoods) > 0) >= 0.6
+    held_out, modes = random_transitions(task_env(ModeDynamicsEnv, n=16, seed=99), 50, np.zeros(16, dtype=np.int64),
+                                         seed=1234)
+    log_r, index, _ = e_step.responsibilities(held_out)
+    posterior = log_r.exp().numpy()[index.numpy()]
+    mapping = align_components(posterior, modes)
+    assert (mapping[posterior.argmax(1)] == modes).mean() >= 0.9
+
+
+def test_episode_ids_continue_across_rollouts_and_pool_teams():
+    counters = np.zeros(4, dtype=np.int64)
+    starts = np.array([[1, 1, 1, 1], [0, 0, 0, 0], [1, 1, 0, 0]], dtype=bool)
+    first = episode_ids(counters, starts)
+    assert first[0].tolist() != first[2].tolist()[:2] + first[0].tolist()[2:]
+    assert len(np.unique(first)) == 6 and (first[1] == first[0]).all() and (first[2, 2:] == first[0, 2:]).all()
+    second = episode_ids(counters, np.zeros((2, 4), dtype=bool))  # the next rollout continues the same episodes
+    assert (second == first[2]).all()
+    pooled = episode_ids(np.zeros(4, dtype=np.int64), starts, agents_per_copy=2, team_pooling=True)
+    assert (pooled[:, 0] == pooled[:, 1]).all() and (pooled[:, 2] == pooled[:, 3]).all()
+    assert len(np.unique(pooled)) == 3  # copy 0's two episodes, copy 1's one
+
+
+def test_the_e_step_sees_whole_episodes_across_rollouts():
+    model = EMPPO("MlpPolicy", task_env(ModeCueEnv, n=4), n_steps=8, e_step_kwargs={"window": 8}, seed=0)
+    model.learn(4 * 8 * 8)  # 64 steps per entry: two episodes of 32, over eight rollouts
+    log_r, _, _ = model.e_step.responsibilities(model.e_step._data())
+    assert len(log_r) == 2 * 4
 
 
 def snapshot(module):
-    return {name: p.detach().clone() for name, p in module.state_dict().items()}
+    return {name: value.clone() for name, value in module.state_dict().items()}
 
 
 def changed(before, module):
@@ -113,11 +233,12 @@ def test_each_ablation_freezes_exactly_what_it_names(algo):
 
     model, moved = run()
     latent = {n for n in snapshot(model.policy) if n.startswith("latent_model.")}
-    assert latent and latent <= moved and policy_without_latent(moved)  # both halves learn by default
+    decoder = {n for n in latent if n.startswith("latent_model.decoder")}
+    assert decoder and decoder <= moved and policy_without_latent(moved)  # both halves learn by default
     _, moved = run(freeze_e_step=True)
-    assert not moved & latent and policy_without_latent(moved)  # encoder, decoder and prior unchanged
+    assert not moved & latent and policy_without_latent(moved)  # decoder and prior unchanged
     _, moved = run(freeze_m_step=True)
-    assert moved == latent  # only the latent model changed
+    assert decoder <= moved <= latent  # only the latent model changed
     model, moved = run(use_latent=False)
     assert model.policy.latent_model is None and model.e_step is None
     assert not any(n.startswith("latent_model.") for n in snapshot(model.policy)) and moved
@@ -127,51 +248,58 @@ def test_each_ablation_freezes_exactly_what_it_names(algo):
 
 
 @pytest.mark.parametrize("algo", [EMPPO, EMDDPG])
-def test_save_load_gives_the_same_actions_and_posteriors(algo, tmp_path):
+def test_save_load_gives_the_same_actions_and_beliefs(algo, tmp_path):
     continuous = algo is EMDDPG
     settings = {"n_steps": 32, "batch_size": 64} if not continuous else {"learning_starts": 50, "e_step_interval": 2}
-    env = make_vec_env(n_copies=2, seed=0, env_kwargs={**SMALL, "continuous_actions": continuous})
-    model = algo("MlpPolicy", env, seed=0, **settings)
+    kwargs = {**SMALL, "continuous_actions": continuous}
+    model = algo("MlpPolicy", make_vec_env(n_copies=2, seed=0, env_kwargs=kwargs), seed=0, **settings)
     model.learn(500)
-    obs = model.env.reset()
-    for _ in range(5):
-        obs, *_ = model.env.step(model.predict(obs)[0])
     model.save(tmp_path / "model")
-    raw_env = make_vec_env(n_copies=2, seed=0, env_kwargs={**SMALL, "continuous_actions": continuous})
-    loaded = algo.load(tmp_path / "model", env=raw_env, device="cpu")
-    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
-    np.testing.assert_allclose(model.posterior(obs), loaded.posterior(obs), rtol=1e-6)
+    loaded = algo.load(tmp_path / "model", env=make_vec_env(n_copies=2, seed=0, env_kwargs=kwargs), device="cpu")
+    assert isinstance(loaded.env, BeliefWrapper) and loaded.env.tracker.model is loaded.policy.latent_model
     th.testing.assert_close(model.policy.latent_model.log_prior, loaded.policy.latent_model.log_prior)
-    assert loaded.env.observation_space.shape == model.env.observation_space.shape  # the history wrapper came back
+    without_env = algo.load(tmp_path / "model", device="cpu")
+    for other in (loaded, without_env):
+        states = [None, None]
+        plain = make_vec_env(n_copies=2, seed=3, env_kwargs=kwargs)
+        obs, starts = plain.reset(), np.ones(6, dtype=bool)
+        for _ in range(5):
+            (a, states[0]), (b, states[1]) = (m.predict(obs, s, starts, deterministic=True)
+                                              for m, s in ((model, states[0]), (other, states[1])))
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_allclose(states[0], states[1], rtol=1e-6)
+            obs, _, starts, _ = plain.step(a)
     loaded.learn(200)  # and it trains on
 
 
-def test_works_on_any_sb3_vector_environment_with_defaults(tmp_path):
-    model = EMPPO("MlpPolicy", synthetic_env(n=4), n_steps=32, batch_size=64, tensorboard_log=str(tmp_path), seed=0)
-    model.learn(512)  # 4 rollouts of 4 x 32 steps: one E-step with the default interval of 4
-    assert model.e_step.n_updates == 1
+def test_defaults_work_on_any_sb3_vector_environment_without_warnings(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = EMPPO("MlpPolicy", task_env(ModeCueEnv, n=3), tensorboard_log=str(tmp_path), seed=0)
+        model.learn(3 * 128 * 2)
+    assert model.e_step.n_updates == 2
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     events = next(tmp_path.rglob("events.out.tfevents.*"))
     accumulator = EventAccumulator(str(events))
     accumulator.Reload()
     tags = set(accumulator.Tags()["scalars"])
-    expected = {f"latent/{k}" for k in ("elbo", "recon", "kl", "prior_entropy", "posterior_entropy", "temperature")}
+    expected = {f"latent/{k}" for k in ("log_likelihood", "prior_entropy", "posterior_entropy", "n_episodes")}
     assert expected <= tags, expected - tags
 
 
 def test_gumbel_estimator_anneals_and_team_pooling_runs():
     env = make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL)
     model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, estimator="gumbel", team_pooling=True, seed=0,
-                  e_step_interval=1, e_step_kwargs={"anneal_rate": 0.5})
+                  e_step_kwargs={"anneal_rate": 0.5})
     model.learn(3 * 32 * 6)
     assert model.e_step.n_updates == 3
     assert model.e_step.temperature == pytest.approx(np.exp(-1.5))
 
 
-def test_the_m_step_sees_the_posteriors_the_actions_were_drawn_with(monkeypatch):
-    """An E-step after every rollout changes the encoder before PPO's update, yet the update's first log-probs
-    equal the rollout's: the networks read the posteriors of collection time."""
+def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
+    """The E-step after every rollout changes the decoder before PPO's update, yet the update's first log-probs
+    equal the rollout's: the buffer holds the beliefs of collection time."""
     from stable_baselines3 import PPO
 
     checked = []
@@ -179,54 +307,28 @@ def test_the_m_step_sees_the_posteriors_the_actions_were_drawn_with(monkeypatch)
     def check(self):
         buffer = self.rollout_buffer
         obs = th.as_tensor(buffer.observations.reshape(-1, buffer.observations.shape[-1]))
-        actions = th.as_tensor(buffer.actions.reshape(-1))
         with th.no_grad():
-            _, log_prob, _ = self.policy.evaluate_actions(obs, actions)
-            current = self.posterior(buffer.observations.reshape(len(obs), -1))
-        stored = buffer.observations.reshape(len(obs), -1)[:, OBS_DIM:OBS_DIM + self.n_components]
-        assert np.abs(current - stored).max() > 1e-4  # the E-step did move the encoder
+            _, log_prob, _ = self.policy.evaluate_actions(obs, th.as_tensor(buffer.actions.reshape(-1)))
         np.testing.assert_allclose(log_prob.numpy(), buffer.log_probs.reshape(-1), atol=1e-5)
         checked.append(True)
 
     monkeypatch.setattr(PPO, "train", check)
-    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL), n_steps=32, batch_size=64,
-                  e_step_interval=1, seed=0)
+    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL), n_steps=32, seed=0)
     model.learn(2 * 3 * 32 * 2)
     assert len(checked) == 2 and model.e_step.n_updates == 2
-
-
-def test_team_pooled_e_steps_keep_each_group_in_one_minibatch():
-    layout = HistoryWrapper(synthetic_env(n=2), history_length=2).layout
-    e_step = EStep(LatentModel(layout, n_components=2), batch_size=20, max_samples=50, team_pooling=True)
-    groups = th.arange(70) // 7  # 10 groups of 7
-    e_step.add(LatentBatch(th.randn(70, 2, layout.step_dim), th.randn(70, layout.step_dim), groups))
-    data = e_step._data()
-    kept = data.groups.unique(return_counts=True)[1]
-    assert len(data) == 49 and (kept == 7).all()  # whole groups, as many as fit in max_samples
-    batches = e_step._minibatches(data)
-    assert sorted(th.cat(batches).tolist()) == list(range(49))
-    for idx in batches:
-        assert (data.groups[idx].unique(return_counts=True)[1] == 7).all()
-
-
-def test_team_pooling_multiplies_posteriors_and_divides_the_prior():
-    layout = HistoryWrapper(synthetic_env(n=2), history_length=2).layout
-    model = LatentModel(layout, n_components=3)
-    log_q = th.log(th.tensor([[0.6, 0.3, 0.1], [0.5, 0.25, 0.25], [0.2, 0.2, 0.6]]))
-    pooled = model.pool(log_q, th.tensor([0, 0, 1])).exp()
-    expected = th.tensor([0.6 * 0.5, 0.3 * 0.25, 0.1 * 0.25]) * 3  # prior uniform: divide once by 1/3
-    th.testing.assert_close(pooled[0], expected / expected.sum())
-    th.testing.assert_close(pooled[1], pooled[0])
-    th.testing.assert_close(pooled[2], log_q[2].exp())
 
 
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
         ({"n_components": 0}, "n_components must be an int >= 1"),
-        ({"history_length": 0}, "history_length must be an int >= 1"),
         ({"estimator": "mc"}, "estimator must be 'enumerate' or 'gumbel'"),
         ({"e_step_kwargs": {"epochs": 3}}, r"e_step_kwargs keys must be among"),
+        ({"e_step_kwargs": {"n_epochs": 0}}, r"n_epochs must be an int >= 1"),
+        ({"likelihood_temperature": 0.0}, "likelihood_temperature must be a number > 0"),
+        ({"fusion": "no"}, "fusion must be True or False"),
+        ({"decoder_hidden": "64"}, "decoder_hidden must be a sequence of ints"),
+        ({"e_step_interval": 0}, "e_step_interval must be an int >= 1"),
     ],
 )
 def test_bad_em_settings_are_rejected(kwargs, message):
@@ -234,7 +336,7 @@ def test_bad_em_settings_are_rejected(kwargs, message):
         EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), **kwargs)
 
 
-def test_evaluate_team_reports_latent_accuracy_for_em_models():
+def test_evaluate_team_reports_latent_metrics_over_the_episode():
     from sb3_emmarl.common.evaluation import evaluate_team
 
     model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, env_kwargs=SMALL), n_steps=32, batch_size=64, n_components=8, seed=0)
@@ -242,8 +344,9 @@ def test_evaluate_team_reports_latent_accuracy_for_em_models():
     records = evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
     assert records == evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
     for record in records:
-        assert 0.0 <= record["latent_accuracy"] <= 1.0 and record["latent_kl"] >= 0.0
-        assert 0.0 <= record["latent_nmi"] <= 1.0
+        for key in ("latent_accuracy", "latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100"):
+            assert 0.0 <= record[key] <= 1.0
+        assert record["latent_kl"] >= 0.0 and 0.0 <= record["latent_nmi"] <= 1.0
     assert len({r["latent_nmi"] for r in records}) == 1  # one alignment over all evaluated episodes
 
 
@@ -259,7 +362,7 @@ def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
                        "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:30"]) == 0
     run = tmp_path / algo / "WildlifeReserve-v0_1"
     records = json.loads((run / "team_eval.json").read_text())
-    assert len(records) == 2 and "latent_accuracy" in records[0]
+    assert len(records) == 2 and "latent_accuracy_50" in records[0]
     assert (run / "best_model.zip").is_file()
 
 
@@ -276,52 +379,8 @@ def test_the_method_page_states_the_defaults_the_code_has():
         stated = rows[key].split()[0]
         assert float(stated) == value, (key, rows[key])
     signature = inspect.signature(EMPPO).parameters
-    for name in ("n_components", "history_length", "encoder_hidden", "e_step_interval"):
+    for name in ("n_components", "likelihood_temperature", "fusion", "e_step_interval"):
         assert rows[name].startswith(str(signature[name].default)), (name, rows[name])
-
-
-def test_the_elbo_is_tight_at_the_exact_posterior_and_lower_elsewhere():
-    """ELBO(q) = log p(D) - KL(q || p(z | D)): equal to the log-evidence at q = responsibilities, below it otherwise."""
-    th.manual_seed(0)
-    layout = HistoryWrapper(synthetic_env(n=2), history_length=3).layout
-    model = LatentModel(layout, n_components=3)
-    model.set_prior(th.tensor([[0.5, 0.3, 0.2]]))
-    window, next_slot = th.randn(6, 3, layout.step_dim), th.randn(6, layout.step_dim)
-    window[..., -1] = 1.0  # every slot is a real step
-    next_slot[:, -1] = 1.0
-    with th.no_grad():
-        log_lik = model.stretch_log_likelihood(window, next_slot)
-        evidence = th.logsumexp(log_lik + model.log_prior, dim=-1)
-        exact = model.elbo(window, next_slot, log_q=model.responsibilities(window, next_slot))
-        encoder = model.elbo(window, next_slot)
-    th.testing.assert_close(exact["elbo"], evidence, rtol=1e-4, atol=1e-3)
-    th.testing.assert_close(exact["elbo"], exact["recon"] - exact["kl"])
-    assert (encoder["elbo"] < evidence - 1e-4).all()
-    th.testing.assert_close(encoder["elbo"], model.elbo(window, next_slot, log_likelihood=log_lik)["elbo"])
-
-
-def test_em_ddpg_computes_each_sample_posterior_once_with_the_same_result():
-    """The default LatentReplayBuffer writes the posterior into the samples; the update equals the one that runs
-    the encoder inside every network (a plain ReplayBuffer), with far fewer encoder passes."""
-    from stable_baselines3.common.buffers import ReplayBuffer
-
-    from sb3_emmarl.em_ddpg.buffers import LatentReplayBuffer
-
-    def run(**kwargs):
-        env = make_vec_env(n_copies=1, seed=0, env_kwargs={**SMALL, "continuous_actions": True})
-        model = EMDDPG("MlpPolicy", env, seed=0, learning_starts=60, e_step_interval=2, **kwargs)
-        calls = []
-        forward = model.policy.latent_model.posterior_logits
-        model.policy.latent_model.posterior_logits = lambda window: calls.append(len(window)) or forward(window)
-        model.learn(300)
-        return model, sum(n == model.batch_size for n in calls)
-
-    shared, shared_passes = run()
-    plain, plain_passes = run(replay_buffer_class=ReplayBuffer)
-    assert isinstance(shared.replay_buffer, LatentReplayBuffer) and shared.replay_buffer.on_sample is None
-    for (name, a), b in zip(shared.policy.state_dict().items(), plain.policy.state_dict().values()):
-        th.testing.assert_close(a, b, msg=name)
-    assert 0 < shared_passes and 2 * shared_passes < plain_passes
 
 
 def test_the_e_step_defaults_are_estep_s_own():
@@ -331,3 +390,17 @@ def test_the_e_step_defaults_are_estep_s_own():
 
     parameters = inspect.signature(EStep).parameters
     assert {key: parameters[key].default for key in E_STEP_DEFAULTS} == E_STEP_DEFAULTS
+
+
+def test_training_logs_latent_accuracy_over_the_episode(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from sb3_emmarl.common.callbacks import LatentMetricsCallback
+
+    model = EMPPO("MlpPolicy", task_env(ModeCueEnv, n=4), tensorboard_log=str(tmp_path), seed=0)
+    model.learn(4 * 128 * 3, callback=LatentMetricsCallback())
+    accumulator = EventAccumulator(str(next(tmp_path.rglob("events.out.tfevents.*"))))
+    accumulator.Reload()
+    for key in ("latent/accuracy_25", "latent/accuracy_50", "latent/accuracy_100", "latent/nmi"):
+        values = [e.value for e in accumulator.Scalars(key)]
+        assert values and all(0.0 <= v <= 1.0 for v in values), key

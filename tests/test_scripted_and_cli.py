@@ -85,24 +85,7 @@ def test_env_speed_benchmark_prints_its_table():
     assert float(lines[1].split()[1].replace(",", "")) > 0
 
 
-def test_latent_probe_collects_modes_constant_within_episodes():
-    probe = load_benchmark("latent_probe")
-    small = {"n_uavs": 2, "grid_size": 20, "max_cycles": 30}
-    obs, modes, steps, layout = probe.collect(3, 70, 2, seed=0, env_kwargs=small)
-    assert obs.shape == (70 * 4, layout.total_dim) and modes.shape == steps.shape == (280,)
-    modes, steps = modes.reshape(70, 4), steps.reshape(70, 4)
-    assert (modes[steps == 0] == -1).all() and (modes[steps > 0] >= 0).all()
-    for entry in range(4):  # one mode per episode, and both UAVs of a copy share it
-        for t in range(1, 70):
-            if steps[t, entry] > 1:
-                assert modes[t, entry] == modes[t - 1, entry]
-        assert (modes[:, entry] == modes[:, entry - entry % 2]).all()
-    assert len(set(modes[modes >= 0].tolist())) > 1  # episodes draw different modes
-    # A probe given the mode itself as input recovers it.
+def test_the_mode_evidence_probe_recovers_a_mode_given_as_input():
+    probe = load_benchmark("mode_evidence")
     labels = np.repeat(np.arange(8), 20)
     assert (probe.probe_accuracy(np.eye(8)[labels], labels, np.eye(8), 8, epochs=40, seed=0) == np.arange(8)).all()
-
-
-def test_latent_probe_rejects_bad_arguments():
-    result = run("benchmarks/latent_probe.py", "--history-lengths", "0")
-    assert result.returncode != 0 and "must be >= 1" in result.stderr

@@ -1,7 +1,8 @@
-"""Callbacks: the reserve's team metrics (and the policy entropy) in tensorboard."""
+"""Callbacks: the reserve's team metrics (and the policy entropy) and the latent metrics in tensorboard."""
 
 from __future__ import annotations
 
+import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
@@ -44,3 +45,51 @@ class TeamMetricsCallback(BaseCallback):
         entropy_loss = self.logger.name_to_value.get("train/entropy_loss")
         if entropy_loss is not None:
             self.logger.record(f"{METRICS_PREFIX}/policy_entropy", -float(entropy_loss))
+
+
+class LatentMetricsCallback(BaseCallback):
+    """Log how well the beliefs of an EM model tell the true mode during training: ``latent/accuracy_25``,
+    ``latent/accuracy_50`` and ``latent/accuracy_100`` (aligned accuracy at the step a quarter, half and all of
+    the way through each episode that ended in the rollout) and ``latent/nmi``.
+
+    Needs an environment whose infos carry ``"mode"`` (the reserve, the tasks of :mod:`sb3_emmarl.common.envs`);
+    components are aligned to modes over the rollout's finished episodes (Hungarian matching).
+
+    :param verbose: verbosity
+    """
+
+    FRACTIONS = (0.25, 0.5, 1.0)
+
+    def _init_callback(self) -> None:
+        #: (belief, mode) of every step of each entry's running episode, and of the episodes finished this rollout
+        self.current: list[list[tuple[np.ndarray, int]]] = [[] for _ in range(self.training_env.num_envs)]
+        self.finished: list[list[tuple[np.ndarray, int]]] = []
+
+    def _on_rollout_start(self) -> None:
+        self.finished = []
+
+    def _on_step(self) -> bool:
+        beliefs = self.model.posterior(self.locals["new_obs"])
+        for i, (done, info) in enumerate(zip(self.locals["dones"], self.locals["infos"])):
+            if done:
+                if self.current[i]:
+                    self.finished.append(self.current[i])
+                self.current[i] = []
+            elif "mode" in info:
+                self.current[i].append((beliefs[i], int(info["mode"])))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        from sb3_emmarl.common.latent.metrics import align_components, normalized_mutual_information
+
+        episodes = [e for e in self.finished if len(e) >= 2]
+        if not episodes:
+            return
+        beliefs = np.array([b for e in episodes for b, _ in e])
+        modes = np.array([m for e in episodes for _, m in e])
+        mapping = align_components(beliefs, modes)
+        self.logger.record("latent/nmi", normalized_mutual_information(beliefs.argmax(1), modes))
+        for fraction in self.FRACTIONS:
+            picks = [e[max(0, int(np.ceil(fraction * len(e))) - 1)] for e in episodes]
+            correct = [mapping[int(np.argmax(b))] == m for b, m in picks]
+            self.logger.record(f"latent/accuracy_{round(100 * fraction)}", float(np.mean(correct)))

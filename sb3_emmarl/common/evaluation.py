@@ -52,7 +52,7 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
     :param env_kwargs: the reserve's arguments
     :param centralized: the single-agent view over the global state and the joint action
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training (applied frozen)
-    :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG) gets its history wrapper on top
+    :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG, oracle PPO) gets its wrapper on top
     """
     env_kwargs = dict(env_kwargs or {})
     if centralized:
@@ -123,7 +123,7 @@ def evaluate_team(
         th.manual_seed(seed)
         observations = vec_env.reset()
         if latent is not None:
-            latent.observe(observations, vec_env.reset_infos, len(records))
+            latent.observe(observations, vec_env.unwrapped.reset_infos, len(records))
         state, starts = None, np.ones(vec_env.num_envs, dtype=bool)
         while len(records) < n_episodes:
             actions, state = model.predict(observations, state=state, episode_start=starts, deterministic=deterministic)
@@ -142,42 +142,53 @@ def evaluate_team(
 
 
 class LatentTracker:
-    """Posteriors of an EM model during evaluation, paired with the true mode of each entry's episode.
+    """Beliefs of an EM model during evaluation, paired with the true mode of each entry's episode.
 
-    Only steps with a full history window count (from step ``history_length`` of an episode on).
     :meth:`annotate` aligns components to modes over all evaluated episodes (Hungarian matching) and adds
-    to each record its episode's ``latent_accuracy`` and ``latent_kl`` and the overall ``latent_nmi``.
+    to each record its episode's ``latent_accuracy`` (over all its steps), ``latent_accuracy_25``,
+    ``latent_accuracy_50`` and ``latent_accuracy_100`` (at the step a quarter, half and all of the way
+    through the episode, over the team's agents), ``latent_kl`` and the overall ``latent_nmi``.
     """
+
+    #: Fractions of an episode at which the accuracy is reported.
+    FRACTIONS = (0.25, 0.5, 1.0)
 
     def __init__(self, model: Any, vec_env: VecEnv) -> None:
         self.model = model
-        self.min_step = int(model.layout.history_length)
         self.steps = np.zeros(vec_env.num_envs, dtype=np.int64)
         self.posteriors: list[np.ndarray] = []
         self.modes: list[np.ndarray] = []
         self.episodes: list[np.ndarray] = []
+        self.step_index: list[np.ndarray] = []
 
     def observe(self, observations: np.ndarray, infos: list[dict], episode: int, starts: np.ndarray | None = None) -> None:
         if starts is not None:
             self.steps = np.where(starts, 0, self.steps + 1)
-        keep = np.flatnonzero((self.steps >= self.min_step) & np.array(["mode" in info for info in infos]))
+        keep = np.flatnonzero(np.array(["mode" in info for info in infos]))
         if len(keep):
             self.posteriors.append(self.model.posterior(observations[keep]))
             self.modes.append(np.array([infos[i]["mode"] for i in keep], dtype=np.int64))
             self.episodes.append(np.full(len(keep), episode))
+            self.step_index.append(self.steps[keep].copy())
 
     def annotate(self, records: list[dict[str, Any]]) -> None:
         from sb3_emmarl.common.latent.metrics import align_components, latent_kl, normalized_mutual_information
 
         if not self.posteriors:
             return
-        posteriors, modes, episodes = (np.concatenate(x) for x in (self.posteriors, self.modes, self.episodes))
+        posteriors, modes, episodes, steps = (np.concatenate(x) for x in
+                                              (self.posteriors, self.modes, self.episodes, self.step_index))
         mapping = align_components(posteriors, modes)
         correct = mapping[posteriors.argmax(1)] == modes
         nmi = normalized_mutual_information(posteriors.argmax(1), modes)
         for record in records:
             mine = episodes == record["episode"]
-            if mine.any():
-                record["latent_accuracy"] = float(correct[mine].mean())
-                record["latent_kl"] = latent_kl(posteriors[mine], modes[mine], mapping)
-                record["latent_nmi"] = nmi
+            if not mine.any():
+                continue
+            record["latent_accuracy"] = float(correct[mine].mean())
+            record["latent_kl"] = latent_kl(posteriors[mine], modes[mine], mapping)
+            record["latent_nmi"] = nmi
+            length = int(steps[mine].max()) + 1  # steps acted on in this episode
+            for fraction in self.FRACTIONS:
+                at = mine & (steps == max(0, int(np.ceil(fraction * length)) - 1))
+                record[f"latent_accuracy_{round(100 * fraction)}"] = float(correct[at].mean())

@@ -26,8 +26,6 @@ SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "em_ddpg": EMDDPG,  # the paper's method, with DDPG as the M-step (continuous action mode)
     "oracle_ppo": OraclePPO,  # PPO told the true hidden mode: the upper bound of every latent method
 }
-#: Algorithms that read a history window (the zoo adds the HistoryWrapper to their environments).
-LATENT_ALGOS = ("em_ppo", "em_ddpg")
 #: Algorithms trained on the centralised view (global state in, joint action out).
 CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "cppo": PPO,  # Centralized PPO

@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import yaml
@@ -20,12 +21,23 @@ from sb3_emmarl.zoo.cli import KeyValues, train_main
 TABLE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "poaching_events", "collisions")
 
 
+def paired_p_value(a: np.ndarray, b: np.ndarray) -> float:
+    """The p-value of the paired t-test of ``a`` against ``b`` (``scipy.stats.ttest_rel``).
+
+    :param a: one value per pair
+    :param b: the other value of each pair, in the same order
+    :return: the two-sided p-value; 1.0 when there are fewer than two pairs or every difference is 0
+        (the test is undefined there, and there is no evidence of a difference)
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return float(stats.ttest_rel(a, b).pvalue) if len(a) > 1 and np.any(a != b) else 1.0
+
+
 def paired_comparison(trained: list[dict], reference: list[dict], metric: str) -> tuple[float, float, float]:
     """Mean of a metric for both teams over the same episodes, and the paired t-test's p-value."""
     a = np.array([r[metric] for r in trained], dtype=float)
     b = np.array([r[metric] for r in reference], dtype=float)
-    p_value = float(stats.ttest_rel(a, b).pvalue) if len(a) > 1 and np.any(a != b) else 1.0
-    return float(a.mean()), float(b.mean()), p_value
+    return float(a.mean()), float(b.mean()), paired_p_value(a, b)
 
 
 def benchmark_parser() -> argparse.ArgumentParser:
@@ -84,14 +96,27 @@ def benchmark_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-#: Metrics of the method comparison, with the latent ones (present for EM models only).
-COMPARE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "latent_accuracy", "latent_kl")
+#: Metrics of the method comparison's mean +- std table, with the latent accuracy at 50% and 100% of the
+#: episode (present for EM models only; the table shows '-' for the others).
+COMPARE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "latent_accuracy_50", "latent_accuracy_100")
+#: Metrics of the paired comparison against the baseline (every variant has them).
+PAIRED_METRICS = ("team_reward", "detection_rate", "coverage_efficiency")
+#: The metric whose oracle gap the paired comparison reports the recovered share of.
+GAP_METRIC = "team_reward"
 
 
-#: The method comparison's default variants: EM-PPO, its frozen-E-step and no-latent ablations, and PPO. The
-#: frozen E-step keeps the encoder at its random initialisation: the policy still sees a function of the
-#: history, but not one fitted by EM, which separates "history as input" from "inferred posterior as input".
-DEFAULT_VARIANTS = ("em_ppo", "frozen_e_step=em_ppo:freeze_e_step=True", "no_latent=em_ppo:use_latent=False", "ppo")
+#: The method comparison's default variants:
+#:
+#: - ``em_ppo``: the method (PPO as the M-step, the EM-inferred posterior over the hidden mode as input);
+#: - ``ppo``: plain PPO on the current observation, the baseline;
+#: - ``ppo_lstm``: RecurrentPPO, memory without EM (the history through an LSTM fitted by RL alone);
+#: - ``oracle_ppo``: PPO told the true mode, the upper bound of every latent method;
+#: - ``no_latent``: EM-PPO with the latent input removed;
+#: - ``frozen_e_step``: EM-PPO with the encoder kept at its random initialisation: the policy still sees a
+#:   function of the history, but not one fitted by EM, which separates "history as input" from "inferred
+#:   posterior as input".
+DEFAULT_VARIANTS = ("em_ppo", "ppo", "ppo_lstm", "oracle_ppo", "no_latent=em_ppo:use_latent=False",
+                    "frozen_e_step=em_ppo:freeze_e_step=True")
 
 
 def parse_variant(text: str) -> tuple[str, str, list[str]]:
@@ -109,9 +134,31 @@ def compare_parser() -> argparse.ArgumentParser:
     parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS),
                         help="NAME=ALGO:key=value,... (hyperparameter overrides)")
     add_run_arguments(parser, n_timesteps=1_000_000, seeds=[0, 1, 2], eval_episodes=10, log_folder="logs/compare")
+    parser.add_argument("--baseline", default="ppo",
+                        help="variant every other one is compared with, paired by seed (must be among --variants)")
+    parser.add_argument("--oracle", default="oracle_ppo",
+                        help="variant told the true mode: the upper bound of the oracle-gap share ('-' if not run)")
     parser.add_argument("--ratio", nargs=2, default=["em_ppo", "ppo"], metavar=("A", "B"),
                         help="print the wall-time ratio of variant A to variant B")
     return parser
+
+
+def check_compare_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[tuple[str, str, list[str]]]:
+    """Reject bad flags of :func:`compare_parser`, naming them, and parse the variants.
+
+    :return: the variants as :func:`parse_variant` returns them
+    """
+    check_run_arguments(parser, args)
+    try:
+        variants = [parse_variant(v) for v in args.variants]
+    except ValueError as error:
+        parser.error(str(error))
+    names = [name for name, _, _ in variants]
+    if len(set(names)) != len(names):
+        parser.error(f"--variants must have distinct names, got {names}")
+    if args.baseline not in names:
+        parser.error(f"--baseline {args.baseline!r} is not among the variants {names}")
+    return variants
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, n_timesteps: int, seeds: list[int], eval_episodes: int,
@@ -188,15 +235,130 @@ def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Name
     return results
 
 
+class PairedTest(NamedTuple):
+    """One metric of two variants, paired by seed."""
+
+    seeds: list[int]
+    #: The first variant's values, one per seed.
+    a: np.ndarray
+    #: The second variant's values, in the same seed order.
+    b: np.ndarray
+
+    @property
+    def difference(self) -> np.ndarray:
+        """First minus second, per seed."""
+        return self.a - self.b
+
+    @property
+    def p_value(self) -> float:
+        """The paired t-test's p-value over seeds (see :func:`paired_p_value`)."""
+        return paired_p_value(self.a, self.b)
+
+    @property
+    def higher_on(self) -> str:
+        """On how many seeds the first variant is higher, as ``"3/5"``."""
+        return f"{int((self.difference > 0).sum())}/{len(self.seeds)}"
+
+
+def paired_over_seeds(results: dict[str, list[dict]], a: str, b: str, metric: str) -> PairedTest:
+    """A metric of variant ``a`` against variant ``b``, paired by seed, with the p-value of the paired t-test.
+
+    :param results: ``{variant: [record per seed]}``, each record with its ``seed``
+    :param a: the first variant
+    :param b: the second variant (the differences are ``a - b``)
+    :param metric: the record key to compare
+    :raises ValueError: if the two variants' seed lists differ (other seeds, or the same in another order),
+        or a seed repeats
+    """
+    seeds = {name: [r["seed"] for r in results[name]] for name in (a, b)}
+    if seeds[a] != seeds[b] or len(set(seeds[a])) != len(seeds[a]):
+        raise ValueError(f"variants {a!r} and {b!r} must be evaluated on the same seeds, in the same order and each "
+                         f"once, to be paired by seed: {a!r} has seeds {seeds[a]}, {b!r} has seeds {seeds[b]}")
+    by_seed = {name: {r["seed"]: r[metric] for r in results[name]} for name in (a, b)}
+    values_a = np.array([by_seed[a][seed] for seed in seeds[a]], dtype=float)
+    values_b = np.array([by_seed[b][seed] for seed in seeds[a]], dtype=float)
+    return PairedTest(seeds[a], values_a, values_b)
+
+
+def oracle_gap_share(results: dict[str, list[dict]], variant: str, baseline: str, oracle: str,
+                     metric: str = GAP_METRIC) -> str:
+    """The share of the oracle's gain over the baseline that a variant recovers, formatted.
+
+    ``(mean_variant - mean_baseline) / (mean_oracle - mean_baseline)``, the means over the same seeds.
+
+    :param results: ``{variant: [record per seed]}``
+    :param variant: the variant to score
+    :param baseline: the reference variant (share 0)
+    :param oracle: the variant told the true mode (share 1)
+    :param metric: the metric the gap is measured on
+    :return: e.g. ``"0.42"``; ``"-"`` when the oracle was not run, ``"n/a (oracle gap <= 0)"`` when the
+        oracle's mean is not above the baseline's
+    """
+    if oracle not in results:
+        return "-"
+    gap = paired_over_seeds(results, oracle, baseline, metric).difference.mean()
+    if gap <= 0:
+        return "n/a (oracle gap <= 0)"
+    return f"{paired_over_seeds(results, variant, baseline, metric).difference.mean() / gap:.2f}"
+
+
+def difference_rows(results: dict[str, list[dict]], baseline: str, oracle: str,
+                    metrics: tuple[str, ...] = PAIRED_METRICS) -> list[tuple[str, str, float, float, str, str]]:
+    """Every variant but the baseline against the baseline, paired by seed, one row per variant and metric.
+
+    :param results: ``{variant: [record per seed]}``
+    :param baseline: the variant the others are compared with
+    :param oracle: the variant told the true mode (for the share of the oracle gap)
+    :param metrics: the metrics to compare; a metric missing from a variant's records is left out of its rows
+    :return: ``(variant, metric, mean difference, p-value, higher on, share of the oracle gap)``; the share is
+        given for :data:`GAP_METRIC` only (``""`` for the other metrics)
+    """
+    rows = []
+    for variant in results:
+        if variant == baseline:
+            continue
+        for metric in metrics:
+            if not all(metric in r for r in (*results[variant], *results[baseline])):
+                continue
+            test = paired_over_seeds(results, variant, baseline, metric)
+            share = oracle_gap_share(results, variant, baseline, oracle, metric) if metric == GAP_METRIC else ""
+            rows.append((variant, metric, float(test.difference.mean()), test.p_value, test.higher_on, share))
+    return rows
+
+
+def summary_table(results: dict[str, list[dict]], columns: tuple[str, ...]) -> str:
+    """Mean +- std over seeds of each variant; ``'-'`` where a variant's records lack the column.
+
+    :param results: ``{variant: [record per seed]}``
+    :param columns: the record keys to show
+    """
+    width = max(12, *(len(name) + 2 for name in results))
+    lines = [f"{'variant':<{width}}" + "".join(f"{c:>22}" for c in columns)]
+    for name, runs in results.items():
+        cells = []
+        for column in columns:
+            values = [r[column] for r in runs if column in r]
+            cells.append(f"{np.mean(values):>13.3f} +- {np.std(values):<5.3f}" if values else f"{'-':>22}")
+        lines.append(f"{name:<{width}}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def difference_table(results: dict[str, list[dict]], baseline: str, oracle: str) -> str:
+    """:func:`difference_rows` as text."""
+    rows = difference_rows(results, baseline, oracle)
+    width = max(12, *(len(name) + 2 for name in results))
+    lines = [f"{'variant':<{width}}{'metric':<22}{'difference':>12}{'p (paired t)':>14}{'higher on':>11}"
+             "  oracle gap recovered"]
+    for variant, metric, difference, p_value, higher_on, share in rows:
+        lines.append(f"{variant:<{width}}{metric:<22}{difference:>12.3f}{p_value:>14.3g}{higher_on:>11}  {share}".rstrip())
+    return "\n".join(lines)
+
+
 def compare_main(argv: list[str] | None = None) -> int:
-    """Train every variant on every seed (each in a fresh process), evaluate, print mean +- std per variant."""
+    """Train every variant on every seed (each in a fresh process), evaluate, print both tables and the ratio."""
     parser = compare_parser()
     args = parser.parse_args(argv)
-    check_run_arguments(parser, args)
-    try:
-        variants = [parse_variant(v) for v in args.variants]
-    except ValueError as error:
-        parser.error(str(error))
+    variants = check_compare_arguments(parser, args)
     try:
         results = run_variants(variants, args)
     except RuntimeError as error:
@@ -204,14 +366,11 @@ def compare_main(argv: list[str] | None = None) -> int:
         return 2
     print(f"\n{len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; {args.eval_episodes} evaluation "
           f"episodes from seed {args.eval_seed} per run; mean +- std over seeds")
-    columns = (*COMPARE_METRICS, "train_seconds", "peak_rss_mib")
-    print(f"{'variant':<12}" + "".join(f"{c:>22}" for c in columns))
-    for name, runs in results.items():
-        cells = []
-        for column in columns:
-            values = [r[column] for r in runs if column in r]
-            cells.append(f"{np.mean(values):>13.3f} +- {np.std(values):<5.3f}" if values else f"{'-':>22}")
-        print(f"{name:<12}" + "".join(cells))
+    print(summary_table(results, (*COMPARE_METRICS, "train_seconds", "peak_rss_mib")))
+    print(f"\nAgainst {args.baseline}, paired by seed: mean difference (variant minus {args.baseline}), p-value of the "
+          f"paired t-test over seeds, seeds on which the variant is higher; oracle gap recovered: "
+          f"(variant - {args.baseline}) / ({args.oracle} - {args.baseline}) in mean {GAP_METRIC}")
+    print(difference_table(results, args.baseline, args.oracle))
     a, b = args.ratio
     if a in results and b in results:
         ratio = np.mean([r["train_seconds"] for r in results[a]]) / np.mean([r["train_seconds"] for r in results[b]])

@@ -4,19 +4,20 @@ rl_zoo3 reads the YAML hyperparameters, builds schedules, callbacks and action n
 its folder layout and tunes with optuna; all of that is reused. What changes:
 
 - ``create_envs`` builds :func:`~sb3_emmarl.common.vec_env.make_vec_env` (``n_envs`` reserve copies,
-  one vector entry per UAV) instead of ``gym.make`` copies, with the history wrapper of the EM
-  algorithms or the true mode of ``oracle_ppo``; the centralised algorithms keep rl_zoo3's own path
+  one vector entry per UAV) instead of ``gym.make`` copies, with the true mode for ``oracle_ppo`` (the EM
+  algorithms add their belief wrapper themselves, and evaluate on plain environments through
+  ``predict(obs, state, episode_start)``); the centralised algorithms keep rl_zoo3's own path
   through the Gymnasium id ``WildlifeReserve-v0``;
 - ``oracle_ppo`` reads ``ppo.yml``: the same settings as PPO by construction;
 - ``n_envs`` is counted in vector entries (copies x UAVs) once the YAML is read, so that rl_zoo3's
   ``--eval-freq`` / ``--save-freq`` / optuna arithmetic, which divides by ``n_envs``, stays right;
 - the environment's arguments are validated before any folder is written;
-- :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks.
+- :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks (and
+  :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms).
 """
 
 from __future__ import annotations
 
-import inspect
 import os
 from pathlib import Path
 from typing import Any
@@ -25,13 +26,13 @@ import yaml
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.callbacks import TeamMetricsCallback
+from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
-from sb3_emmarl.common.latent.algorithm import wrap_with_history
+from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
+from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -76,9 +77,6 @@ class ReserveExperimentManager(ExperimentManager):
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
         processed = super()._preprocess_hyperparams(hyperparams)
-        if self.algo in LATENT_ALGOS:  # the history the EM algorithms read, for training and evaluation envs alike
-            default = inspect.signature(ZOO_ALGOS[self.algo]).parameters["history_length"].default
-            self.history_length = int(processed[0].get("history_length", default))
         if self._eval_env_kwargs_args is None:  # rl_zoo3 only copies them when --env-kwargs is given
             self.eval_env_kwargs = self.env_kwargs
         # Validate the environment's arguments now, before any folder or process exists.
@@ -110,8 +108,6 @@ class ReserveExperimentManager(ExperimentManager):
             vec_env_wrapper=self.vec_env_wrapper,
         )
         env = self._maybe_normalize(env, eval_env)
-        if self.algo in LATENT_ALGOS:
-            env = wrap_with_history(env, self.history_length)
         if ZOO_ALGOS[self.algo] is OraclePPO:
             env = wrap_with_mode(env)
         return env
@@ -119,3 +115,5 @@ class ReserveExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         super().create_callbacks()
         self.callbacks.append(TeamMetricsCallback())
+        if issubclass(ZOO_ALGOS[self.algo], LatentAlgorithmMixin):
+            self.callbacks.append(LatentMetricsCallback())

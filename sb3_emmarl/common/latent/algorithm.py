@@ -1,8 +1,8 @@
-"""What EM-PPO and EM-DDPG share: the history wrapper, the latent model's settings, the E-step and its callback.
+"""What EM-PPO and EM-DDPG share: the belief wrapper, the latent settings, the E-step and ``predict`` with a state.
 
-Algorithm 2 of the paper, as implemented: the algorithm collects a rollout with policies that see
-``q_phi(z | h_t)`` (lines 4-10); :class:`~sb3_emmarl.common.latent.em.EMCallback` then runs the E-step
-on that rollout and a few recent ones (line 11); the algorithm's own update is the M-step (line 12).
+Algorithm 2 of the paper, as implemented: the algorithm collects a rollout with policies that see the
+belief ``q(z | o_{1:t}, a_{1:t-1})`` (lines 4-10; the :class:`BeliefWrapper` keeps it); its own ``train()``
+then runs the E-step on the recent episodes (line 11, :class:`EStep`) and its update, the M-step (line 12).
 """
 
 from __future__ import annotations
@@ -10,135 +10,194 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.em import EMCallback, EStep, LatentBatch
-from sb3_emmarl.common.latent.history import HistoryLayout, HistoryWrapper, find_history_wrapper
+from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, find_belief_wrapper
+from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
+from sb3_emmarl.common.latent.features import encode_actions, features_from_spec
+from sb3_emmarl.common.latent.layout import LatentLayout
 
-#: Defaults of the E-step (see :class:`~sb3_emmarl.common.latent.em.EStep`).
-E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 2, "batch_size": 1024, "window": 2,
-                                   "temperature": 1.0, "min_temperature": 0.1, "anneal_rate": 0.05,
-                                   "max_samples": 2048, "starved_share": 0.1}
+#: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
+#: ``e_step_kwargs`` may override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
+E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 5, "batch_size": 256, "window": 2,
+                                   "max_transitions": 16384, "temperature": 1.0, "min_temperature": 0.1,
+                                   "anneal_rate": 0.05, "starved_share": 0.1}
 
 
-def wrap_with_history(env: Any, history_length: int, verbose: int = 0) -> VecEnv:
-    """``env`` as a vector environment with a :class:`HistoryWrapper` (kept if it already has one)."""
+def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool = True) -> VecEnv:
+    """``env`` as a vector environment with a :class:`BeliefWrapper` of ``n_components`` (kept if it has one).
+
+    :param strict: reject an existing wrapper of another size (False while loading, which sets the sizes after)
+    """
     venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    wrapper = find_history_wrapper(venv)
+    wrapper = find_belief_wrapper(venv)
     if wrapper is None:
-        return HistoryWrapper(venv, history_length=history_length)
-    if wrapper.layout.history_length != history_length:
-        raise ValueError(f"the environment's HistoryWrapper keeps {wrapper.layout.history_length} steps, "
-                         f"but history_length={history_length}")
+        return BeliefWrapper(venv, n_components)
+    if strict and wrapper.n_components != n_components:
+        raise ValueError(f"the environment's BeliefWrapper has {wrapper.n_components} components, "
+                         f"but n_components={n_components}")
     return venv
 
 
+def _check_int(name: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    return int(value)
+
+
 class LatentAlgorithmMixin:
-    """Settings and E-step of an EM algorithm; mixed into SB3 algorithm classes before them."""
+    """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
     e_step: EStep | None
 
-    def _init_latent(self, env: Any, history_length: int, n_components: int, encoder_hidden: int,
-                     decoder_hidden: tuple[int, ...], use_latent: bool, freeze_e_step: bool, freeze_m_step: bool,
-                     estimator: str, team_pooling: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
-                     policy_kwargs: dict[str, Any] | None, verbose: int) -> tuple[VecEnv | None, dict[str, Any]]:
-        """Validate the EM settings, wrap the environment, and put the latent settings into ``policy_kwargs``."""
-        for name, value, low in (("history_length", history_length, 1), ("n_components", n_components, 1),
-                                 ("encoder_hidden", encoder_hidden, 1), ("e_step_interval", e_step_interval, 1)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+    def _init_latent(self, env: Any, n_components: int, decoder_hidden: tuple[int, ...], likelihood_temperature: float,
+                     fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
+                     team_pooling: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
+                     policy_kwargs: dict[str, Any] | None, verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
+        """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``."""
+        n_components = _check_int("n_components", n_components, 1)
+        self.e_step_interval = _check_int("e_step_interval", e_step_interval, 1)
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
+        if isinstance(likelihood_temperature, bool) or not isinstance(likelihood_temperature, (int, float)) \
+                or not np.isfinite(likelihood_temperature) or likelihood_temperature <= 0:
+            raise ValueError(f"likelihood_temperature must be a number > 0, got {likelihood_temperature!r}")
+        if not isinstance(e_step_kwargs, (dict, type(None))):
+            raise ValueError(f"e_step_kwargs must be a dict, got {e_step_kwargs!r}")
         unknown = set(e_step_kwargs or {}) - set(E_STEP_DEFAULTS)
         if unknown:
             raise ValueError(f"e_step_kwargs keys must be among {sorted(E_STEP_DEFAULTS)}, got {sorted(unknown)}")
-        # Denormal floats appear in the GRU's arithmetic during training and slow CPU kernels down tenfold or more;
-        # flushing them to zero changes no result that matters here.
-        th.set_flush_denormal(True)
-        self.history_length, self.n_components = int(history_length), int(n_components)
-        self.encoder_hidden, self.decoder_hidden = int(encoder_hidden), tuple(int(h) for h in decoder_hidden)
-        self.use_latent, self.freeze_e_step, self.freeze_m_step = bool(use_latent), bool(freeze_e_step), bool(freeze_m_step)
-        self.estimator, self.team_pooling, self.e_step_interval = estimator, bool(team_pooling), int(e_step_interval)
+        for name, value in (("fusion", fusion), ("use_latent", use_latent), ("freeze_e_step", freeze_e_step),
+                            ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {value!r}")
+        self.n_components, self.likelihood_temperature = n_components, float(likelihood_temperature)
+        self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
+        self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
         self.e_step_kwargs = {**E_STEP_DEFAULTS, **(e_step_kwargs or {})}
         self.e_step = None
         policy_kwargs = dict(policy_kwargs or {})
-        if env is None:  # loading: the saved policy_kwargs already hold the latent settings
+        if env is None:  # loading without an environment: the saved policy_kwargs hold the layout
             return None, policy_kwargs
-        venv = wrap_with_history(env, self.history_length, verbose)
-        layout = find_history_wrapper(venv).layout
-        policy_kwargs["latent_kwargs"] = {"obs_dim": layout.obs_dim, "history_length": layout.history_length,
-                                          "feature_dim": layout.feature_dim, "action_dim": layout.action_dim,
-                                          "n_components": self.n_components, "encoder_hidden": self.encoder_hidden,
-                                          "decoder_hidden": self.decoder_hidden}
+        venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
+        wrapper = find_belief_wrapper(venv)
+        self.feature_spec = wrapper.feature_spec
+        layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, wrapper.n_components,
+                              tuple(decoder_hidden))
+        policy_kwargs["latent_kwargs"] = layout.to_dict()
         policy_kwargs["use_latent"] = self.use_latent
         return venv, policy_kwargs
 
-    @property
-    def layout(self) -> HistoryLayout:
-        kwargs = self.policy_kwargs["latent_kwargs"]
-        return HistoryLayout(kwargs["obs_dim"], kwargs["history_length"], kwargs["feature_dim"], kwargs["action_dim"])
+    def _setup_latent(self) -> None:
+        """After the policy exists: the layout, the E-step, the feature function and the belief wrapper's model."""
+        self.latent_layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
+        self._feature_fn = features_from_spec(self.feature_spec)[0]
+        self._encode_action = encode_actions(self.action_space)[0]
+        self.e_step = None
+        if self.policy.latent_model is not None:
+            self.e_step = EStep(self.policy.latent_model, estimator=self.estimator,
+                                likelihood_temperature=self.likelihood_temperature, seed=self.seed or 0,
+                                **self.e_step_kwargs)
+        self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
+        self._n_rollouts = 0
+        self._attach_beliefs(self.env)
 
-    def _setup_e_step(self) -> None:
-        if self.use_latent:
-            self.e_step = EStep(self.policy.latent_model, estimator=self.estimator, team_pooling=self.team_pooling,
-                                seed=self.seed or 0, **self.e_step_kwargs)
+    def _attach_beliefs(self, env: VecEnv | None) -> None:
+        wrapper = find_belief_wrapper(env) if env is not None else None
+        if wrapper is not None:
+            wrapper.attach(self.policy.latent_model, self.likelihood_temperature, self.fusion)
 
-    def _with_em_callback(self, callback: Any) -> Any:
-        """The user's callbacks plus the EM callback (E-step after each rollout) when there is a latent model."""
-        if not self.use_latent:
-            return callback
-        if callback is None:
-            return EMCallback()
-        if isinstance(callback, list):
-            return [*callback, EMCallback()]
-        return CallbackList([callback, EMCallback()])
-
-    def latent_batch(self) -> LatentBatch:  # pragma: no cover - provided by each algorithm
-        raise NotImplementedError
-
-    def start_collection(self) -> None:
-        """Called by the EM callback when a rollout starts (nothing to do by default)."""
-
-    def record_collection_step(self) -> None:
-        """Called by the EM callback after each collection step (nothing to do by default)."""
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_layout"]
 
     @property
     def agents_per_copy(self) -> int:
-        return int(getattr(self.env, "agents_per_copy", 1))
+        return int(getattr(self.env, "agents_per_copy", 1)) if self.env is not None else 1
 
-    def wrap_env(self, venv: VecEnv) -> VecEnv:
-        """``venv`` with the history wrapper this model reads (for evaluation and recording)."""
-        return wrap_with_history(venv, self.layout.history_length)
+    # ------------------------------------------------------------------ the E-step, from train()
+    def _transitions(self, observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray,
+                     new_episode: np.ndarray, valid: np.ndarray) -> Transitions:
+        """E-step data from ``(T, n, ...)`` arrays of augmented observations, actions taken, the observations that
+        followed, flags of steps that begin an episode, and flags of the transitions to keep."""
+        ids = episode_ids(self._episode_counters, new_episode, self.agents_per_copy, self.team_pooling)
+        t, e = np.nonzero(valid)
+        obs_dim = self.latent_layout.obs_dim
+        return Transitions.from_numpy(self._feature_fn(observations[t, e, :obs_dim]),
+                                      self._encode_action(actions[t, e]),
+                                      self._feature_fn(next_observations[t, e, :obs_dim]), ids[t, e], self.device)
+
+    def _run_e_step(self, transitions: Transitions) -> None:
+        """Remember the rollout's transitions; every ``e_step_interval`` rollouts, run the E-step and log it."""
+        if self.e_step is None:
+            return
+        self.e_step.add(transitions)
+        self._n_rollouts += 1
+        if self._n_rollouts % self.e_step_interval:
+            return
+        stats = self.e_step.step(train=not self.freeze_e_step)
+        for key, value in stats.items():
+            self.logger.record(f"latent/{key}", value)
+
+    # ------------------------------------------------------------------ SB3's conventions
+    def predict(self, observation: np.ndarray | dict, state: tuple[np.ndarray, ...] | np.ndarray | None = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """Actions for plain observations, carrying each entry's belief in ``state`` (as RecurrentPPO carries its LSTM
+        state): pass back the returned state and the episode starts, as ``evaluate_policy`` does. Observations that
+        already hold the belief (from the model's own wrapped environment) are acted on as they are.
+
+        :param observation: plain ``(obs_dim,)`` / ``(n, obs_dim)`` or augmented observations
+        :param state: the previous call's state (None: every entry starts an episode)
+        :param episode_start: ``(n,)`` flags of entries whose observation is an episode's first
+        :param deterministic: the most likely actions
+        :return: actions and the new state (None for augmented observations)
+        """
+        obs = np.asarray(observation)
+        layout = self.latent_layout
+        if obs.shape[-1] == layout.total_dim:
+            return self.policy.predict(obs, None, episode_start, deterministic)
+        if obs.shape[-1] != layout.obs_dim:
+            raise ValueError(f"observations must have {layout.obs_dim} values (plain) or {layout.total_dim} (with the "
+                             f"belief), got shape {obs.shape}")
+        flat = obs.reshape(-1, layout.obs_dim).astype(np.float32)
+        n = len(flat)
+        tracker = BeliefTracker(n, layout.n_components, layout.feature_dim, layout.action_dim,
+                                model=self.policy.latent_model, likelihood_temperature=self.likelihood_temperature)
+        starts = np.ones(n, dtype=bool)
+        if state is not None:
+            tracker.set_state(state[0] if isinstance(state, tuple) else state)
+            starts = np.zeros(n, dtype=bool) if episode_start is None else np.asarray(episode_start, bool).reshape(n)
+        features = self._feature_fn(flat)
+        tracker.start(np.flatnonzero(starts), features[starts])
+        tracker.advance(np.flatnonzero(~starts), features[~starts])
+        augmented = np.concatenate([flat, tracker.beliefs()], axis=1).reshape(*obs.shape[:-1], layout.total_dim)
+        actions, _ = self.policy.predict(augmented, None, None, deterministic)
+        tracker.set_actions(self._encode_action(np.asarray(actions).reshape(n, -1)))
+        return actions, tracker.get_state()
 
     def posterior(self, observations: np.ndarray) -> np.ndarray:
-        """``q_phi(z | h_t)`` for augmented observations ``(n, total_dim)`` -> ``(n, K)`` (uniform without a model)."""
-        if self.policy.latent_model is None:
-            return np.full((len(observations), self.n_components), 1.0 / self.n_components)
-        with th.no_grad():
-            obs = th.as_tensor(np.asarray(observations), dtype=th.float32, device=self.device)
-            return self.policy.latent_model.posterior(self.layout.split(obs)[1]).cpu().numpy()
+        """The beliefs held in augmented observations ``(n, total_dim)`` -> ``(n, K)``."""
+        return np.asarray(observations)[..., self.latent_layout.obs_dim:]
 
-    def write_posterior(self, observations: Any, posterior: Any) -> None:
-        """Write posteriors ``(..., K)`` over the start of the history windows of augmented observations (numpy or
-        torch, in place), where the features extractors read them while the latent model is ``precomputed``.
+    def wrap_env(self, venv: VecEnv) -> VecEnv:
+        """``venv`` with this model's belief wrapper (fusion along the links included), for evaluation and recording."""
+        venv = wrap_with_belief(venv, self.latent_layout.n_components)
+        self._attach_beliefs(venv)
+        return venv
 
-        Only for observations whose windows were already read: the window's first slot is overwritten.
-        """
-        observations[..., self.layout.posterior_columns(self.n_components)] = posterior
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "e_step"]
+    def set_env(self, env: Any, force_reset: bool = True) -> None:
+        """As SB3's ``set_env``; a plain environment gets the belief wrapper."""
+        env = self.wrap_env(self._wrap_env(env, self.verbose))
+        super().set_env(env, force_reset=force_reset)
 
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):
-        """As SB3's ``load``; an ``env`` without the history wrapper gets the one the model was trained with."""
+        """As SB3's ``load``; an ``env`` without the belief wrapper gets the one the model was trained with."""
         if env is not None:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
-            env = wrap_with_history(env, data["policy_kwargs"]["latent_kwargs"]["history_length"])
+            env = wrap_with_belief(env, data["policy_kwargs"]["latent_kwargs"]["n_components"])
         return super().load(path, env=env, device=device, custom_objects=custom_objects,
                             print_system_info=print_system_info, force_reset=force_reset, **kwargs)

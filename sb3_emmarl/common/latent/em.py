@@ -1,10 +1,20 @@
-"""The E-step between rollouts, and the callback that runs it (Algorithm 2, line 11).
+"""The E-step (Algorithm 2, line 11): EM for a mixture of transition models with one ``z`` per episode.
 
-:func:`transitions_from_pairs` turns pairs of consecutive augmented observations (from a rollout
-buffer or a replay buffer) into the E-step's data: the history ``h_t``, ``x_t``, ``a_t`` and the
-target ``(x_{t+1}, r_t)``. :class:`EStep` keeps the latest few rollouts' data, fits the encoder and
-decoder by maximising the ELBO with Adam, then sets the prior ``pi`` to the mean responsibilities.
-:class:`EMCallback` calls it at the end of each rollout; the M-step is the algorithm's own update.
+Its data are transitions ``(x_t, a_t) -> x_{t+1}`` tagged with the episode they belong to
+(:class:`Transitions`; the algorithms build them from their rollout or replay buffer). Episodes are
+stitched across rollouts: the E-step keeps the last ``window`` rollouts' transitions, so an episode that
+began in an earlier rollout still counts as one. Each epoch of an E-step:
+
+1. **E**: the responsibilities of the components for every episode from all its evidence,
+   ``r_k ∝ pi_k exp(beta * sum_t log p(x_{t+1} | x_t, a_t, z = k))`` (exact: ``z`` is categorical);
+2. **fit**: gradient steps on minibatches of transitions maximising ``E_r[log p(x_{t+1} | x_t, a_t, z)]``,
+   each transition weighted by its episode's responsibilities (``"enumerate"``, exact), or with one
+   Gumbel-softmax sample of ``z`` per transition drawn from them (``"gumbel"``, the paper's estimator);
+
+then ``pi`` is set in closed form to the mean responsibilities over episodes, and a component whose share
+fell below ``starved_share / K`` is re-seeded by splitting the busiest one. With ``r`` the exact posterior,
+the ELBO equals the marginal log-likelihood ``sum_episodes log sum_k pi_k exp(L_k)``: that is what
+:meth:`EStep.step` reports as ``log_likelihood`` (per transition).
 """
 
 from __future__ import annotations
@@ -12,217 +22,183 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from itertools import pairwise
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
+import torch.nn.functional as F
 
-from sb3_emmarl.common.latent.history import HistoryLayout
-from sb3_emmarl.common.latent.model import LatentModel
+from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, sum_by_group
 
-FIELDS = ("window", "next_slot", "groups")
+FIELDS = ("features", "actions", "next_features", "episodes")
 
 
 @dataclass
-class LatentBatch:
-    """E-step data: the history ``window`` ``h_t`` ``(N, H, step_dim)``, the ``next_slot`` ``(N, step_dim)``
-    (``x_{t+1}``, ``a_t``, ``r_t``) and ``groups`` (agents of one reserve copy at one step share a group id)."""
+class Transitions:
+    """E-step data: ``features`` ``x_t`` ``(N, d_x)``, encoded ``actions`` ``a_t`` ``(N, d_a)``,
+    ``next_features`` ``x_{t+1}`` ``(N, d_x)`` and ``episodes`` ``(N,)`` (int ids; with team pooling, the
+    agents of one environment copy share their episode's id)."""
 
-    window: th.Tensor
-    next_slot: th.Tensor
-    groups: th.Tensor
+    features: th.Tensor
+    actions: th.Tensor
+    next_features: th.Tensor
+    episodes: th.Tensor
 
     def __len__(self) -> int:
-        return len(self.window)
+        return len(self.features)
 
     @staticmethod
-    def cat(batches: list[LatentBatch]) -> LatentBatch:
-        offset, groups = 0, []
-        for batch in batches:  # keep group ids distinct across rollouts
-            groups.append(batch.groups + offset)
-            offset += int(batch.groups.max()) + 1 if len(batch) else 0
-        return LatentBatch(th.cat([b.window for b in batches]), th.cat([b.next_slot for b in batches]), th.cat(groups))
+    def cat(parts: list[Transitions]) -> Transitions:
+        return Transitions(*(th.cat([getattr(p, name) for p in parts]) for name in FIELDS))
+
+    def subset(self, index: th.Tensor | slice) -> Transitions:
+        return Transitions(*(getattr(self, name)[index] for name in FIELDS))
+
+    @staticmethod
+    def from_numpy(features: np.ndarray, actions: np.ndarray, next_features: np.ndarray, episodes: np.ndarray,
+                   device: th.device | str = "cpu") -> Transitions:
+        def tensor(x: np.ndarray) -> th.Tensor:
+            return th.as_tensor(np.ascontiguousarray(x), dtype=th.float32, device=device)
+
+        return Transitions(tensor(features), tensor(actions), tensor(next_features),
+                           th.as_tensor(np.asarray(episodes), dtype=th.long, device=device))
 
 
-def transitions_from_pairs(layout: HistoryLayout, observations: np.ndarray, next_observations: np.ndarray,
-                           groups: np.ndarray, device: th.device | str = "cpu") -> LatentBatch:
-    """E-step samples from augmented observations ``o_t`` and ``o_{t+1}`` of the same entry (``(N, total_dim)``):
-    ``h_t`` is ``o_t``'s window, and the newest slot of ``o_{t+1}``'s window holds ``x_{t+1}``, ``a_t`` and ``r_t``."""
-    _, window = layout.split(observations)
-    _, next_window = layout.split(next_observations)
+def episode_ids(counters: np.ndarray, new_episode: np.ndarray, agents_per_copy: int = 1,
+                team_pooling: bool = False) -> np.ndarray:
+    """Episode ids of ``(T, n)`` steps of ``n`` vector entries, continuing the entries' ``counters`` (updated in place).
 
-    def tensor(x: np.ndarray) -> th.Tensor:
-        return th.as_tensor(np.ascontiguousarray(x), dtype=th.float32, device=device)
-
-    return LatentBatch(tensor(window), tensor(next_window[:, -1]), th.as_tensor(groups, dtype=th.long, device=device))
-
-
-def team_groups(steps: np.ndarray, entries: np.ndarray, n_envs: int, agents_per_copy: int) -> np.ndarray:
-    """Group ids of ``(step, vector entry)`` pairs: the agents of one reserve copy at one step share one."""
-    return steps * max(1, n_envs // agents_per_copy) + entries // agents_per_copy
-
-
-def transitions_from_rollout(layout: HistoryLayout, observations: np.ndarray, episode_starts: np.ndarray,
-                             agents_per_copy: int, device: th.device | str = "cpu") -> LatentBatch:
-    """E-step samples from an on-policy rollout buffer (``(n_steps, n_envs, total_dim)``), skipping episode ends."""
-    t, env = np.nonzero(episode_starts[1:] == 0)  # o_{t+1} follows o_t within one episode
-    groups = team_groups(t, env, episode_starts.shape[1], agents_per_copy)
-    return transitions_from_pairs(layout, observations[t, env], observations[t + 1, env], groups, device)
+    :param counters: episodes begun so far per entry ``(n,)``
+    :param new_episode: ``(T, n)`` True where a step is the first of a new episode
+    :param agents_per_copy: agents per environment copy
+    :param team_pooling: the agents of one copy share their episode ids (they reset together)
+    :return: ``(T, n)`` int ids, distinct across entries (or copies) and episodes
+    """
+    n = new_episode.shape[1]
+    counts = counters[None] + np.cumsum(new_episode, axis=0, dtype=np.int64)
+    counters[:] = counts[-1] if len(counts) else counters
+    if team_pooling:
+        units, n_units = np.arange(n) // max(1, agents_per_copy), -(-n // max(1, agents_per_copy))
+    else:
+        units, n_units = np.arange(n), n
+    return counts * n_units + units
 
 
 class EStep:
-    """Fit the encoder and decoder on recent data by maximising the ELBO, then set ``pi`` in closed form.
+    """Fit the mixture of transition models to recent episodes by EM; set ``pi`` in closed form.
 
     :param latent_model: the latent model (its prior is updated in place)
-    :param learning_rate: Adam learning rate of the encoder and decoder
-    :param n_epochs: passes over the data per E-step
-    :param batch_size: minibatch size
-    :param window: data sets kept: the one added for this E-step and the ``window - 1`` added for the E-steps
-        before it (the algorithms add one rollout per E-step, so with ``e_step_interval > 1`` the rollouts
-        collected between E-steps never reach it)
+    :param learning_rate: Adam learning rate of the decoder
+    :param n_epochs: EM iterations per E-step (responsibilities, then a pass of gradient steps)
+    :param batch_size: transitions per gradient step
+    :param window: rollouts of transitions kept (every rollout is added, E-step or not)
+    :param max_transitions: at most this many transitions per E-step (the most recent)
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param temperature: initial Gumbel-softmax temperature
     :param min_temperature: floor of the annealed temperature
-    :param anneal_rate: the temperature is ``max(min_temperature, temperature * exp(-anneal_rate * n_e_steps))``
-    :param team_pooling: pool the agents of one copy and step into a team posterior during training
-    :param max_samples: at most this many samples (drawn at random) per E-step
-    :param starved_share: a component whose prior falls below ``starved_share / K`` is re-seeded by splitting the
-        busiest one (0: never)
-    :param seed: seed of the minibatch order
+    :param anneal_rate: the temperature is ``max(min_temperature, temperature * exp(-anneal_rate * n_updates))``
+    :param likelihood_temperature: ``beta`` on the log-likelihoods in the responsibilities (as in the beliefs)
+    :param starved_share: a component whose prior falls below ``starved_share / K`` is re-seeded (0: never)
+    :param seed: seed of the minibatch order and of the re-seeding noise
     """
 
-    def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 2, batch_size: int = 1024,
-                 window: int = 2, estimator: str = "enumerate", temperature: float = 1.0, min_temperature: float = 0.1,
-                 anneal_rate: float = 0.05, team_pooling: bool = False, max_samples: int = 2048,
+    def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 5, batch_size: int = 256,
+                 window: int = 2, max_transitions: int = 16384, estimator: str = "enumerate", temperature: float = 1.0,
+                 min_temperature: float = 0.1, anneal_rate: float = 0.05, likelihood_temperature: float = 1.0,
                  starved_share: float = 0.1, seed: int = 0) -> None:
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
         for name, value in (("n_epochs", n_epochs), ("batch_size", batch_size), ("window", window),
-                            ("max_samples", max_samples)):
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
+                            ("max_transitions", max_transitions)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
         if not temperature > 0 or not 0 < min_temperature <= temperature:
             raise ValueError(f"need 0 < min_temperature <= temperature, got {min_temperature} and {temperature}")
+        if not learning_rate > 0 or not likelihood_temperature > 0 or not 0 <= starved_share < 1:
+            raise ValueError(f"need learning_rate > 0, likelihood_temperature > 0 and 0 <= starved_share < 1, got "
+                             f"{learning_rate}, {likelihood_temperature} and {starved_share}")
         self.model = latent_model
-        self.optimizer = th.optim.Adam([p for p in latent_model.parameters() if p.requires_grad], lr=learning_rate)
-        self.n_epochs, self.batch_size, self.max_samples = n_epochs, batch_size, max_samples
-        self.memory: deque[LatentBatch] = deque(maxlen=window)
+        self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
+        self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
+        self.memory: deque[Transitions] = deque(maxlen=int(window))
         self.estimator = estimator
         self.initial_temperature, self.min_temperature, self.anneal_rate = temperature, min_temperature, anneal_rate
-        self.team_pooling = team_pooling
+        self.likelihood_temperature = float(likelihood_temperature)
         self.starved_share = starved_share
         self.n_updates = 0
         self.generator = th.Generator().manual_seed(seed)
 
     @property
     def temperature(self) -> float:
+        """The Gumbel-softmax temperature of the next E-step."""
         return max(self.min_temperature, self.initial_temperature * math.exp(-self.anneal_rate * self.n_updates))
 
-    def add(self, batch: LatentBatch) -> None:
-        """Remember one E-step's data (the oldest leaves once ``window`` data sets are kept)."""
-        if len(batch):
-            self.memory.append(batch)
+    def add(self, transitions: Transitions) -> None:
+        """Remember one rollout's transitions (the oldest rollout leaves once ``window`` are kept)."""
+        if len(transitions):
+            self.memory.append(transitions)
 
-    def _shuffle(self, data: LatentBatch) -> tuple[th.Tensor, th.Tensor]:
-        """A random order of the samples and where each unit starts in it.
+    def _data(self) -> Transitions:
+        data = Transitions.cat(list(self.memory))
+        return data.subset(slice(len(data) - self.max_transitions, None)) if len(data) > self.max_transitions else data
 
-        A unit is one sample, or with team pooling one group (the agents of one copy and step), which stays
-        whole in subsampling and in minibatches so that its members' evidence is pooled together.
-        """
-        units = th.unique(data.groups, return_inverse=True)[1] if self.team_pooling else th.arange(len(data))
-        rank = th.randperm(int(units.max()) + 1, generator=self.generator)[units]
-        order = th.argsort(rank, stable=True)
-        ranked = rank[order]
-        starts = th.cat([th.zeros(1, dtype=th.long), th.nonzero(ranked[1:] != ranked[:-1]).flatten() + 1])
-        return order, starts
-
-    def _data(self) -> LatentBatch:
-        """The kept rollouts, at most ``max_samples`` of them (whole units, drawn at random)."""
-        data = LatentBatch.cat(list(self.memory))
-        if len(data) > self.max_samples:
-            order, starts = self._shuffle(data)
-            ends = th.cat([starts[1:], th.tensor([len(data)])])
-            fitting = ends[ends <= self.max_samples]
-            cut = int(fitting[-1]) if len(fitting) else int(ends[0])  # whole units; at least one
-            data = LatentBatch(*(getattr(data, name)[order[:cut]] for name in FIELDS))
-        return data
-
-    def _minibatches(self, data: LatentBatch) -> list[th.Tensor]:
-        """Random minibatches of about ``batch_size`` samples, cut between units."""
-        order, starts = self._shuffle(data)
-        targets = th.tensor(list(range(self.batch_size, len(data), self.batch_size)), dtype=th.long)
-        ends = th.cat([starts, th.tensor([len(data)])])[th.searchsorted(starts, targets)].unique().tolist()
-        cuts = [0, *[c for c in ends if 0 < c < len(data)], len(data)]
-        return [order[a:b] for a, b in pairwise(cuts)]
+    def responsibilities(self, data: Transitions) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
+        episode's summed tempered log-likelihoods ``(S, K)`` (no gradient)."""
+        with th.no_grad():
+            log_lik = self.model.transition_log_likelihood(data.features, data.actions, data.next_features)
+            evidence, index = sum_by_group(self.likelihood_temperature * log_lik, data.episodes)
+            return self.model.posterior_from(evidence), index, evidence
 
     def step(self, train: bool = True) -> dict[str, float]:
-        """One E-step on the kept data; ``train=False`` (E-step frozen) changes nothing and only reports.
+        """One E-step on the kept transitions; ``train=False`` (E-step frozen) changes nothing and only reports.
 
-        Each minibatch: the decoder's stretch log-likelihood ``L`` ``(B, K)`` once; the exact responsibilities
-        ``r ∝ pi exp(L)`` (no gradient); the decoder maximises ``E_r[L]`` (exact, or one Gumbel-softmax sample)
-        and the encoder fits ``q_phi(z | h_t)`` to ``r`` by cross-entropy. The statistics and the new prior
-        ``pi`` (the mean responsibilities) come from the last epoch's minibatches, each taken before its update.
-
-        :return: statistics for the logger: the ELBO under the encoder's posterior and its reconstruction and KL
-            terms, the prior's and the posterior's entropy, the temperature
+        :return: statistics for the logger: marginal log-likelihood per transition, mean entropy of the
+            responsibilities and of the prior, transitions and episodes used, temperature, re-seeded components
         """
         if not self.memory:
             return {}
         data = self._data()
-        n_epochs = self.n_epochs if train else 1
+        if train and self.n_updates == 0:  # start the deviations at the data's scale, not at 1
+            with th.no_grad():
+                change = (data.next_features - data.features).std(dim=0) + 1e-3
+                self.model.decoder_log_std.copy_(change.log().clamp(*LOG_STD_BOUNDS))
         self.model.train(train)
-        totals: dict[str, th.Tensor] = {}
-        for epoch in range(n_epochs):
-            last = epoch == n_epochs - 1
-            for idx in self._minibatches(data):
-                window, next_slot = data.window[idx], data.next_slot[idx]
-                groups = data.groups[idx] if self.team_pooling else None
-                with th.set_grad_enabled(train):
-                    log_lik = self.model.stretch_log_likelihood(window, next_slot)
-                    # E: responsibilities of the components for each stretch, from the current decoder and prior.
-                    responsibilities = self.model.responsibilities_from(log_lik, groups).exp()
-                    # Decoder: maximise the expected log-likelihood under them (exact, or one Gumbel-softmax sample).
-                    recon = self.model.expected_log_likelihood(window, next_slot, responsibilities, self.estimator,
-                                                               self.temperature, log_likelihood=log_lik)
-                    # Encoder: q_phi(z | h_t) learns to predict them from the history alone (the ELBO's optimal q).
-                    log_q = self.model.posterior_logits(window)
-                    if groups is not None:
-                        log_q = self.model.pool(log_q, groups)
-                    loss = -recon.mean() - (responsibilities * log_q).sum(-1).mean()
-                if last:
-                    with th.no_grad():
-                        terms = self.model.elbo(window, next_slot, log_likelihood=log_lik.detach(), log_q=log_q.detach())
-                    self._accumulate(totals, terms, responsibilities)
-                if train:
-                    self.optimizer.zero_grad()
-                    loss.backward()
-                    th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
-                    self.optimizer.step()
+        for _ in range(self.n_epochs if train else 0):
+            log_r, index, _ = self.responsibilities(data)
+            order = th.randperm(len(data), generator=self.generator)
+            for start in range(0, len(data), self.batch_size):
+                idx = order[start:start + self.batch_size]
+                log_lik = self.model.transition_log_likelihood(data.features[idx], data.actions[idx],
+                                                               data.next_features[idx])
+                weights = log_r[index[idx]]
+                if self.estimator == "enumerate":
+                    recon = (weights.exp() * log_lik).sum(-1)
+                else:
+                    z = F.gumbel_softmax(weights, tau=self.temperature, hard=False)
+                    recon = self.model.mixed_log_likelihood(data.features[idx], data.actions[idx],
+                                                            data.next_features[idx], z)
+                self.optimizer.zero_grad()
+                (-recon.mean()).backward()
+                th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
+                self.optimizer.step()
         self.model.train(False)
+        log_r, _, evidence = self.responsibilities(data)
         revived = 0
         if train:
             self.n_updates += 1
-            self.model.set_prior(totals["responsibilities"][None] / len(data))  # pi in closed form
+            self.model.set_prior(log_r.exp())  # pi in closed form
             revived = self._revive_starved_components()
         prior = self.model.prior()
-        stats = {key: float(totals[key] / len(data)) for key in ("elbo", "recon", "kl", "posterior_entropy")}
+        marginal = th.logsumexp(evidence + self.model.log_prior, dim=-1).sum() / self.likelihood_temperature
         return {
-            **stats,
+            "log_likelihood": float(marginal / len(data)),
+            "posterior_entropy": float(-(log_r.exp() * log_r).sum(-1).mean()),
             "prior_entropy": float(-(prior * prior.log()).sum()),
             "temperature": self.temperature,
-            "n_samples": float(len(data)),
+            "n_transitions": float(len(data)),
+            "n_episodes": float(len(log_r)),
             "revived_components": float(revived),
         }
-
-    @staticmethod
-    def _accumulate(totals: dict[str, th.Tensor], terms: dict[str, th.Tensor], responsibilities: th.Tensor) -> None:
-        """Add a minibatch's ELBO terms (enumerated, under the encoder's posterior) and responsibilities to ``totals``."""
-        log_q = terms["log_q"]
-        for key, value in (("elbo", terms["elbo"].sum()), ("recon", terms["recon"].sum()), ("kl", terms["kl"].sum()),
-                           ("posterior_entropy", -(log_q.exp() * log_q).sum()),
-                           ("responsibilities", responsibilities.sum(0))):
-            totals[key] = totals.get(key, 0) + value
 
     def _revive_starved_components(self) -> int:
         """Split the busiest component into every component whose prior fell below ``starved_share / K``."""
@@ -231,33 +207,3 @@ class EStep:
         for dead in starved:
             self.model.split_component(dead, int(self.model.prior().argmax()), generator=self.generator)
         return len(starved)
-
-
-class EMCallback(BaseCallback):
-    """Run the E-step after each rollout and log ``latent/*`` scalars.
-
-    The algorithm supplies the data through ``latent_batch()`` and owns ``e_step`` (an :class:`EStep`),
-    ``freeze_e_step`` and ``e_step_interval`` (rollouts between E-steps). After each collection step it
-    calls the algorithm's ``record_collection_step()`` (EM-PPO keeps the posteriors its actions were drawn with).
-    """
-
-    def __init__(self, verbose: int = 0) -> None:
-        super().__init__(verbose)
-        self.rollouts = 0
-
-    def _on_rollout_start(self) -> None:
-        self.model.start_collection()
-
-    def _on_step(self) -> bool:
-        self.model.record_collection_step()
-        return True
-
-    def _on_rollout_end(self) -> None:
-        model = self.model
-        self.rollouts += 1
-        if self.rollouts % model.e_step_interval:
-            return
-        model.e_step.add(model.latent_batch())
-        stats = model.e_step.step(train=not model.freeze_e_step)
-        for key, value in stats.items():
-            self.logger.record(f"latent/{key}", value)

@@ -1,11 +1,10 @@
-"""The latent feature extractor and the policies that own the latent model.
+"""The policies of the EM algorithms: SB3's, reading ``[observation, belief]``, and owning the latent model.
 
-The policy (actor-critic for EM-PPO, TD3-style for EM-DDPG) owns one :class:`LatentModel`, saved and
-loaded with it. Every features extractor of the policy (actor, critic and their targets) reads the
-same model: it splits the augmented observation into the original observation and the history
-window and returns ``[observation, q_phi(z | h_t)]``, the posterior detached, so that policy and
-value gradients never reach the encoder (the E-step alone trains it). The policies' optimizers
-exclude the latent model's parameters for the same reason.
+The belief ``q(z | o_{1:t}, a_{1:t-1})`` arrives inside the observation (the
+:class:`~sb3_emmarl.common.latent.belief.BeliefWrapper` appends it, ``predict`` does the same on plain
+observations), so policy and value gradients never reach the latent model: the E-step alone fits it. The
+policy owns the model so that it is saved and loaded with the policy; its optimizer excludes the model's
+parameters.
 """
 
 from __future__ import annotations
@@ -18,61 +17,46 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.td3.policies import TD3Policy
 
-from sb3_emmarl.common.latent.history import HistoryLayout
+from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
 
 
 class LatentFeaturesExtractor(BaseFeaturesExtractor):
-    """``[observation, q_phi(z | h_t).detach()]`` from an augmented observation (``observation`` alone without a model).
+    """``[observation, belief]`` from an augmented observation, or ``observation`` alone (``use_latent=False``).
 
     :param observation_space: the augmented observation space
-    :param layout: the history layout
-    :param latent_model: the policy's latent model (not a submodule here: the policy owns it); None for the
-        no-latent ablation
+    :param layout: the latent layout
+    :param use_latent: keep the belief (False: the no-latent ablation drops it)
     """
 
-    def __init__(self, observation_space: spaces.Box, layout: HistoryLayout, latent_model: LatentModel | None) -> None:
-        super().__init__(observation_space, layout.obs_dim + (latent_model.n_components if latent_model else 0))
-        self.layout = layout
-        object.__setattr__(self, "latent_model", latent_model)  # a reference, so the model is saved once
-        #: The posterior of the last batch it computed (EM-PPO keeps the ones its rollout was collected with).
-        self.latest_posterior: th.Tensor | None = None
+    def __init__(self, observation_space: spaces.Box, layout: LatentLayout, use_latent: bool = True) -> None:
+        super().__init__(observation_space, layout.total_dim if use_latent else layout.obs_dim)
+        self.keep = layout.total_dim if use_latent else layout.obs_dim
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
-        raw, window = self.layout.split(observations)
-        if self.latent_model is None:
-            return raw
-        if self.latent_model.precomputed:  # the posterior already sits where the window starts (see EMPPO.train)
-            posterior = observations[..., self.layout.posterior_columns(self.latent_model.n_components)]
-        else:
-            with th.no_grad():
-                posterior = self.latent_model.posterior(window)
-            self.latest_posterior = posterior
-        return th.cat([raw, posterior], dim=-1)
+        return observations[..., : self.keep]
 
 
 class LatentPolicyMixin:
-    """Create the latent model before the policy builds its networks, and hand it to every features extractor.
+    """Create the latent model with the policy and give every features extractor the latent layout.
 
-    ``latent_kwargs`` holds the :class:`HistoryLayout` fields and the model's sizes (``n_components``,
-    ``encoder_hidden``, ``decoder_hidden``); ``use_latent=False`` builds no model (the no-latent ablation).
+    ``latent_kwargs`` holds the :class:`LatentLayout` fields; ``use_latent=False`` builds no model (the
+    no-latent ablation).
     """
 
     def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
                  use_latent: bool = True, **kwargs) -> None:
-        sizes = dict(latent_kwargs)
-        layout = HistoryLayout(**{k: int(sizes.pop(k)) for k in ("obs_dim", "history_length", "feature_dim", "action_dim")})
+        layout = LatentLayout.from_dict(latent_kwargs)
         # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
-        object.__setattr__(self, "_latent_layout", layout)
-        object.__setattr__(self, "_pending_latent_model", LatentModel(layout, **sizes) if use_latent else None)
-        object.__setattr__(self, "_latent_config", (dict(latent_kwargs), use_latent))
+        object.__setattr__(self, "latent_layout", layout)
+        object.__setattr__(self, "_latent_config", (layout.to_dict(), bool(use_latent)))
         super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
         # A submodule only now, after the networks' optimizers were built without its parameters.
-        self.latent_model = self._pending_latent_model
+        self.latent_model = LatentModel(layout) if use_latent else None
         self.to(self.device)
 
     def make_features_extractor(self) -> LatentFeaturesExtractor:
-        return LatentFeaturesExtractor(self.observation_space, self._latent_layout, self._pending_latent_model)
+        return LatentFeaturesExtractor(self.observation_space, self.latent_layout, self._latent_config[1])
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -82,15 +66,14 @@ class LatentPolicyMixin:
 
 
 class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
-    """SB3's ``ActorCriticPolicy`` whose policy and value networks see the latent posterior (EM-PPO).
+    """SB3's ``ActorCriticPolicy`` whose policy and value networks see the belief (EM-PPO).
 
-    Takes ``ActorCriticPolicy``'s arguments plus ``latent_kwargs`` (history layout and latent model sizes,
-    set by the algorithm) and ``use_latent`` (False: the no-latent ablation).
+    Takes ``ActorCriticPolicy``'s arguments plus ``latent_kwargs`` (set by the algorithm) and ``use_latent``.
     """
 
 
 class LatentTD3Policy(LatentPolicyMixin, TD3Policy):
-    """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the latent posterior (EM-DDPG).
+    """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the belief (EM-DDPG).
 
     Takes ``TD3Policy``'s arguments plus ``latent_kwargs`` and ``use_latent`` (see :class:`LatentActorCriticPolicy`).
     """

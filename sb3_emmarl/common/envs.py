@@ -1,0 +1,115 @@
+"""Two small tasks with a hidden mode, for testing latent-variable methods (as SB3 ships ``IdentityEnv``).
+
+In both, each episode draws one of ``n_modes`` modes that no single observation reveals and acting on
+which pays; ``info["mode"]`` holds it (for evaluation only), and ``told=True`` appends a one-hot of it to
+the observation: the upper bound a method that infers the mode is measured against.
+
+- :class:`ModeCueEnv`: the mode shows only through a weak cue at every step.
+- :class:`ModeDynamicsEnv`: the mode changes only what the actions do.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+
+class _ModeEnv(gym.Env):
+    """What both tasks share: the mode drawn at reset, ``info["mode"]``, the ``told`` variant."""
+
+    def __init__(self, n_modes: int, length: int, told: bool, own_dim: int) -> None:
+        if isinstance(n_modes, bool) or not isinstance(n_modes, int) or n_modes < 2:
+            raise ValueError(f"n_modes must be an int >= 2, got {n_modes!r}")
+        if isinstance(length, bool) or not isinstance(length, int) or length < 1:
+            raise ValueError(f"length must be an int >= 1, got {length!r}")
+        self.n_modes, self.length, self.told = n_modes, length, bool(told)
+        size = own_dim + (n_modes if told else 0)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
+        self.mode, self.t = 0, 0
+
+    def _observe(self, own: np.ndarray) -> np.ndarray:
+        if self.told:
+            own = np.concatenate([own, np.eye(self.n_modes)[self.mode]])
+        return own.astype(np.float32)
+
+    def _start(self, seed: int | None) -> None:
+        super().reset(seed=seed)
+        self.mode, self.t = int(self.np_random.integers(self.n_modes)), 0
+
+    def _info(self) -> dict[str, Any]:
+        return {"mode": self.mode}
+
+
+class ModeCueEnv(_ModeEnv):
+    """Guess the hidden mode, from a cue that is right ``cue_accuracy`` of the time (else uniform).
+
+    Observation: the cue's one-hot (``n_modes``). Action: ``Discrete(n_modes)``; reward 1 when it is the mode.
+    Reacting to the cue earns ``cue_accuracy + (1 - cue_accuracy) / n_modes`` a step (0.55 by default); a
+    belief over the episode's cues approaches 1.
+
+    :param n_modes: modes (and actions)
+    :param cue_accuracy: chance that the cue is the mode rather than a uniform draw
+    :param length: steps per episode
+    :param told: append the mode's one-hot to the observation
+    """
+
+    def __init__(self, n_modes: int = 4, cue_accuracy: float = 0.4, length: int = 32, told: bool = False) -> None:
+        if not 0 <= cue_accuracy <= 1:
+            raise ValueError(f"cue_accuracy must be in [0, 1], got {cue_accuracy!r}")
+        super().__init__(n_modes, length, told, n_modes)
+        self.cue_accuracy = float(cue_accuracy)
+        self.action_space = spaces.Discrete(n_modes)
+
+    def _cue(self) -> np.ndarray:
+        right = self.np_random.random() < self.cue_accuracy
+        return np.eye(self.n_modes)[self.mode if right else int(self.np_random.integers(self.n_modes))]
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._start(seed)
+        return self._observe(self._cue()), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        reward = float(int(action) == self.mode)
+        self.t += 1
+        return self._observe(self._cue()), reward, False, self.t >= self.length, self._info()
+
+
+class ModeDynamicsEnv(_ModeEnv):
+    """Steer a point to the origin when the mode decides which way each action moves it.
+
+    Observation: the position ``(x, y)`` in ``[-1, 1]^2``, drawn uniformly at reset. Action:
+    ``Discrete(4)``; action ``a`` moves the point by ``step`` along direction ``(a + mode) % 4`` (right, up,
+    left, down) plus Gaussian noise. Reward ``1 - |position| / sqrt(2)`` after each step. Every mode leaves
+    the observations alike until an action is taken; one transition then tells it.
+
+    :param step: distance of one move
+    :param noise: standard deviation of the position noise per step
+    :param length: steps per episode
+    :param told: append the mode's one-hot to the observation
+    """
+
+    #: Unit moves of the four directions: right, up, left, down.
+    DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+
+    def __init__(self, step: float = 0.15, noise: float = 0.01, length: int = 25, told: bool = False) -> None:
+        if not step > 0 or not noise >= 0:
+            raise ValueError(f"need step > 0 and noise >= 0, got {step!r} and {noise!r}")
+        super().__init__(4, length, told, 2)
+        self.step_size, self.noise = float(step), float(noise)
+        self.action_space = spaces.Discrete(4)
+        self.position = np.zeros(2)
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._start(seed)
+        self.position = self.np_random.uniform(-1, 1, 2)
+        return self._observe(self.position), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        move = self.DIRECTIONS[(int(action) + self.mode) % 4] * self.step_size
+        self.position = np.clip(self.position + move + self.np_random.normal(0, self.noise, 2), -1, 1)
+        self.t += 1
+        reward = float(1 - np.linalg.norm(self.position) / np.sqrt(2))
+        return self._observe(self.position), reward, False, self.t >= self.length, self._info()

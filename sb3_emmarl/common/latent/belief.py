@@ -1,0 +1,199 @@
+"""Each agent's belief over the latent mode, from the whole episode so far, fused along the team's links.
+
+:class:`BeliefTracker` keeps, per vector entry, the evidence ``e_k = beta * sum_{j < t} log p(x_{j+1} | x_j, a_j,
+z = k)`` that the entry's own transitions since its episode began give each component (one decoder call per
+step: constant cost, no history re-read), and the belief ``q(z) = softmax(log pi + e + sum of the evidence
+last heard from each teammate)``. Fusion follows the links the environment reports: the reserve lists in
+``infos[i]["heard_from"]`` the teammates whose messages reached UAV ``i`` this step (after range, loss and
+jamming); the UAV then records the evidence those teammates hold now (their own, never what they heard, so
+nothing is counted twice) and keeps it until it hears from them again. No link, no fusion: with
+``comm_loss=1`` every belief is the agent's own.
+
+:class:`BeliefWrapper` is the ``VecEnvWrapper`` that runs a tracker during training and evaluation and
+appends the belief to every observation (terminal observations included), so that SB3's rollout and
+replay buffers store exactly what the policy saw when it acted. ``EMPPO.predict`` runs the same tracker on
+plain observations with the tracker's state passed through ``predict(obs, state, episode_start)``, as
+RecurrentPPO passes its LSTM state (there are no ``infos`` there, hence no fusion).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+
+from sb3_emmarl.common.latent.features import default_features, encode_actions
+from sb3_emmarl.common.latent.model import LatentModel
+
+#: Info key under which the reserve lists the senders whose messages reached an agent this step.
+LINKS_KEY = "heard_from"
+
+
+class BeliefTracker:
+    """Filtering posteriors ``q(z | o_{1:t}, a_{1:t-1})`` of ``n_entries`` vector entries.
+
+    :param n_entries: vector entries (agents)
+    :param n_components: ``K``
+    :param feature_dim: ``d_x``
+    :param action_dim: size of the encoded action
+    :param agents_per_copy: agents per environment copy (entry ``i`` is agent ``i % agents_per_copy`` of copy
+        ``i // agents_per_copy``); links only join agents of one copy
+    :param model: the latent model (None: every belief is uniform, as in the no-latent ablation)
+    :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood
+    :param fusion: combine the evidence of teammates heard from (else each belief is the agent's own)
+    """
+
+    def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, agents_per_copy: int = 1,
+                 model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
+        self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
+        self.model, self.likelihood_temperature, self.fusion = model, float(likelihood_temperature), bool(fusion)
+        self.evidence = np.zeros((n_entries, n_components))
+        self.heard = np.zeros((n_entries, self.agents_per_copy, n_components))
+        self.features = np.zeros((n_entries, feature_dim), dtype=np.float32)
+        self.actions = np.zeros((n_entries, action_dim), dtype=np.float32)
+
+    # ------------------------------------------------------------------ updates
+    def start(self, indices: np.ndarray, features: np.ndarray) -> None:
+        """New episodes for ``indices``: no evidence yet; ``features`` are those of their first observation."""
+        self.evidence[indices] = 0.0
+        self.heard[indices] = 0.0
+        self.actions[indices] = 0.0
+        self.features[indices] = features
+
+    def set_actions(self, encoded_actions: np.ndarray) -> None:
+        """The actions every entry just took (encoded), for the next transition."""
+        self.actions[:] = encoded_actions
+
+    def advance(self, indices: np.ndarray, next_features: np.ndarray) -> None:
+        """Add the evidence of the transitions ``(x_t, a_t) -> x_{t+1}`` of ``indices``."""
+        if len(indices) == 0:
+            return
+        if self.model is not None:
+            param = next(self.model.parameters())
+            as_tensor = lambda a: th.as_tensor(a, dtype=th.float32, device=param.device)  # noqa: E731
+            with th.no_grad():
+                log_lik = self.model.transition_log_likelihood(as_tensor(self.features[indices]),
+                                                               as_tensor(self.actions[indices]), as_tensor(next_features))
+            self.evidence[indices] += self.likelihood_temperature * log_lik.cpu().double().numpy()
+        self.features[indices] = next_features
+
+    def fuse(self, infos: Sequence[dict[str, Any]]) -> None:
+        """Record the current own evidence of every teammate whose message reached an entry this step."""
+        if not self.fusion or self.agents_per_copy == 1:
+            return
+        for i, info in enumerate(infos):
+            senders = info.get(LINKS_KEY) if isinstance(info, dict) else None
+            if senders:
+                base = i - i % self.agents_per_copy
+                for j in senders:
+                    self.heard[i, j] = self.evidence[base + j]
+
+    # ------------------------------------------------------------------ beliefs
+    def log_beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``log q(z)`` of ``indices`` ``(n, K)``: prior, own evidence and the evidence last heard from teammates."""
+        evidence = self.evidence[indices] + self.heard[indices].sum(axis=1)
+        if self.model is not None:
+            evidence = evidence + self.model.log_prior.detach().cpu().double().numpy()
+        evidence = evidence - evidence.max(axis=1, keepdims=True)
+        return evidence - np.log(np.exp(evidence).sum(axis=1, keepdims=True))
+
+    def beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities."""
+        return np.exp(self.log_beliefs(indices)).astype(np.float32)
+
+    # ------------------------------------------------------------------ state for predict()
+    def get_state(self) -> np.ndarray:
+        """Everything the tracker holds, one row per entry (the ``state`` of ``EMPPO.predict``)."""
+        return np.concatenate([self.evidence, self.heard.reshape(self.n, -1), self.features, self.actions],
+                              axis=1).astype(np.float64)
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Restore a :meth:`get_state` array."""
+        state = np.asarray(state, dtype=np.float64)
+        expected = self.get_state().shape
+        if state.shape != expected:
+            raise ValueError(f"the belief state must have shape {expected} (from the previous predict call), "
+                             f"got {state.shape}")
+        k, h, d_x = self.k, self.heard[0].size, self.features.shape[1]
+        self.evidence[:] = state[:, :k]
+        self.heard[:] = state[:, k:k + h].reshape(self.heard.shape)
+        self.features[:] = state[:, k + h:k + h + d_x]
+        self.actions[:] = state[:, k + h + d_x:]
+
+
+def agents_per_copy(venv: VecEnv) -> int:
+    """Agents per environment copy of a vector environment (the reserve's parameter-sharing one), else 1."""
+    return int(getattr(venv, "agents_per_copy", 1))
+
+
+class BeliefWrapper(VecEnvWrapper):
+    """Append each entry's belief ``q(z | o_{1:t}, a_{1:t-1})`` (``n_components`` floats) to its observation.
+
+    Until :meth:`attach` hands it a latent model, every belief is uniform.
+
+    :param venv: the vector environment (flat ``Box`` observations)
+    :param n_components: ``K``
+    """
+
+    def __init__(self, venv: VecEnv, n_components: int) -> None:
+        if isinstance(n_components, bool) or not isinstance(n_components, (int, np.integer)) or n_components < 1:
+            raise ValueError(f"n_components must be an int >= 1, got {n_components!r}")
+        space = venv.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise ValueError(f"the latent algorithms need flat Box observations, got {space}")
+        self.feature_fn, self.feature_spec, self.feature_dim = default_features(venv)
+        self.encode_action, self.action_dim = encode_actions(venv.action_space)
+        self.obs_dim, self.n_components = int(space.shape[0]), int(n_components)
+        low = np.concatenate([space.low, np.zeros(n_components, np.float32)]).astype(np.float32)
+        high = np.concatenate([space.high, np.ones(n_components, np.float32)]).astype(np.float32)
+        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
+        self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim, agents_per_copy(venv))
+
+    def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
+        """Compute beliefs with ``model`` from now on (evidence gathered so far is kept)."""
+        if model is not None and model.n_components != self.n_components:
+            raise ValueError(f"the latent model has {model.n_components} components, the wrapper {self.n_components}")
+        tracker = self.tracker
+        tracker.model, tracker.likelihood_temperature, tracker.fusion = model, float(likelihood_temperature), bool(fusion)
+
+    def _augment(self, observations: np.ndarray, beliefs: np.ndarray) -> np.ndarray:
+        return np.concatenate([observations.reshape(len(observations), -1).astype(np.float32), beliefs], axis=1)
+
+    def reset(self) -> VecEnvObs:
+        observations = self.venv.reset()
+        self.reset_infos = getattr(self.venv, "reset_infos", self.reset_infos)
+        self.tracker.start(np.arange(self.num_envs), self.feature_fn(observations))
+        return self._augment(observations, self.tracker.beliefs())
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self.tracker.set_actions(self.encode_action(actions))
+        self.venv.step_async(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        observations, rewards, dones, infos = self.venv.step_wait()
+        features = self.feature_fn(observations)
+        done_idx = np.flatnonzero(dones)
+        tracker = self.tracker
+        if len(done_idx):  # the episode's last transition leads to its terminal observation
+            terminal = np.stack([infos[i]["terminal_observation"] for i in done_idx])
+            features[done_idx] = self.feature_fn(terminal)
+        tracker.advance(np.arange(self.num_envs), features)
+        tracker.fuse(infos)
+        if len(done_idx):
+            terminal_beliefs = tracker.beliefs(done_idx)
+            infos = list(infos)
+            for row, i in enumerate(done_idx):
+                infos[i] = dict(infos[i])
+                infos[i]["terminal_observation"] = self._augment(terminal[row:row + 1], terminal_beliefs[row:row + 1])[0]
+            tracker.start(done_idx, self.feature_fn(observations[done_idx]))
+        return self._augment(observations, tracker.beliefs()), rewards, dones, infos
+
+
+def find_belief_wrapper(venv: VecEnv) -> BeliefWrapper | None:
+    """The :class:`BeliefWrapper` inside a stack of vector wrappers, if any."""
+    return unwrap_vec_wrapper(venv, BeliefWrapper)

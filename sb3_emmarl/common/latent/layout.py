@@ -1,0 +1,55 @@
+"""Where the parts of a belief-augmented observation sit, and the latent model's sizes: one source of truth."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class LatentLayout:
+    """The sizes every part of the latent machinery reads (all ints, saved with the model's policy).
+
+    An augmented observation is ``[observation (obs_dim), belief (n_components)]``: the environment's own
+    observation followed by the agent's belief ``q(z | o_{1:t}, a_{1:t-1})`` over the latent components.
+
+    :param obs_dim: size of the environment's (flat) observation
+    :param feature_dim: ``d_x``, compact features of one observation that the decoder models
+    :param action_dim: size of the encoded action (one-hot size for discrete actions)
+    :param n_components: ``K``, components of the categorical latent variable
+    :param decoder_hidden: hidden layer sizes of the decoder's shared trunk
+    """
+
+    obs_dim: int
+    feature_dim: int
+    action_dim: int
+    n_components: int
+    decoder_hidden: tuple[int, ...] = field(default=(64, 64))
+
+    def __post_init__(self) -> None:
+        for name in ("obs_dim", "feature_dim", "action_dim", "n_components"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        hidden = self.decoder_hidden
+        if isinstance(hidden, (str, bytes)) or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
+                                                      for h in hidden):
+            raise ValueError(f"decoder_hidden must be a sequence of ints >= 1, got {hidden!r}")
+        object.__setattr__(self, "decoder_hidden", tuple(hidden))
+
+    @property
+    def total_dim(self) -> int:
+        """Size of an augmented observation."""
+        return self.obs_dim + self.n_components
+
+    def split(self, observations: Any) -> tuple[Any, Any]:
+        """Split augmented observations ``(..., total_dim)`` (numpy or torch) into the observation and the belief."""
+        return observations[..., : self.obs_dim], observations[..., self.obs_dim:]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values for ``policy_kwargs`` (saved in the model's zip)."""
+        return {**asdict(self), "decoder_hidden": list(self.decoder_hidden)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> LatentLayout:
+        return cls(**{**data, "decoder_hidden": tuple(data.get("decoder_hidden", (64, 64)))})

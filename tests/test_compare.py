@@ -1,0 +1,129 @@
+"""The method comparison (``zoo/compare.py``): its paired tables on hand-built records, its flags and variants."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from sb3_emmarl.zoo.benchmark import (
+    DEFAULT_VARIANTS,
+    compare_main,
+    compare_parser,
+    difference_rows,
+    difference_table,
+    oracle_gap_share,
+    paired_over_seeds,
+    parse_variant,
+    summary_table,
+)
+
+
+def records(team_reward: list[float], seeds: list[int] | None = None, **metrics: list[float]) -> list[dict]:
+    """One record per seed (seeds ``0, 1, ...`` unless given) with the given per-seed values."""
+    seeds = list(range(len(team_reward))) if seeds is None else seeds
+    defaults = {"detection_rate": [0.5] * len(seeds), "coverage_efficiency": [0.5] * len(seeds)}
+    columns = {"team_reward": team_reward, **defaults, **metrics}
+    return [{"seed": seed, **{k: float(v[i]) for k, v in columns.items()}} for i, seed in enumerate(seeds)]
+
+
+def constant(value: float, n: int = 3) -> list[dict]:
+    return records([value] * n)
+
+
+def test_the_oracle_share_is_the_variants_gain_over_the_oracles_gain():
+    results = {"ppo": constant(1), "oracle_ppo": constant(5), "em_ppo": constant(3), "no_latent": constant(0)}
+    assert oracle_gap_share(results, "em_ppo", "ppo", "oracle_ppo") == "0.50"
+    assert oracle_gap_share(results, "oracle_ppo", "ppo", "oracle_ppo") == "1.00"
+    assert oracle_gap_share(results, "no_latent", "ppo", "oracle_ppo") == "-0.25"
+    # Means over seeds, not per-seed shares: baseline mean 1, oracle mean 4, variant mean 2 -> 1/3.
+    uneven = {"ppo": records([0, 2]), "oracle_ppo": records([3, 5]), "em_ppo": records([1, 3])}
+    assert oracle_gap_share(uneven, "em_ppo", "ppo", "oracle_ppo") == "0.33"
+
+
+@pytest.mark.parametrize("oracle_reward", [1, 0.5])
+def test_no_oracle_share_when_the_oracle_does_not_beat_the_baseline(oracle_reward):
+    results = {"ppo": constant(1), "oracle_ppo": constant(oracle_reward), "em_ppo": constant(3)}
+    assert oracle_gap_share(results, "em_ppo", "ppo", "oracle_ppo") == "n/a (oracle gap <= 0)"
+
+
+def test_a_dash_for_the_oracle_share_when_the_oracle_was_not_run():
+    results = {"ppo": constant(1), "em_ppo": records([3, 2, 4])}
+    assert oracle_gap_share(results, "em_ppo", "ppo", "oracle_ppo") == "-"
+    (row,) = [row for row in difference_rows(results, "ppo", "oracle_ppo") if row[1] == "team_reward"]
+    assert row[-1] == "-"
+
+
+def test_difference_rows_pair_by_seed_with_scipys_p_values_and_higher_on_counts():
+    baseline = records([1.0, 2.0, 2.5, 0.5, 3.0], detection_rate=[0.1, 0.2, 0.3, 0.4, 0.5])
+    variant = records([1.5, 1.0, 4.0, 2.5, 3.1], detection_rate=[0.1, 0.2, 0.3, 0.4, 0.5])
+    oracle = records([4.0, 5.0, 6.0, 3.0, 5.0], detection_rate=[0.3, 0.3, 0.3, 0.3, 0.3])
+    results = {"ppo": baseline, "em_ppo": variant, "oracle_ppo": oracle}
+    rows = {(v, m): tuple(rest) for v, m, *rest in difference_rows(results, "ppo", "oracle_ppo")}
+    assert {v for v, _ in rows} == {"em_ppo", "oracle_ppo"}  # every variant but the baseline
+    assert [m for v, m in rows if v == "em_ppo"] == ["team_reward", "detection_rate", "coverage_efficiency"]
+    difference, p_value, higher_on, share = rows[("em_ppo", "team_reward")]
+    a = np.array([r["team_reward"] for r in variant])
+    b = np.array([r["team_reward"] for r in baseline])
+    assert difference == pytest.approx((a - b).mean())
+    assert p_value == pytest.approx(stats.ttest_rel(a, b).pvalue)
+    assert higher_on == "4/5"
+    assert share == f"{(a.mean() - b.mean()) / (4.6 - b.mean()):.2f}"
+    # The same values on every seed: no difference, p 1.0, higher on none; the share only for team_reward.
+    assert rows[("em_ppo", "detection_rate")] == (0.0, 1.0, "0/5", "")
+    assert rows[("oracle_ppo", "detection_rate")][2] == "2/5"
+    assert rows[("oracle_ppo", "team_reward")][1:] == (pytest.approx(stats.ttest_rel(
+        [r["team_reward"] for r in oracle], b).pvalue), "5/5", "1.00")
+
+
+def test_p_is_one_with_fewer_than_two_seeds():
+    results = {"ppo": records([1.0]), "em_ppo": records([3.0])}
+    test = paired_over_seeds(results, "em_ppo", "ppo", "team_reward")
+    assert test.p_value == 1.0 and test.higher_on == "1/1"
+
+
+@pytest.mark.parametrize("em_seeds", [[0, 1, 3], [2, 1, 0], [0, 1], [0, 0, 1]])
+def test_seed_lists_that_differ_are_rejected_naming_the_variants(em_seeds):
+    results = {"ppo": records([1, 2, 3], seeds=[0, 1, 2]),
+               "em_ppo": records([1.0] * len(em_seeds), seeds=em_seeds)}
+    with pytest.raises(ValueError, match=r"'em_ppo' and 'ppo' must be evaluated on the same seeds") as error:
+        paired_over_seeds(results, "em_ppo", "ppo", "team_reward")
+    assert str(em_seeds) in str(error.value)
+    with pytest.raises(ValueError, match="same seeds"):
+        difference_rows(results, "ppo", "oracle_ppo")
+
+
+def test_the_tables_show_every_variant_and_a_dash_for_missing_latent_metrics():
+    results = {"em_ppo": records([3, 4], latent_accuracy_50=[0.6, 0.8]), "ppo": constant(1, 2),
+               "frozen_e_step": records([2, 1.5], latent_accuracy_50=[0.3, 0.3])}
+    summary = summary_table(results, ("team_reward", "latent_accuracy_50")).splitlines()
+    assert summary[1].split() == ["em_ppo", "3.500", "+-", "0.500", "0.700", "+-", "0.100"]
+    assert summary[2].split() == ["ppo", "1.000", "+-", "0.000", "-"]
+    differences = difference_table(results, "ppo", "oracle_ppo").splitlines()
+    assert "p (paired t)" in differences[0] and "oracle gap recovered" in differences[0]
+    assert [line.split()[:2] for line in differences[1:]] == [
+        [v, m] for v in ("em_ppo", "frozen_e_step") for m in ("team_reward", "detection_rate", "coverage_efficiency")]
+
+
+def test_parse_variant_on_the_default_variants():
+    assert [parse_variant(v) for v in DEFAULT_VARIANTS] == [
+        ("em_ppo", "em_ppo", []),
+        ("ppo", "ppo", []),
+        ("ppo_lstm", "ppo_lstm", []),
+        ("oracle_ppo", "oracle_ppo", []),
+        ("no_latent", "em_ppo", ["use_latent:False"]),
+        ("frozen_e_step", "em_ppo", ["freeze_e_step:True"]),
+    ]
+    args = compare_parser().parse_args([])
+    assert args.variants == list(DEFAULT_VARIANTS) and (args.baseline, args.oracle) == ("ppo", "oracle_ppo")
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--baseline", "a2c"], "--baseline 'a2c' is not among the variants"),
+    (["--variants", "em_ppo", "ppo_lstm"], "--baseline 'ppo' is not among the variants"),
+    (["--variants", "ppo", "x=ppo:gamma=0.9", "x=ppo"], "distinct names"),
+    (["--variants", "ppo", "bad=nope"], "unknown algorithm 'nope'"),
+])
+def test_the_parser_rejects_bad_flags_before_training(flags, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        compare_main(flags)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
