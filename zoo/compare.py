@@ -1,6 +1,7 @@
-"""Compare variants (EM-PPO, its no-latent ablation, PPO by default) at the same budget over seeds.
+"""Compare variants at the same budget over seeds: by default EM-PPO, PPO, RecurrentPPO (memory without EM),
+PPO told the mode (the upper bound) and EM-PPO's no-latent and frozen-E-step ablations, paired against PPO.
 
-Example (EM-PPO, its ablations and PPO over 3 seeds): ``python zoo/compare.py -n 1000000 --seeds 0 1 2``
+Example: ``python zoo/compare.py -n 500000 --seeds 0 1 2 3 4 --eval-episodes 20 --n-jobs 2``
 """
 
 import sys

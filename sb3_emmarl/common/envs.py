@@ -27,7 +27,7 @@ class _ModeEnv(gym.Env):
             raise ValueError(f"length must be an int >= 1, got {length!r}")
         self.n_modes, self.length, self.told = n_modes, length, bool(told)
         size = own_dim + (n_modes if told else 0)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
+        self.observation_space = spaces.Box(-1.0, 1.0, (size,), np.float32)  # every part lies in [-1, 1]
         self.mode, self.t = 0, 0
 
     def _observe(self, own: np.ndarray) -> np.ndarray:

@@ -123,8 +123,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         new_episode = np.concatenate([self._last_dones[None], dones[:-1]])
         if len(rows):
             self._last_dones = dones[-1]
-        return self._transitions(buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows],
-                                 new_episode, np.ones_like(dones))
+        return self._transitions(self._features(buffer.observations[rows]), buffer.actions[rows],
+                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones))
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """The E-step's data (and every ``e_step_interval`` calls the E-step), then DDPG's update, the M-step

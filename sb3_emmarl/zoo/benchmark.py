@@ -107,14 +107,14 @@ GAP_METRIC = "team_reward"
 
 #: The method comparison's default variants:
 #:
-#: - ``em_ppo``: the method (PPO as the M-step, the EM-inferred posterior over the hidden mode as input);
+#: - ``em_ppo``: the method (PPO as the M-step, the EM-inferred belief over the hidden mode as input);
 #: - ``ppo``: plain PPO on the current observation, the baseline;
 #: - ``ppo_lstm``: RecurrentPPO, memory without EM (the history through an LSTM fitted by RL alone);
 #: - ``oracle_ppo``: PPO told the true mode, the upper bound of every latent method;
 #: - ``no_latent``: EM-PPO with the latent input removed;
-#: - ``frozen_e_step``: EM-PPO with the encoder kept at its random initialisation: the policy still sees a
-#:   function of the history, but not one fitted by EM, which separates "history as input" from "inferred
-#:   posterior as input".
+#: - ``frozen_e_step``: EM-PPO with the transition models kept at their initialisation: the policy still sees
+#:   a belief computed from the whole episode, but not from a model fitted by EM, which separates "a summary
+#:   of the episode as input" from "the inferred mode as input".
 DEFAULT_VARIANTS = ("em_ppo", "ppo", "ppo_lstm", "oracle_ppo", "no_latent=em_ppo:use_latent=False",
                     "frozen_e_step=em_ppo:freeze_e_step=True")
 

@@ -117,16 +117,19 @@ class LatentAlgorithmMixin:
         return int(getattr(self.env, "agents_per_copy", 1)) if self.env is not None else 1
 
     # ------------------------------------------------------------------ the E-step, from train()
-    def _transitions(self, observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray,
+    def _features(self, observations: np.ndarray) -> np.ndarray:
+        """Compact features of augmented observations ``(..., total_dim)`` -> ``(..., d_x)``."""
+        flat = observations.reshape(-1, observations.shape[-1])[:, : self.latent_layout.obs_dim]
+        return self._feature_fn(flat).reshape(*observations.shape[:-1], -1)
+
+    def _transitions(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray,
                      new_episode: np.ndarray, valid: np.ndarray) -> Transitions:
-        """E-step data from ``(T, n, ...)`` arrays of augmented observations, actions taken, the observations that
-        followed, flags of steps that begin an episode, and flags of the transitions to keep."""
+        """E-step data from ``(T, n, ...)`` arrays of features, actions taken, the features that followed, flags of
+        steps that begin an episode, and flags of the transitions to keep."""
         ids = episode_ids(self._episode_counters, new_episode, self.agents_per_copy, self.team_pooling)
         t, e = np.nonzero(valid)
-        obs_dim = self.latent_layout.obs_dim
-        return Transitions.from_numpy(self._feature_fn(observations[t, e, :obs_dim]),
-                                      self._encode_action(actions[t, e]),
-                                      self._feature_fn(next_observations[t, e, :obs_dim]), ids[t, e], self.device)
+        return Transitions.from_numpy(features[t, e], self._encode_action(actions[t, e]), next_features[t, e], ids[t, e],
+                                      self.device)
 
     def _run_e_step(self, transitions: Transitions) -> None:
         """Remember the rollout's transitions; every ``e_step_interval`` rollouts, run the E-step and log it."""

@@ -7,7 +7,8 @@ began in an earlier rollout still counts as one. Each epoch of an E-step:
 
 1. **E**: the responsibilities of the components for every episode from all its evidence,
    ``r_k ∝ pi_k exp(beta * sum_t log p(x_{t+1} | x_t, a_t, z = k))`` (exact: ``z`` is categorical);
-2. **fit**: gradient steps on minibatches of transitions maximising ``E_r[log p(x_{t+1} | x_t, a_t, z)]``,
+2. **fit**: gradient steps on minibatches of transitions (at most ``max_transitions`` of them, drawn at
+   random) maximising ``E_r[log p(x_{t+1} | x_t, a_t, z)]``,
    each transition weighted by its episode's responsibilities (``"enumerate"``, exact), or with one
    Gumbel-softmax sample of ``z`` per transition drawn from them (``"gumbel"``, the paper's estimator);
 
@@ -90,8 +91,10 @@ class EStep:
     :param learning_rate: Adam learning rate of the decoder
     :param n_epochs: EM iterations per E-step (responsibilities, then a pass of gradient steps)
     :param batch_size: transitions per gradient step
-    :param window: rollouts of transitions kept (every rollout is added, E-step or not)
-    :param max_transitions: at most this many transitions per E-step (the most recent)
+    :param window: rollouts of transitions kept (every rollout is added, E-step or not); the responsibilities
+        read all of them
+    :param max_transitions: transitions of each EM iteration's gradient pass, drawn at random from the kept ones
+        (all of them when fewer)
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param temperature: initial Gumbel-softmax temperature
     :param min_temperature: floor of the annealed temperature
@@ -138,8 +141,7 @@ class EStep:
             self.memory.append(transitions)
 
     def _data(self) -> Transitions:
-        data = Transitions.cat(list(self.memory))
-        return data.subset(slice(len(data) - self.max_transitions, None)) if len(data) > self.max_transitions else data
+        return Transitions.cat(list(self.memory))
 
     def responsibilities(self, data: Transitions) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
@@ -163,10 +165,12 @@ class EStep:
                 change = (data.next_features - data.features).std(dim=0) + 1e-3
                 self.model.decoder_log_std.copy_(change.log().clamp(*LOG_STD_BOUNDS))
         self.model.train(train)
-        for _ in range(self.n_epochs if train else 0):
-            log_r, index, _ = self.responsibilities(data)
-            order = th.randperm(len(data), generator=self.generator)
-            for start in range(0, len(data), self.batch_size):
+        log_r, index, evidence = self.responsibilities(data)
+        for epoch in range(self.n_epochs if train else 0):
+            if epoch:
+                log_r, index, evidence = self.responsibilities(data)
+            order = th.randperm(len(data), generator=self.generator)[: self.max_transitions]
+            for start in range(0, len(order), self.batch_size):
                 idx = order[start:start + self.batch_size]
                 log_lik = self.model.transition_log_likelihood(data.features[idx], data.actions[idx],
                                                                data.next_features[idx])
@@ -182,14 +186,15 @@ class EStep:
                 th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
                 self.optimizer.step()
         self.model.train(False)
-        log_r, _, evidence = self.responsibilities(data)
+        # The statistics and the prior come from the last iteration's responsibilities, taken before its gradient
+        # pass (as SB3 logs losses): one pass over the data fewer.
+        marginal = th.logsumexp(evidence + self.model.log_prior, dim=-1).sum() / self.likelihood_temperature
         revived = 0
         if train:
             self.n_updates += 1
             self.model.set_prior(log_r.exp())  # pi in closed form
             revived = self._revive_starved_components()
         prior = self.model.prior()
-        marginal = th.logsumexp(evidence + self.model.log_prior, dim=-1).sum() / self.likelihood_temperature
         return {
             "log_likelihood": float(marginal / len(data)),
             "posterior_entropy": float(-(log_r.exp() * log_r).sum(-1).mean()),

@@ -43,6 +43,8 @@ def reserve_features(layout: dict) -> FeatureFn:
     def pool(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         n, (h, w) = len(values), shape
         ph, pw = (h + 1) // 2, (w + 1) // 2
+        if (h, w) == (2 * ph, 2 * pw):  # even sides: no padding needed
+            return values.reshape(n, ph, 2, pw, 2).max(axis=(2, 4)).reshape(n, -1)
         padded = np.zeros((n, 2 * ph, 2 * pw), dtype=np.float32)
         padded[:, :h, :w] = values.reshape(n, h, w)
         return padded.reshape(n, ph, 2, pw, 2).max(axis=(2, 4)).reshape(n, -1)
