@@ -55,7 +55,7 @@ benchmark-em: install
 benchmark-em-speed: install
 	$(PYTHON) benchmarks/em_speed.py
 
-# EM-PPO with default arguments on the two hidden-mode tasks, against PPO told the mode and plain PPO (about 15 minutes).
+# EM-PPO with default arguments on the two hidden-mode tasks, against PPO told the mode and plain PPO (about 30 minutes).
 benchmark-latent-tasks: install
 	$(PYTHON) benchmarks/latent_tasks.py
 

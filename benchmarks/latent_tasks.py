@@ -9,7 +9,7 @@ the task whose observation ends with the mode's one-hot (``told``). Each is then
 latent accuracy is measured over the second half of 40 held-out episodes (beliefs from its belief
 wrapper; components aligned to modes by Hungarian matching).
 
-Example: ``python benchmarks/latent_tasks.py`` (or ``make benchmark-latent-tasks``; about 15 minutes)
+Example: ``python benchmarks/latent_tasks.py`` (or ``make benchmark-latent-tasks``; about 30 minutes)
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 from sb3_emmarl.zoo.benchmark import paired_p_value
 
 #: Budget (agent-steps) of each task's runs: where EM-PPO's defaults reach the targets in our runs.
-BUDGETS = {"cue": 100_000, "dynamics": 200_000}
+BUDGETS = {"cue": 100_000, "dynamics": 300_000}
 VARIANTS = ("em_ppo", "told_ppo", "ppo")
 N_ENVS = 8
 

@@ -31,6 +31,8 @@ CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "cppo": PPO,  # Centralized PPO
 }
 ZOO_ALGOS: dict[str, type[BaseAlgorithm]] = {**SHARED_ALGOS, **CENTRALIZED_ALGOS}
+#: The EM algorithms (they add their belief wrapper themselves; the zoo logs their latent metrics).
+LATENT_ALGOS = ("em_ppo", "em_ddpg")
 #: Algorithms trained with another algorithm's hyperparameter file (the same settings by construction).
 SHARED_HYPERPARAMS: dict[str, str] = {"oracle_ppo": "ppo"}
 

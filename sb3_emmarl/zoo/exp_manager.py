@@ -28,11 +28,10 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
-from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
+from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -115,5 +114,5 @@ class ReserveExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         super().create_callbacks()
         self.callbacks.append(TeamMetricsCallback())
-        if issubclass(ZOO_ALGOS[self.algo], LatentAlgorithmMixin):
+        if self.algo in LATENT_ALGOS:
             self.callbacks.append(LatentMetricsCallback())
