@@ -21,6 +21,10 @@ def test_summarize_on_hand_built_records():
     assert summary["detection_rate"] == (2.0, 1.0)
     assert list(summary) == list(TEAM_METRICS)
     assert "detection_rate" in format_summary(summary, "title").splitlines()[3]
+    with_latent = [{**r, "latent_accuracy_50": a, "latent_nmi": 0.5} for r, a in zip(records, (0.25, 0.75))]
+    summary = summarize(with_latent)  # the latent metrics a record holds follow the team's
+    assert list(summary) == [*TEAM_METRICS, "latent_accuracy_50", "latent_nmi"]
+    assert summary["latent_accuracy_50"] == (0.5, 0.25)
 
 
 def test_summarize_rejects_bad_records():

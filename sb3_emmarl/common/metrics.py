@@ -18,17 +18,23 @@ TEAM_METRICS: tuple[str, ...] = (
     "time_to_first_detection",
     "signs_found",
 )
+#: What ``evaluate_team`` adds for a model with a latent belief (see ``LatentTracker``).
+LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", "latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100",
+                                   "latent_kl", "latent_nmi")
 
 
-def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] = TEAM_METRICS) -> dict[str, tuple[float, float]]:
+def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] | None = None) -> dict[str, tuple[float, float]]:
     """Mean and (population) standard deviation of each metric over episodes.
 
     :param records: one metrics dict per episode
-    :param keys: which metrics to summarise
+    :param keys: which metrics to summarise (None: :data:`TEAM_METRICS`, then the :data:`LATENT_METRICS` the
+        records hold)
     :return: ``{metric: (mean, std)}``
     """
     if not records:
         raise ValueError("summarize needs at least one episode record")
+    if keys is None:
+        keys = (*TEAM_METRICS, *(k for k in LATENT_METRICS if k in records[0]))
     missing = [k for k in keys if k not in records[0]]
     if missing:
         raise ValueError(f"episode records lack the metrics {missing}; they have {sorted(records[0])}")
