@@ -58,8 +58,6 @@ class LatentMetricsCallback(BaseCallback):
     :param verbose: verbosity
     """
 
-    FRACTIONS = (0.25, 0.5, 1.0)
-
     def _init_callback(self) -> None:
         #: (belief, mode) of every step of each entry's running episode, and of the episodes finished this rollout
         self.current: list[list[tuple[np.ndarray, int]]] = [[] for _ in range(self.training_env.num_envs)]
@@ -80,7 +78,13 @@ class LatentMetricsCallback(BaseCallback):
         return True
 
     def _on_rollout_end(self) -> None:
-        from sb3_emmarl.common.latent.metrics import align_components, normalized_mutual_information
+        from sb3_emmarl.common.latent.metrics import (
+            EPISODE_FRACTIONS,
+            align_components,
+            fraction_label,
+            fraction_step,
+            normalized_mutual_information,
+        )
 
         episodes = [e for e in self.finished if len(e) >= 2]
         if not episodes:
@@ -89,7 +93,7 @@ class LatentMetricsCallback(BaseCallback):
         modes = np.array([m for e in episodes for _, m in e])
         mapping = align_components(beliefs, modes)
         self.logger.record("latent/nmi", normalized_mutual_information(beliefs.argmax(1), modes))
-        for fraction in self.FRACTIONS:
-            picks = [e[max(0, int(np.ceil(fraction * len(e))) - 1)] for e in episodes]
+        for fraction in EPISODE_FRACTIONS:
+            picks = [e[fraction_step(fraction, len(e))] for e in episodes]
             correct = [mapping[int(np.argmax(b))] == m for b, m in picks]
-            self.logger.record(f"latent/accuracy_{round(100 * fraction)}", float(np.mean(correct)))
+            self.logger.record(f"latent/accuracy_{fraction_label(fraction)}", float(np.mean(correct)))

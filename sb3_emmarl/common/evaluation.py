@@ -150,9 +150,6 @@ class LatentTracker:
     through the episode, over the team's agents), ``latent_kl`` and the overall ``latent_nmi``.
     """
 
-    #: Fractions of an episode at which the accuracy is reported.
-    FRACTIONS = (0.25, 0.5, 1.0)
-
     def __init__(self, model: Any, vec_env: VecEnv) -> None:
         self.model = model
         self.steps = np.zeros(vec_env.num_envs, dtype=np.int64)
@@ -172,7 +169,14 @@ class LatentTracker:
             self.step_index.append(self.steps[keep].copy())
 
     def annotate(self, records: list[dict[str, Any]]) -> None:
-        from sb3_emmarl.common.latent.metrics import align_components, latent_kl, normalized_mutual_information
+        from sb3_emmarl.common.latent.metrics import (
+            EPISODE_FRACTIONS,
+            align_components,
+            fraction_label,
+            fraction_step,
+            latent_kl,
+            normalized_mutual_information,
+        )
 
         if not self.posteriors:
             return
@@ -189,6 +193,6 @@ class LatentTracker:
             record["latent_kl"] = latent_kl(posteriors[mine], modes[mine], mapping)
             record["latent_nmi"] = nmi
             length = int(steps[mine].max()) + 1  # steps acted on in this episode
-            for fraction in self.FRACTIONS:
-                at = mine & (steps == max(0, int(np.ceil(fraction * length)) - 1))
-                record[f"latent_accuracy_{round(100 * fraction)}"] = float(correct[at].mean())
+            for fraction in EPISODE_FRACTIONS:
+                at = mine & (steps == fraction_step(fraction, length))
+                record[f"latent_accuracy_{fraction_label(fraction)}"] = float(correct[at].mean())

@@ -6,6 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sb3_emmarl.common.latent.metrics import EPISODE_FRACTIONS, fraction_label
+
 #: The reserve's episode metrics in the order tables show them.
 TEAM_METRICS: tuple[str, ...] = (
     "team_reward",
@@ -19,7 +21,7 @@ TEAM_METRICS: tuple[str, ...] = (
     "signs_found",
 )
 #: What ``evaluate_team`` adds for a model with a latent belief (see ``LatentTracker``).
-LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", "latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100",
+LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", *(f"latent_accuracy_{fraction_label(f)}" for f in EPISODE_FRACTIONS),
                                    "latent_kl", "latent_nmi")
 
 

@@ -14,7 +14,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -73,7 +73,7 @@ class LatentAlgorithmMixin:
                             ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling)):
             if not isinstance(value, (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {value!r}")
-        self.n_components, self.likelihood_temperature = n_components, float(likelihood_temperature)
+        self.likelihood_temperature = float(likelihood_temperature)
         self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
         self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
         self.e_step_kwargs = {**E_STEP_DEFAULTS, **(e_step_kwargs or {})}
@@ -114,7 +114,7 @@ class LatentAlgorithmMixin:
 
     @property
     def agents_per_copy(self) -> int:
-        return int(getattr(self.env, "agents_per_copy", 1)) if self.env is not None else 1
+        return agents_per_copy(self.env) if self.env is not None else 1
 
     # ------------------------------------------------------------------ the E-step, from train()
     def _features(self, observations: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from scipy.special import log_softmax
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
@@ -99,8 +100,7 @@ class BeliefTracker:
         evidence = self.evidence[indices] + self.heard[indices].sum(axis=1)
         if self.model is not None:
             evidence = evidence + self.model.log_prior.detach().cpu().double().numpy()
-        evidence = evidence - evidence.max(axis=1, keepdims=True)
-        return evidence - np.log(np.exp(evidence).sum(axis=1, keepdims=True))
+        return log_softmax(evidence, axis=1)
 
     def beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
         """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities."""
@@ -179,10 +179,12 @@ class BeliefWrapper(VecEnvWrapper):
         features = self.feature_fn(observations)
         done_idx = np.flatnonzero(dones)
         tracker = self.tracker
+        following = features
         if len(done_idx):  # the episode's last transition leads to its terminal observation
             terminal = np.stack([infos[i]["terminal_observation"] for i in done_idx])
-            features[done_idx] = self.feature_fn(terminal)
-        tracker.advance(np.arange(self.num_envs), features)
+            following = features.copy()
+            following[done_idx] = self.feature_fn(terminal)
+        tracker.advance(np.arange(self.num_envs), following)
         tracker.fuse(infos)
         if len(done_idx):
             terminal_beliefs = tracker.beliefs(done_idx)
@@ -190,7 +192,7 @@ class BeliefWrapper(VecEnvWrapper):
             for row, i in enumerate(done_idx):
                 infos[i] = dict(infos[i])
                 infos[i]["terminal_observation"] = self._augment(terminal[row:row + 1], terminal_beliefs[row:row + 1])[0]
-            tracker.start(done_idx, self.feature_fn(observations[done_idx]))
+            tracker.start(done_idx, features[done_idx])
         return self._augment(observations, tracker.beliefs()), rewards, dones, infos
 
 

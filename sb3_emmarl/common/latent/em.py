@@ -51,9 +51,6 @@ class Transitions:
     def cat(parts: list[Transitions]) -> Transitions:
         return Transitions(*(th.cat([getattr(p, name) for p in parts]) for name in FIELDS))
 
-    def subset(self, index: th.Tensor | slice) -> Transitions:
-        return Transitions(*(getattr(self, name)[index] for name in FIELDS))
-
     @staticmethod
     def from_numpy(features: np.ndarray, actions: np.ndarray, next_features: np.ndarray, episodes: np.ndarray,
                    device: th.device | str = "cpu") -> Transitions:

@@ -22,6 +22,18 @@ from scipy.special import rel_entr
 
 #: Tolerance on the sum of each posterior row.
 ROW_SUM_TOLERANCE = 1e-4
+#: Fractions of an episode at which the latent accuracy is reported (evaluation and training logs alike).
+EPISODE_FRACTIONS = (0.25, 0.5, 1.0)
+
+
+def fraction_step(fraction: float, length: int) -> int:
+    """Index of the step ``fraction`` of the way through an episode of ``length`` steps (the last for 1.0)."""
+    return max(0, int(np.ceil(fraction * length)) - 1)
+
+
+def fraction_label(fraction: float) -> str:
+    """The percentage that names a fraction in metric keys: ``0.25`` -> ``"25"``."""
+    return str(round(100 * fraction))
 
 
 def _check_posteriors(posteriors: Any) -> np.ndarray:
