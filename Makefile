@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mode-value
+	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -66,3 +66,12 @@ benchmark-mode-evidence: install
 # How much knowing the hidden mode pays: PPO told the mode against plain PPO, 5 seeds x 500k agent-steps (about 25 minutes).
 benchmark-mode-value: install
 	$(PYTHON) benchmarks/mode_value.py
+
+# Runs that survive: 20 SIGKILLs at random moments per algorithm (PPO, EM-PPO), resumed and compared with uninterrupted runs (about 25 minutes).
+benchmark-kill-resume: install
+	$(PYTHON) benchmarks/kill_resume.py --kills 20 -n 32768 --save-freq 2048
+
+# Fuzz the reserve's arguments (1000 sets) and the zoo's hyperparameters and flags (622 cases); prints the counts (about 2 minutes).
+benchmark-fuzz: install
+	$(PYTHON) benchmarks/fuzz_reserve.py --cases 1000 --seed 0
+	$(PYTHON) benchmarks/fuzz_zoo.py

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 import torch as th
-import yaml
 
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.benchmark import paired_p_value
+from sb3_emmarl.zoo.exp_manager import read_yaml
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
 
@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[bool, list[dict]] = {True: [], False: []}
     for seed in args.seeds:
         run = latest_run(Path(args.folder) / args.variant / f"seed_{seed}", args.algo)
-        config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+        config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
         model = ZOO_ALGOS[args.algo].load(run / f"{ENV_ID}.zip", device="cpu")
         for fusion in (True, False):
             model.fusion = fusion

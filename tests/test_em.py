@@ -321,14 +321,16 @@ def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"n_components": 0}, "n_components must be an int >= 1"),
-        ({"estimator": "mc"}, "estimator must be 'enumerate' or 'gumbel'"),
+        ({"n_components": 0}, r"n_components must be an int in \[1, 64\], got 0"),
+        ({"estimator": "mc"}, r"estimator must be one of \['enumerate', 'gumbel'\], got 'mc'"),
         ({"e_step_kwargs": {"epochs": 3}}, r"e_step_kwargs keys must be among"),
-        ({"e_step_kwargs": {"n_epochs": 0}}, r"n_epochs must be an int >= 1"),
-        ({"likelihood_temperature": 0.0}, "likelihood_temperature must be a number > 0"),
-        ({"fusion": "no"}, "fusion must be True or False"),
-        ({"decoder_hidden": "64"}, "decoder_hidden must be a sequence of ints"),
-        ({"e_step_interval": 0}, "e_step_interval must be an int >= 1"),
+        ({"e_step_kwargs": {"n_epochs": 0}}, r"e_step_kwargs\['n_epochs'\] must be an int in \[1, 1000\], got 0"),
+        ({"e_step_kwargs": {"learning_rate": float("inf")}}, r"e_step_kwargs\['learning_rate'\] must be a number"),
+        ({"likelihood_temperature": 0.0}, r"likelihood_temperature must be a number in \(0.0, 100.0\], got 0.0"),
+        ({"fusion": "no"}, "fusion must be true or false, got 'no'"),
+        ({"decoder_hidden": "64"}, "decoder_hidden must be a list of layer sizes"),
+        ({"decoder_hidden": [64, -1]}, r"decoder_hidden\[1\] must be an int in \[1, 4096\], got -1"),
+        ({"e_step_interval": 0}, r"e_step_interval must be an int in \[1, 10000\], got 0"),
     ],
 )
 def test_bad_em_settings_are_rejected(kwargs, message):
@@ -404,3 +406,12 @@ def test_training_logs_latent_accuracy_over_the_episode(tmp_path):
     for key in ("latent/accuracy_25", "latent/accuracy_50", "latent/accuracy_100", "latent/nmi"):
         values = [e.value for e in accumulator.Scalars(key)]
         assert values and all(0.0 <= v <= 1.0 for v in values), key
+
+
+def test_every_e_step_default_has_a_validation_rule():
+    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+    from sb3_emmarl.common.validation import E_STEP_RULES
+
+    assert set(E_STEP_RULES) == set(E_STEP_DEFAULTS)
+    for name, value in E_STEP_DEFAULTS.items():
+        assert E_STEP_RULES[name](name, value) == value

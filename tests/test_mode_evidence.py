@@ -100,8 +100,8 @@ def test_the_script_says_when_it_keeps_a_subset_of_uavs(evidence, capsys):
                                             (["--patrols", "lawnmower"], "'lawnmower'"),
                                             (["--env-kwargs", "[1, 2]"], "must be a dict literal of the reserve's arguments, "
                                                                          "got '[1, 2]'"),
-                                            (["--env-kwargs", "dict(n_uavs=0)"], "n_uavs must be >= 1"),
-                                            (["--env-kwargs", "{'n_uavs': 0}"], "n_uavs must be >= 1"),
+                                            (["--env-kwargs", "dict(n_uavs=0)"], "n_uavs must be in [1, 1000], got 0"),
+                                            (["--env-kwargs", "{'n_uavs': 0}"], "n_uavs must be in [1, 1000], got 0"),
                                             (["--env-kwargs", "{'n_drones': 2}"], "n_drones"),
                                             (["--env-kwargs", "{'continuous_actions': True}"], "continuous_actions=False")])
 def test_bad_arguments_are_rejected_by_name(evidence, flags, message, capsys):

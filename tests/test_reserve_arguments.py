@@ -7,11 +7,11 @@ from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.config import ReserveConfig
 
 BAD = [
-    ({"n_uavs": 0}, r"n_uavs must be >= 1, got 0"),
-    ({"n_uavs": 2.5}, r"n_uavs must be an int"),
-    ({"sensor_radius": 0}, r"sensor_radius must be >= 1"),
-    ({"comm_radius": -1.0}, r"comm_radius must be >= 0.0, got -1.0"),
-    ({"jam_radius": -3}, r"jam_radius must be >= 0.0"),
+    ({"n_uavs": 0}, r"n_uavs must be in \[1, 1000\], got 0"),
+    ({"n_uavs": 2.5}, r"n_uavs must be an int in \[1, 1000\], got 2.5 \(float\)"),
+    ({"sensor_radius": 0}, r"sensor_radius must be in \[1, 10\]"),
+    ({"comm_radius": -1.0}, r"comm_radius must be in \[0.0, 10000.0\], got -1.0"),
+    ({"jam_radius": -3}, r"jam_radius must be in \[0.0, 10000.0\]"),
     ({"sensor_noise": 1.5}, r"sensor_noise must be in \[0.0, 1.0\], got 1.5"),
     ({"comm_loss": -0.1}, r"comm_loss must be in \[0.0, 1.0\]"),
     ({"comm_loss": float("nan")}, r"comm_loss must be a finite number"),
@@ -28,11 +28,12 @@ BAD = [
     ({"risk": np.full((10, 10), 1.5), "grid_size": 10}, r"risk values must be finite and in \[0, 1\]"),
     ({"mode": 8}, r"mode must be in \[0, 7\], got 8"),
     ({"mode_prior": [1, 2]}, r"mode_prior must be 8 non-negative weights"),
-    ({"max_cycles": 0}, r"max_cycles must be >= 1"),
-    ({"n_poachers": -1}, r"n_poachers must be >= 0"),
-    ({"belief_size": 200, "grid_size": 50}, r"belief_size must be in \[1, 50\]"),
+    ({"max_cycles": 0}, r"max_cycles must be in \[1, 100000\]"),
+    ({"n_poachers": -1}, r"n_poachers must be in \[0, 1000\]"),
+    ({"belief_size": 200, "grid_size": 50}, r"belief_size must be in \[1, 16\], got 200"),
+    ({"belief_size": 12, "grid_size": 10}, r"belief_size must be in \[1, 10\], got 12"),
     ({"reward_weights": {"bananas": 1.0}}, r"reward_weights keys must be among"),
-    ({"reward_weights": {"energy": -1.0}}, r"reward_weights\['energy'\] must be >= 0.0"),
+    ({"reward_weights": {"energy": -1.0}}, r"reward_weights\['energy'\] must be in \[0.0, 1000000.0\], got -1.0"),
     ({"render_mode": "ascii"}, r"render_mode must be None, 'human' or 'rgb_array', got 'ascii'"),
 ]
 
@@ -46,6 +47,11 @@ def test_bad_argument_raises_value_error_naming_it(kwargs, message):
 
 
 def test_unknown_keyword_is_rejected():
+    # A ValueError like every argument error, naming it and listing the arguments; also a TypeError (what Python
+    # raises for an unexpected keyword) for callers that catch that.
+    for make in (reserve_v0.parallel_env, reserve_v0.env, reserve_v0.raw_env):
+        with pytest.raises(ValueError, match=r"unknown argument 'n_drones' of the reserve; the arguments are: n_uavs, "):
+            make(n_drones=3)
     with pytest.raises(TypeError, match="n_drones"):
         reserve_v0.parallel_env(n_drones=3)
 

@@ -67,7 +67,7 @@ def test_patrol_script_prints_the_team_metrics():
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--env-kwargs", "n_uavs:0"], "n_uavs must be >= 1, got 0"),
+        (["--env-kwargs", "n_uavs:0"], "n_uavs must be in [1, 1000], got 0"),
         (["--env-kwargs", "n_drones:3"], "n_drones"),
         (["--env-kwargs", "n_uavs=3"], "expects key:value pairs"),
         (["--env-kwargs", "region:forest"], "is not a valid Python value"),

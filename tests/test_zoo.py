@@ -4,18 +4,18 @@ import json
 from pathlib import Path
 
 import pytest
-import yaml
 from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
 from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
+from sb3_emmarl.zoo.exp_manager import read_yaml
 
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 
 
 def load_config(run):
-    return dict(yaml.load((run / "WildlifeReserve-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader))
+    return dict(read_yaml(run / "WildlifeReserve-v0" / "config.yml", "the run's config"))
 
 
 def train(tmp_path, *extra):
@@ -75,7 +75,7 @@ def test_enjoy_without_a_run_fails_cleanly(tmp_path, capsys):
     ("args", "message"),
     [
         (["--env-kwargs", "n_drones:3"], "n_drones"),
-        (["--env-kwargs", "n_uavs:-1"], "n_uavs must be >= 1, got -1"),
+        (["--env-kwargs", "n_uavs:-1"], "n_uavs must be in [1, 1000], got -1"),
         (["--env-kwargs", "comm_loss:1.5"], "comm_loss must be in [0.0, 1.0], got 1.5"),
         (["-params", "n_stepz:32"], "n_stepz"),
     ],
@@ -95,7 +95,7 @@ def test_malformed_yaml_stops_with_its_name(tmp_path, capsys):
     missing = tmp_path / "other.yml"
     missing.write_text("CartPole-v1:\n  n_timesteps: 10\n")
     assert train(tmp_path, "-conf", str(missing)) == 2
-    assert "Hyperparameters not found" in capsys.readouterr().err
+    assert "has no mapping of hyperparameters under 'WildlifeReserve-v0'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -105,7 +105,7 @@ def test_malformed_yaml_stops_with_its_name(tmp_path, capsys):
         (["--env", "CartPole-v1"], "--env must be WildlifeReserve-v0"),
         (["--env-kwargs", "n_uavs=3"], "--env-kwargs expects key:value pairs, got 'n_uavs=3'"),
         (["--env-kwargs", "region:forest"], "--env-kwargs region: 'forest' is not a valid Python value"),
-        (["-n", "0"], "-n must be a positive number of timesteps"),
+        (["-n", "0"], "argument -n/--n-timesteps: must be an int in [1, 10000000000] or -1, got 0"),
     ],
 )
 def test_bad_flags_are_rejected_by_the_parser(capsys, args, message):

@@ -22,13 +22,14 @@ The adapter replaces SuperSuit's ``SB3VecEnvWrapper`` and mends its faults:
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
 import numpy as np
 from pettingzoo import ParallelEnv
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecMonitor
+from stable_baselines3.common.vec_env import VecCheckNan, VecEnv, VecEnvWrapper, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv
 
@@ -119,6 +120,30 @@ class SharedPolicyVecEnv(VecEnv):
                 infos[start + index] = info
         return infos
 
+    # -------------------------------------------------------------- state, for checkpoints
+    def get_state(self) -> bytes:
+        """The copies mid-episode (their reserves and random generators), pickled, for checkpoints that resume
+        exactly where a run stopped.
+
+        :raise ValueError: with worker processes (``num_cpus > 1``), whose copies this process cannot read
+        """
+        if self.multiprocess:
+            raise ValueError("the reserve copies live in worker processes (num_cpus > 1) and cannot be checkpointed; "
+                             "train with copies in this process (the zoo's --vec-env dummy) to resume runs exactly")
+        from sb3_emmarl.common.checkpoints import dumps  # keeps the reserves' numpy views views
+
+        return dumps({"venv": self.venv, "copy_seeds": self._copy_seeds, "never_reset": self._never_reset,
+                             "reset_infos": self.reset_infos})
+
+    def set_state(self, state: bytes) -> None:
+        """Restore :meth:`get_state` (the copies then continue their episodes)."""
+        if self.multiprocess:
+            raise ValueError("cannot restore reserve copies into worker processes (num_cpus > 1)")
+        saved = pickle.loads(state)
+        self.venv.close()
+        self.venv, self._copy_seeds = saved["venv"], saved["copy_seeds"]
+        self._never_reset, self.reset_infos = saved["never_reset"], saved["reset_infos"]
+
     # -------------------------------------------------------------- stepping
     def step_async(self, actions: np.ndarray) -> None:
         self.venv.step_async(actions)
@@ -171,6 +196,40 @@ class SharedPolicyVecEnv(VecEnv):
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """Render reserve copy 0 (its ``render_mode`` is set when the environment is built)."""
         return self.venv.render()
+
+
+class FiniteCheck(VecCheckNan):
+    """SB3's ``VecCheckNan`` that stops at the first NaN or inf with a short message naming the quantity
+    (observations, rewards or actions), the step of the vector environment, the entries and where it came from.
+
+    :param venv: the vector environment to guard
+    """
+
+    SOURCES = {"reset": "the environment, at reset", "step_wait": "the environment",
+               "step_async": "the policy (the actions it chose)"}
+
+    def __init__(self, venv: VecEnv) -> None:
+        super().__init__(venv, raise_exception=True, check_inf=True)
+        self.n_steps = 0
+
+    def step_wait(self) -> VecEnvStepReturn:
+        self.n_steps += 1
+        return super().step_wait()
+
+    def _check_val(self, event: str, **kwargs: Any) -> None:
+        for name, value in kwargs.items():
+            parts = value.items() if isinstance(value, dict) else [("", value)]
+            for key, part in parts:
+                array = np.asarray(part)
+                if array.dtype.kind not in "fc":
+                    continue
+                bad = ~np.isfinite(array)
+                if bad.any():
+                    kinds = sorted({"nan" if np.isnan(v) else "inf" for v in array[bad].ravel()[:100]})
+                    entries = np.unique(np.nonzero(bad)[0])[:10].tolist()
+                    raise ValueError(f"non-finite {name}{'.' + key if key else ''} ({' and '.join(kinds)}) at step "
+                                     f"{self.n_steps} of the vector environment, entries {entries}; they come from "
+                                     f"{self.SOURCES[event]}")
 
 
 def make_vec_env(

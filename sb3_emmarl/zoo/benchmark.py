@@ -9,13 +9,13 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import yaml
 from scipy import stats
 
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import KeyValues, train_main
+from sb3_emmarl.zoo.exp_manager import read_yaml
 
 #: Metrics in the comparison table.
 TABLE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "poaching_events", "collisions")
@@ -77,7 +77,7 @@ def benchmark_main(argv: list[str] | None = None) -> int:
             wall = time.perf_counter() - start
             run = Path(args.log_folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(args.log_folder) / algo), ENV_ID)}"
             model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
-            config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+            config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
             run_env_kwargs = dict(config.get("env_kwargs") or {})
             trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=run_env_kwargs)
             # The random team acts in the model's action space (per UAV, or joint for a centralised model).
@@ -204,7 +204,7 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
     run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
     stats = json.loads((run / "run_stats.json").read_text())
     model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
-    config = yaml.load((run / ENV_ID / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
     records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
     row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
     print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()),

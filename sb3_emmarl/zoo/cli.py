@@ -1,8 +1,11 @@
 """Command lines of the zoo: ``zoo/train.py`` and ``zoo/enjoy.py`` call :func:`train_main` / :func:`enjoy_main`.
 
 The flags are rl-baselines3-zoo's (``--algo --env -n --seed --tensorboard-log --eval-freq --env-kwargs
---hyperparams -f -optimize --storage --study-name --n-trials``...). Every input is checked before any
-training starts; a run that fails while being set up leaves no folder behind.
+--hyperparams -f -i -optimize --storage --study-name --n-trials``...), plus ``--resume`` to continue a
+stopped run. Every input is checked before any training starts (flags by their argparse types, the
+hyperparameters by :mod:`sb3_emmarl.common.validation`, the reserve's arguments by the reserve): a bad one
+ends with exit code 2 and an ``error:`` line naming it, and leaves no folder behind. A run that fails
+while training (e.g. at a non-finite value) says why and where its checkpoints are.
 """
 
 from __future__ import annotations
@@ -21,9 +24,19 @@ import numpy as np
 import yaml
 
 from sb3_emmarl.common.centralized import ENV_ID
+from sb3_emmarl.common.checkpoints import (
+    TRAINING_STATE,
+    check_model_file,
+    check_saved_algorithm,
+    companion,
+    list_checkpoints,
+    write_text,
+)
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
+from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
+from wildlife_reserve import reserve_v0
 
 #: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
 TEAM_EVAL_SEED_OFFSET = 20_000
@@ -63,15 +76,26 @@ def train_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Train an agent on the wildlife reserve (rl-baselines3-zoo flags).")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
     parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
-    parser.add_argument("-n", "--n-timesteps", type=int, default=-1, help="overwrite the YAML's n_timesteps")
-    parser.add_argument("--seed", type=int, default=-1, help="random seed (-1: draw one)")
+    parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS, extra=(-1,)), default=-1,
+                        help="overwrite the YAML's n_timesteps (-1: the YAML's)")
+    parser.add_argument("--seed", type=int_flag(0, 2**32 - 1, extra=(-1,)), default=-1, help="random seed (-1: draw one)")
     parser.add_argument("-tb", "--tensorboard-log", default="", help="tensorboard log folder")
     parser.add_argument("-f", "--log-folder", default="logs", help="where runs are saved (logs/<algo>/<env>_<n>/)")
-    parser.add_argument("--eval-freq", type=int, default=25000, help="evaluate every n steps (<= 0: never)")
-    parser.add_argument("--eval-episodes", type=int, default=5, help="episodes per periodic evaluation")
-    parser.add_argument("--n-eval-envs", type=int, default=1, help="environments for periodic evaluation")
-    parser.add_argument("--save-freq", type=int, default=-1, help="checkpoint every n steps (<= 0: never)")
-    parser.add_argument("--team-eval-episodes", type=int, default=5,
+    parser.add_argument("-i", "--trained-agent", default="",
+                        help="continue training from this model or checkpoint zip (its replay buffer and VecNormalize "
+                             "statistics are loaded when saved beside it), in a new run folder, for -n more steps")
+    parser.add_argument("--resume", nargs="?", const="", default=None, metavar="RUN_FOLDER",
+                        help="continue a stopped run (default: the latest run of --log-folder/--algo) in its own folder "
+                             "from its newest checkpoint, with the run's own settings, up to its n_timesteps")
+    parser.add_argument("--eval-freq", type=int_flag(-1, MAX_TIMESTEPS), default=25000,
+                        help="evaluate every n steps (0 or -1: never)")
+    parser.add_argument("--eval-episodes", type=int_flag(1, 10_000), default=5, help="episodes per periodic evaluation")
+    parser.add_argument("--n-eval-envs", type=int_flag(1, 64), default=1, help="environments for periodic evaluation")
+    parser.add_argument("--save-freq", type=int_flag(-1, MAX_TIMESTEPS), default=-1,
+                        help="checkpoint every n steps (0 or -1: never); checkpoints are atomic and resumable")
+    parser.add_argument("--save-replay-buffer", action="store_true",
+                        help="save the replay buffer with the final model and every checkpoint (off-policy algorithms)")
+    parser.add_argument("--team-eval-episodes", type=int_flag(0, 10_000), default=5,
                         help="evaluation episodes whose team metrics are printed after training (0: none)")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
     parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation reserve arguments")
@@ -80,21 +104,22 @@ def train_parser() -> argparse.ArgumentParser:
     parser.add_argument("-conf", "--conf-file", default=None, help="YAML file instead of zoo/hyperparams/<algo>.yml")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"],
-                        help="subproc: reserve copies in worker processes")
-    parser.add_argument("--num-threads", type=int, default=1,
+                        help="subproc: reserve copies in worker processes (checkpoints then resume with new episodes)")
+    parser.add_argument("--num-threads", type=int_flag(1, 1024, extra=(-1,)), default=1,
                         help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
-    parser.add_argument("--log-interval", type=int, default=-1, help="override the log interval (-1: default)")
-    parser.add_argument("--device", default="auto", help="torch device")
-    parser.add_argument("--verbose", type=int, default=1, help="0: quiet, 1: info")
+    parser.add_argument("--log-interval", type=int_flag(-2, 10**6), default=-1,
+                        help="override the log interval (-1: default, -2: none)")
+    parser.add_argument("--device", type=device_flag, default="auto", help="torch device")
+    parser.add_argument("--verbose", type=int_flag(0, 2), default=1, help="0: quiet, 1: info")
     parser.add_argument("-uuid", "--uuid", action="store_true", help="unique run folder name")
     parser.add_argument("-optimize", "--optimize-hyperparameters", action="store_true", help="optuna search")
-    parser.add_argument("--n-trials", type=int, default=10, help="optuna trials")
-    parser.add_argument("--max-total-trials", type=int, default=None, help="optuna trials over all workers")
-    parser.add_argument("--n-jobs", type=int, default=1, help="parallel optuna jobs")
+    parser.add_argument("--n-trials", type=int_flag(1, 10**5), default=10, help="optuna trials")
+    parser.add_argument("--max-total-trials", type=int_flag(1, 10**5), default=None, help="optuna trials over all workers")
+    parser.add_argument("--n-jobs", type=int_flag(1, 64), default=1, help="parallel optuna jobs")
     parser.add_argument("--sampler", default="tpe", choices=["random", "tpe", "auto"], help="optuna sampler")
     parser.add_argument("--pruner", default="median", choices=["halving", "median", "none"], help="optuna pruner")
-    parser.add_argument("--n-startup-trials", type=int, default=10, help="random trials before the sampler")
-    parser.add_argument("--n-evaluations", type=int, default=None, help="evaluations per optuna trial")
+    parser.add_argument("--n-startup-trials", type=int_flag(0, 10**5), default=10, help="random trials before the sampler")
+    parser.add_argument("--n-evaluations", type=int_flag(1, 10**4), default=None, help="evaluations per optuna trial")
     parser.add_argument("--storage", default=None, help="optuna storage (default SQLite file; an RDB URL for many machines)")
     parser.add_argument("--study-name", default=None, help="optuna study name")
     parser.add_argument("--optimization-log-path", default=None, help="where optuna trials log")
@@ -105,12 +130,63 @@ def train_parser() -> argparse.ArgumentParser:
 def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.env != ENV_ID:
         parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
-    if args.n_timesteps == 0 or args.n_timesteps < -1:
-        parser.error(f"-n must be a positive number of timesteps, got {args.n_timesteps}")
-    if args.team_eval_episodes < 0:
-        parser.error(f"--team-eval-episodes must be >= 0, got {args.team_eval_episodes}")
     if args.conf_file is not None and not Path(args.conf_file).is_file():
         parser.error(f"--conf-file {args.conf_file!r} does not exist")
+    if args.trained_agent:
+        try:
+            check_model_file(args.trained_agent)
+            check_saved_algorithm(args.trained_agent, ZOO_ALGOS[args.algo], ZOO_ALGOS)
+        except ValueError as error:
+            parser.error(f"-i/--trained-agent: {error}")
+
+
+def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[argparse.Namespace, Path] | None:
+    """The stopped run's own arguments and its newest checkpoint (None if the run already finished)."""
+    from sb3_emmarl.zoo.exp_manager import read_yaml
+
+    if args.resume:
+        run = Path(args.resume)
+    else:
+        runs = sorted(Path(args.log_folder, args.algo).glob(f"{ENV_ID}_*"),
+                      key=lambda path: int(path.name.rsplit("_", 1)[-1]) if path.name.rsplit("_", 1)[-1].isdigit() else -1)
+        if not runs:
+            parser.error(f"--resume: no run of {args.algo} in {Path(args.log_folder, args.algo)}")
+        run = runs[-1]
+    args_file = run / ENV_ID / "args.yml"
+    if not args_file.is_file():
+        parser.error(f"--resume: {run} is not a run folder of the zoo (no {ENV_ID}/args.yml)")
+    try:
+        saved = read_yaml(args_file, "the run's arguments")
+    except ValueError as error:
+        parser.error(f"--resume: {error}")
+    if not isinstance(saved, dict) or saved.get("algo") not in ZOO_ALGOS:
+        parser.error(f"--resume: {args_file} does not hold a zoo run's arguments")
+    if (run / f"{ENV_ID}.zip").is_file():
+        print(f"{run} has finished (its final model {ENV_ID}.zip exists): nothing to resume")
+        return None
+    for leftover in run.rglob(".*.tmp"):  # a file being written when the run stopped (its previous version is intact)
+        leftover.unlink()
+    checkpoints = list_checkpoints(run)
+    if not checkpoints:
+        parser.error(f"--resume: {run} has no checkpoint (train with --save-freq to make runs resumable)")
+    steps, checkpoint = checkpoints[-1]
+    check_model_file(checkpoint)
+    resumed = {**vars(parser.parse_args([])), **{k: v for k, v in saved.items() if k in vars(args)}}
+    resumed.update(resume=str(run), trained_agent=str(checkpoint), progress=args.progress, verbose=args.verbose)
+    state = companion(checkpoint, TRAINING_STATE)
+    print(f"Resuming {run} from {checkpoint.name} (step {steps}"
+          f"{', with its training state' if state is not None and state.is_file() else ', without training state'})")
+    return argparse.Namespace(**resumed), run
+
+
+def _remove_run_folder(manager: Any) -> None:
+    """Remove a run folder this invocation created (and ``logs/<algo>/`` if that left it empty)."""
+    if manager is None or not manager.created_folder or not Path(manager.save_path).is_dir():
+        return
+    shutil.rmtree(manager.save_path)
+    algo_folder = Path(manager.save_path).parent
+    if algo_folder.is_dir() and not any(algo_folder.iterdir()):
+        algo_folder.rmdir()
 
 
 def train_main(argv: list[str] | None = None) -> int:
@@ -123,6 +199,14 @@ def train_main(argv: list[str] | None = None) -> int:
 
     parser = train_parser()
     args = parser.parse_args(argv)
+    resume_run = None
+    if args.resume is not None:
+        if args.trained_agent:
+            parser.error("give -i/--trained-agent or --resume, not both")
+        resumed = _resume_args(parser, args)
+        if resumed is None:
+            return 0
+        args, resume_run = resumed
     _check_train_args(parser, args)
     if args.seed < 0:
         args.seed = int(np.random.randint(2**31 - 1))
@@ -138,18 +222,18 @@ def train_main(argv: list[str] | None = None) -> int:
     try:
         manager = ReserveExperimentManager(
             args, args.algo, args.env, args.log_folder, args.tensorboard_log, args.n_timesteps, args.eval_freq,
-            args.eval_episodes, args.save_freq, args.hyperparams, args.env_kwargs, args.eval_env_kwargs, "",
-            args.optimize_hyperparameters, args.storage, args.study_name, args.n_trials, args.max_total_trials,
-            args.n_jobs, args.sampler, args.pruner, args.optimization_log_path,
+            args.eval_episodes, args.save_freq, args.hyperparams, args.env_kwargs, args.eval_env_kwargs,
+            args.trained_agent, args.optimize_hyperparameters, args.storage, args.study_name, args.n_trials,
+            args.max_total_trials, args.n_jobs, args.sampler, args.pruner, args.optimization_log_path,
             n_startup_trials=args.n_startup_trials, n_evaluations=args.n_evaluations,
             uuid_str=f"_{uuid.uuid4()}" if args.uuid else "", seed=args.seed, log_interval=args.log_interval,
-            verbose=args.verbose, vec_env_type=args.vec_env, n_eval_envs=args.n_eval_envs,
-            no_optim_plots=args.no_optim_plots, device=args.device, config=args.conf_file, show_progress=args.progress,
+            save_replay_buffer=args.save_replay_buffer, verbose=args.verbose, vec_env_type=args.vec_env,
+            n_eval_envs=args.n_eval_envs, no_optim_plots=args.no_optim_plots, device=args.device,
+            config=args.conf_file, show_progress=args.progress, resume_run=resume_run,
         )
         results = manager.setup_experiment()
     except (ValueError, TypeError, KeyError, AssertionError, yaml.YAMLError, OSError) as error:
-        if manager is not None and Path(manager.save_path).is_dir():
-            shutil.rmtree(manager.save_path)  # nothing half-written is left behind
+        _remove_run_folder(manager)  # nothing half-written is left behind
         print(f"error: {error}", file=sys.stderr)
         return 2
     if results is None:
@@ -157,18 +241,31 @@ def train_main(argv: list[str] | None = None) -> int:
         return 0
     model, _ = results
     start = time.perf_counter()
-    manager.learn(model)
+    try:
+        manager.learn(model)
+    except (ValueError, RuntimeError, FloatingPointError) as error:
+        checkpoints = list_checkpoints(manager.save_path)
+        if checkpoints:
+            where = (f"the run folder {manager.save_path} keeps its checkpoints up to step {checkpoints[-1][0]} "
+                     f"and no final model; continue with --resume {manager.save_path}")
+        elif resume_run is None:
+            _remove_run_folder(manager)
+            where = f"no checkpoint had been written, so the run folder {manager.save_path} was removed"
+        else:
+            where = f"the run folder {manager.save_path} is left as it was"
+        print(f"error: training stopped at step {model.num_timesteps}: {error}\n{where}", file=sys.stderr)
+        return 1
     train_seconds = time.perf_counter() - start
     manager.save_trained_model(model)
     stats = {"train_seconds": train_seconds, "n_timesteps": int(model.num_timesteps),
              "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-    (Path(manager.save_path) / "run_stats.json").write_text(json.dumps(stats, indent=1))
+    write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:
         vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
                                 env_kwargs=manager.eval_env_kwargs,
                                 vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None)
-        (Path(manager.save_path) / "team_eval.json").write_text(json.dumps(records, indent=1))
+        write_text(Path(manager.save_path) / "team_eval.json", json.dumps(records, indent=1))
         eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
         title = f"{args.algo} on {ENV_ID}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
         print(format_summary(summarize(records), title))
@@ -180,18 +277,19 @@ def enjoy_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
     parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
     parser.add_argument("-f", "--folder", default="logs", help="log folder of the runs")
-    parser.add_argument("--exp-id", type=int, default=0, help="run number (0: the latest)")
+    parser.add_argument("--exp-id", type=int_flag(0, 10**6), default=0, help="run number (0: the latest)")
     parser.add_argument("--load-best", action="store_true", help="the best model of the periodic evaluations")
-    parser.add_argument("--load-checkpoint", type=int, default=None, help="the checkpoint of this step")
-    parser.add_argument("--episodes", type=int, default=3, help="evaluation episodes")
-    parser.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    parser.add_argument("--load-checkpoint", type=int_flag(1, MAX_TIMESTEPS), default=None,
+                        help="the checkpoint of this step")
+    parser.add_argument("--episodes", type=int_flag(1, 10_000), default=3, help="evaluation episodes")
+    parser.add_argument("--seed", type=int_flag(0, 2**32 - 1), default=0, help="evaluation seed")
     parser.add_argument("--deterministic", action="store_true",
                         help="the most likely actions instead of sampled ones (identical UAVs then tend to move in lockstep)")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="override the run's reserve arguments")
     parser.add_argument("-o", "--output", default=None, help="animation file, .gif or .mp4 (default: <run>/patrol.gif)")
     parser.add_argument("--no-record", action="store_true", help="print the metrics only")
-    parser.add_argument("--fps", type=int, default=10, help="animation frames per second")
-    parser.add_argument("--frame-skip", type=int, default=1, help="keep one frame in this many")
+    parser.add_argument("--fps", type=int_flag(1, 120), default=10, help="animation frames per second")
+    parser.add_argument("--frame-skip", type=int_flag(1, 10**4), default=1, help="keep one frame in this many")
     return parser
 
 
@@ -205,24 +303,28 @@ def enjoy_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.env != ENV_ID:
         parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
-    if args.episodes < 1:
-        parser.error(f"--episodes must be >= 1, got {args.episodes}")
     if args.output is not None and Path(args.output).suffix not in (".gif", ".mp4"):
         parser.error(f"--output must end in .gif or .mp4, got {args.output!r}")
+    from sb3_emmarl.common.checkpoints import load_model
+    from sb3_emmarl.zoo.exp_manager import read_yaml
+
     try:
         checkpoint = None if args.load_checkpoint is None else str(args.load_checkpoint)
         _, model_path, log_path = get_model_path(args.exp_id, args.folder, args.algo, EnvironmentName(args.env),
                                                  args.load_best, checkpoint)
+        params_path = Path(log_path) / args.env
+        config_file = params_path / "config.yml"
+        config = read_yaml(config_file, "the run's config") if config_file.is_file() else {}
+        if not isinstance(config, dict):
+            raise ValueError(f"{config_file} must hold a mapping of hyperparameters, got {type(config).__name__}")
+        env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
+        reserve_v0.parallel_env(**env_kwargs).close()  # checked before anything runs
+        vec_normalize = params_path / "vecnormalize.pkl"
+        vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
+        model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
     except (AssertionError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    params_path = Path(log_path) / args.env
-    config_file = params_path / "config.yml"
-    config = yaml.load(config_file.read_text(), Loader=yaml.UnsafeLoader) if config_file.is_file() else {}
-    env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
-    vec_normalize = params_path / "vecnormalize.pkl"
-    vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
-    model = ZOO_ALGOS[args.algo].load(model_path, device="cpu")
     records = evaluate_team(model, n_episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
                             deterministic=args.deterministic, vec_normalize_path=vec_normalize_path)
     print(format_summary(summarize(records), f"{model_path}: {len(records)} episodes from seed {args.seed} (mean +- std)"))

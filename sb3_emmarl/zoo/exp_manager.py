@@ -13,23 +13,54 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   ``--eval-freq`` / ``--save-freq`` / optuna arithmetic, which divides by ``n_envs``, stays right;
 - the environment's arguments are validated before any folder is written;
 - :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks (and
-  :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms).
+  :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms);
+- the hyperparameters are checked by :func:`~sb3_emmarl.common.validation.check_hyperparams` before anything
+  is built, and the YAML file must be a mapping holding the environment's entry;
+- every file is written atomically (:mod:`sb3_emmarl.common.checkpoints`), ``config.yml`` and ``args.yml``
+  as plain YAML (rl_zoo3 writes Python tags), checkpoints by
+  :class:`~sb3_emmarl.common.checkpoints.ResumableCheckpointCallback` with the training state;
+- the training environment is wrapped in :class:`~sb3_emmarl.common.vec_env.FiniteCheck` (SB3's
+  ``VecCheckNan`` raising at the first NaN or inf, with the step);
+- ``trained_agent`` (``-i``) is checked before use and loads its checkpoint's replay buffer and
+  ``VecNormalize`` companions; ``resume_run`` continues a stopped run in its own folder from its newest
+  checkpoint, with the training state, up to the run's ``n_timesteps``.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from rl_zoo3.exp_manager import ExperimentManager
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.centralized import ENV_ID, register_envs
+from sb3_emmarl.common.checkpoints import (
+    REPLAY_BUFFER,
+    TRAINING_STATE,
+    VEC_NORMALIZE,
+    AtomicEvalCallback,
+    ResumableCheckpointCallback,
+    SaveVecNormalize,
+    check_model_file,
+    check_saved_algorithm,
+    companion,
+    load_pickle,
+    restore_training_state,
+    save_model,
+    save_pickle,
+    write_text,
+)
 from sb3_emmarl.common.mode_aware import wrap_with_mode
-from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.validation import check_hyperparams
+from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
 from wildlife_reserve import reserve_v0
@@ -40,13 +71,48 @@ HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "zoo" / "hyperparams"
 EVAL_SEED_OFFSET = 10_000
 
 
+def read_yaml(path: str | Path, what: str) -> Any:
+    """A YAML file read as data (``yaml.safe_load``): a Python tag is refused with a message naming the file.
+
+    :param path: the file
+    :param what: what the file is, for messages
+    :raise ValueError: if the file does not parse or holds Python objects
+    """
+    try:
+        return yaml.safe_load(Path(path).read_text())
+    except yaml.constructor.ConstructorError as error:
+        raise ValueError(f"{path}: refusing to load {what} holding a Python object tag ({error.problem}); "
+                         "run folders and configs are read as data only") from None
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path} is not valid YAML ({error})") from None
+
+
+def plain(value: Any) -> Any:
+    """``value`` as plain YAML data (dicts, lists, str, numbers, bools, None) for ``yaml.safe_dump``."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item) and getattr(value, "shape", None) == ():
+        return value.item()
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    return repr(value)
+
+
+def write_yaml(path: str | Path, data: Any) -> None:
+    """Write plain YAML atomically (readable with ``yaml.safe_load``)."""
+    write_text(path, yaml.safe_dump(plain(data), sort_keys=True))
+
+
 class ReserveExperimentManager(ExperimentManager):
     """rl_zoo3's experiment manager on the wildlife reserve (see the module docstring for what differs).
 
     Takes rl_zoo3's arguments; ``config`` defaults to ``zoo/hyperparams/<algo>.yml``.
     """
 
-    def __init__(self, args: Any, algo: str, env_id: str, *posargs: Any, **kwargs: Any) -> None:
+    def __init__(self, args: Any, algo: str, env_id: str, *posargs: Any, resume_run: str | None = None,
+                 **kwargs: Any) -> None:
         register_envs()
         register_algorithms()
         if algo not in ZOO_ALGOS:
@@ -57,25 +123,61 @@ class ReserveExperimentManager(ExperimentManager):
             kwargs["config"] = str(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml")
         if not Path(kwargs["config"]).is_file():
             raise ValueError(f"no hyperparameter file {kwargs['config']!r} for algorithm {algo!r}")
+        if Path(kwargs["config"]).suffix not in (".yml", ".yaml"):
+            raise ValueError(f"the hyperparameter file must be YAML (.yml or .yaml), got {kwargs['config']!r}")
         self.num_cpus = 0
         super().__init__(args, algo, env_id, *posargs, **kwargs)
         self.centralized = algo in CENTRALIZED_ALGOS
         self.agents_per_copy = 1
         # Periodic evaluations sample actions, as evaluate_team does (argmax locks identical UAVs together).
         self.deterministic_eval = self.centralized
+        if self.trained_agent:
+            check_model_file(self.trained_agent)
+            check_saved_algorithm(self.trained_agent, ZOO_ALGOS[algo], ZOO_ALGOS)
+            self.continue_training = True
+        self.resume_run = resume_run
+        self._training_state: dict[str, Any] | None = None
+        if resume_run is not None:  # continue in the run's own folder, with the run's own hyperparameters
+            self.save_path = str(resume_run)
+            self.params_path = f"{self.save_path}/{self.env_name}"
+            self.config = f"{self.params_path}/config.yml"
+        #: True once this manager has created its run folder (a failed set-up removes only such a folder)
+        self.created_folder = False
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
-        """rl_zoo3's reading, except that ``--env-kwargs`` update the YAML's ``env_kwargs`` instead of replacing them
-        (so ``ddpg.yml``'s ``continuous_actions: true`` survives ``--env-kwargs n_uavs:20``)."""
-        cli_env_kwargs = self.env_kwargs
-        if cli_env_kwargs:
-            with open(self.config) as file:
-                yaml_env_kwargs = (yaml.safe_load(file) or {}).get(self.env_name.gym_id, {}).get("env_kwargs") or {}
-            self.env_kwargs = {**yaml_env_kwargs, **cli_env_kwargs}
-        return super().read_hyperparameters()
+        """rl_zoo3's reading, checked (:func:`~sb3_emmarl.common.validation.check_hyperparams`), except that
+        ``--env-kwargs`` update the YAML's ``env_kwargs`` instead of replacing them (so ``ddpg.yml``'s
+        ``continuous_actions: true`` survives ``--env-kwargs n_uavs:20``). A resumed run reads its own
+        ``config.yml``."""
+        content = read_yaml(self.config, "a hyperparameter file")
+        if self.resume_run is not None:
+            hyperparams = content
+        else:
+            if not isinstance(content, dict):
+                raise ValueError(f"{self.config} must map {self.env_name.gym_id!r} to its hyperparameters, got "
+                                 f"{type(content).__name__}")
+            hyperparams = content.get(self.env_name.gym_id, content.get("default"))
+            if not isinstance(hyperparams, dict):
+                raise ValueError(f"{self.config} has no mapping of hyperparameters under {self.env_name.gym_id!r}")
+            hyperparams = {**hyperparams, **(self.custom_hyperparams or {})}
+        original_policy_kwargs = hyperparams.get("policy_kwargs")
+        hyperparams = check_hyperparams(self.algo, ZOO_ALGOS[self.algo], hyperparams)
+        yaml_env_kwargs = hyperparams.get("env_kwargs") or {}
+        self.env_kwargs = {**yaml_env_kwargs, **(self.env_kwargs or {})}
+        hyperparams["env_kwargs"] = self.env_kwargs
+        if self._eval_env_kwargs_args is None:
+            self.eval_env_kwargs = self.env_kwargs
+        saved_hyperparams = {key: hyperparams[key] for key in sorted(hyperparams)}
+        if isinstance(original_policy_kwargs, str):  # saved as written (it may name torch classes)
+            saved_hyperparams["policy_kwargs"] = original_policy_kwargs
+        if self.verbose > 0:
+            print(f"Hyperparameters from {self.config}: {saved_hyperparams}")
+        return dict(hyperparams), saved_hyperparams
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
         processed = super()._preprocess_hyperparams(hyperparams)
+        if self.n_timesteps <= 0:
+            raise ValueError(f"n_timesteps must be >= 1, got {self.n_timesteps}")
         if self._eval_env_kwargs_args is None:  # rl_zoo3 only copies them when --env-kwargs is given
             self.eval_env_kwargs = self.env_kwargs
         # Validate the environment's arguments now, before any folder or process exists.
@@ -86,33 +188,150 @@ class ReserveExperimentManager(ExperimentManager):
             self.n_envs *= self.agents_per_copy  # rl_zoo3 divides step counts by n_envs: count vector entries
         if self.vec_env_class.__name__ == "SubprocVecEnv":
             self.num_cpus = min(os.cpu_count() or 1, max(1, self.n_envs // self.agents_per_copy))
+        self._check_buffer_memory(processed[0], prototype)
+        prototype.close()
         return processed
 
+    def _check_buffer_memory(self, hyperparams: dict[str, Any], prototype: Any) -> None:
+        """Refuse a replay or rollout buffer larger than this machine's memory before SB3 allocates it (numpy's
+        lazily committed zeros would otherwise fail hours later, once the buffer fills)."""
+        agent = prototype.possible_agents[0]
+        obs_floats = int(np.prod(prototype.observation_space(agent).shape))
+        if self.centralized:
+            obs_floats = int(np.prod(prototype.state_space.shape)) if hasattr(prototype, "state_space") else obs_floats
+        if "buffer_size" in hyperparams:
+            name, value = "buffer_size", int(hyperparams["buffer_size"])
+            needed = value * (2 * obs_floats + 8) * 4
+        elif "n_steps" in hyperparams:
+            name, value = "n_steps", int(hyperparams["n_steps"])
+            needed = value * self.n_envs * (obs_floats + 8) * 4
+        else:
+            return
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        if needed > memory:
+            raise ValueError(f"{name}={value} needs about {needed / 2**30:.1f} GiB of buffer for {obs_floats}-float "
+                             f"observations ({self.n_envs} vector entries), more than this machine's "
+                             f"{memory / 2**30:.1f} GiB")
+
+    def create_log_folder(self) -> None:
+        self.created_folder = not Path(self.save_path).exists()
+        super().create_log_folder()
+
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
-        """The parameter-sharing vector environment (``n_envs`` entries, rounded up to whole reserve copies).
+        """The parameter-sharing vector environment (``n_envs`` entries, rounded up to whole reserve copies), guarded
+        by :class:`~sb3_emmarl.common.vec_env.FiniteCheck`.
 
         :param n_envs: vector entries wanted (copies x UAVs)
         :param eval_env: build the evaluation environment (its own seed, frozen normalisation)
         :param no_log: no monitor file
         """
         if self.centralized:
-            return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
-        n_copies = max(1, -(-n_envs // self.agents_per_copy))
-        env = make_vec_env(
-            n_copies=n_copies,
-            seed=self.seed + EVAL_SEED_OFFSET if eval_env else self.seed,
-            env_kwargs=self.eval_env_kwargs if eval_env else self.env_kwargs,
-            num_cpus=0 if eval_env else self.num_cpus,
-            monitor_dir=None if eval_env or no_log else self.save_path,
-            vec_env_wrapper=self.vec_env_wrapper,
-        )
-        env = self._maybe_normalize(env, eval_env)
-        if ZOO_ALGOS[self.algo] is OraclePPO:
-            env = wrap_with_mode(env)
+            env = super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+        else:
+            n_copies = max(1, -(-n_envs // self.agents_per_copy))
+            monitor = None if eval_env or no_log else self.save_path
+            if monitor is not None and self.resume_run is not None:  # keep the stopped run's monitor.csv
+                monitor = os.path.join(self.save_path, f"resumed_{Path(self.trained_agent).stem}")
+            env = make_vec_env(
+                n_copies=n_copies,
+                seed=self.seed + EVAL_SEED_OFFSET if eval_env else self.seed,
+                env_kwargs=self.eval_env_kwargs if eval_env else self.env_kwargs,
+                num_cpus=0 if eval_env else self.num_cpus,
+                monitor_dir=monitor,
+                vec_env_wrapper=self.vec_env_wrapper,
+            )
+            env = self._maybe_normalize(env, eval_env)
+            if ZOO_ALGOS[self.algo] is OraclePPO:
+                env = wrap_with_mode(env)
+        return FiniteCheck(env)
+
+    def _maybe_normalize(self, env: VecEnv, eval_env: bool) -> VecEnv:
+        """rl_zoo3's normalisation; continuing from a checkpoint, its own ``VecNormalize`` statistics are loaded."""
+        stats = companion(self.trained_agent, VEC_NORMALIZE) if self.trained_agent else None
+        if stats is None or not stats.is_file():
+            return super()._maybe_normalize(env, eval_env)
+        env = VecNormalize.load(str(stats), env)
+        if eval_env:
+            env.training, env.norm_reward = False, False
         return env
 
     def create_callbacks(self) -> None:
         super().create_callbacks()
+        for i, callback in enumerate(self.callbacks):
+            if type(callback) is CheckpointCallback:  # rl_zoo3's, written in place: ours is atomic and resumable
+                self.callbacks[i] = ResumableCheckpointCallback(
+                    callback.save_freq, callback.save_path, callback.name_prefix,
+                    save_replay_buffer=self.save_replay_buffer, save_vecnormalize=bool(self.normalize),
+                    verbose=callback.verbose)
+            elif type(callback) is EvalCallback:  # written in place too: evaluations.npz, best_model.zip
+                self.callbacks[i] = AtomicEvalCallback(
+                    callback.eval_env, callback_on_new_best=SaveVecNormalize(self.params_path),
+                    n_eval_episodes=callback.n_eval_episodes, eval_freq=callback.eval_freq,
+                    log_path=os.path.dirname(callback.log_path), best_model_save_path=callback.best_model_save_path,
+                    deterministic=callback.deterministic, verbose=callback.verbose)
         self.callbacks.append(TeamMetricsCallback())
         if self.algo in LATENT_ALGOS:
             self.callbacks.append(LatentMetricsCallback())
+
+    def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
+        """Load ``-i`` / the checkpoint to resume (checked), with its replay buffer; resuming, its training state is
+        kept for :meth:`learn`. With ``-i`` the hyperparameters (but the policy's) override the saved ones, as in
+        rl_zoo3; a resumed run keeps the saved ones."""
+        state_file = companion(self.trained_agent, TRAINING_STATE)
+        resuming = self.resume_run is not None and state_file is not None and state_file.is_file()
+        if self.verbose > 0:
+            print(f"Loading {'the checkpoint to resume' if resuming else 'the trained agent'} {self.trained_agent}")
+        overrides = {} if self.resume_run is not None else {
+            key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
+        model = ZOO_ALGOS[self.algo].load(self.trained_agent, env=env, seed=self.seed, device=self.device,
+                                          tensorboard_log=self.tensorboard_log, verbose=self.verbose,
+                                          force_reset=not resuming, **overrides)
+        buffer_file = companion(self.trained_agent, REPLAY_BUFFER)
+        if buffer_file is None:
+            buffer_file = Path(self.trained_agent).parent / "replay_buffer.pkl"
+        if buffer_file.is_file() and hasattr(model, "replay_buffer"):
+            model.replay_buffer = load_pickle(buffer_file)
+            model.replay_buffer.device = model.device
+        if resuming:
+            self._training_state = load_pickle(state_file)
+        elif self.resume_run is not None:
+            print(f"warning: {self.trained_agent} has no training state; the run resumes with new episodes",
+                  file=sys.stderr)
+        return model
+
+    def learn(self, model: BaseAlgorithm) -> None:
+        """rl_zoo3's ``learn``; a resumed run restores its training state last and trains up to its ``n_timesteps``."""
+        if self.resume_run is None:
+            return super().learn(model)
+        if self._training_state is not None:
+            restore_training_state(model, self._training_state)
+        remaining = self.n_timesteps - model.num_timesteps
+        kwargs: dict[str, Any] = {"reset_num_timesteps": False, "callback": self.callbacks}
+        if self.log_interval > -1:
+            kwargs["log_interval"] = self.log_interval
+        try:
+            if remaining > 0:
+                model.learn(remaining, **kwargs)
+        finally:
+            if self.callbacks:
+                self.callbacks[0].on_training_end()
+            model.env.close()
+
+    def save_trained_model(self, model: BaseAlgorithm) -> None:
+        """rl_zoo3's files (model, replay buffer, ``VecNormalize`` statistics), each written atomically."""
+        print(f"Saving to {self.save_path}")
+        if hasattr(model, "save_replay_buffer") and self.save_replay_buffer:
+            save_pickle(os.path.join(self.save_path, "replay_buffer.pkl"), model.replay_buffer)
+        if self.normalize:
+            save_pickle(os.path.join(self.params_path, "vecnormalize.pkl"), model.get_vec_normalize_env())
+        save_model(model, f"{self.save_path}/{self.env_name}.zip")
+
+    def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
+        """``config.yml``, ``args.yml`` and ``command.txt`` as plain data, written atomically (a resumed run keeps its
+        own)."""
+        if self.resume_run is not None:
+            return
+        write_yaml(os.path.join(self.params_path, "config.yml"), saved_hyperparams)
+        write_yaml(os.path.join(self.params_path, "args.yml"), vars(self.args))
+        write_text(Path(self.params_path) / "command.txt", " ".join(getattr(sys, "orig_argv", sys.argv)))
+        print(f"Log path: {self.save_path}")

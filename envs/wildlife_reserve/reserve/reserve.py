@@ -7,7 +7,7 @@
 | Parallel API       | Yes                                                        |
 | Manual control     | No                                                         |
 | Agents             | `agents= ['uav_0', 'uav_1', ..., 'uav_9']` (default)       |
-| Agents             | `n_uavs` (default 10, any n >= 1)                          |
+| Agents             | `n_uavs` (default 10, 1 to 1000; see the bounds in env.md) |
 | Action shape       | `Discrete(15)` or `Box(-1, 1, (3,))`                       |
 | Observation shape  | `(7 * (2r + 1)^2 + 6 + 3 * max_neighbors + 3 * belief_size^2,)`; 553 by default |
 | Observation values | [-1, 1]                                                    |
@@ -138,7 +138,7 @@ class ReserveParallelEnv(ParallelEnv):
                 "render_fps": 10}
 
     def __init__(self, **kwargs: Any) -> None:
-        self.config = cfg = ReserveConfig(**kwargs)
+        self.config = cfg = ReserveConfig.from_kwargs(**kwargs)  # validates everything before anything is allocated
         self.render_mode = cfg.render_mode
         self.max_cycles = cfg.max_cycles
         self.height, self.width = cfg.grid_size  # type: ignore[misc]  # a (height, width) tuple once validated

@@ -18,6 +18,7 @@ from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
+from sb3_emmarl.common.validation import RULES
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
 #: ``e_step_kwargs`` may override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
@@ -41,12 +42,6 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
     return venv
 
 
-def _check_int(name: str, value: Any, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
-    return int(value)
-
-
 class LatentAlgorithmMixin:
     """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
@@ -57,22 +52,15 @@ class LatentAlgorithmMixin:
                      team_pooling: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
                      policy_kwargs: dict[str, Any] | None, verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
         """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``."""
-        n_components = _check_int("n_components", n_components, 1)
-        self.e_step_interval = _check_int("e_step_interval", e_step_interval, 1)
-        if estimator not in ("enumerate", "gumbel"):
-            raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
-        if isinstance(likelihood_temperature, bool) or not isinstance(likelihood_temperature, (int, float)) \
-                or not np.isfinite(likelihood_temperature) or likelihood_temperature <= 0:
-            raise ValueError(f"likelihood_temperature must be a number > 0, got {likelihood_temperature!r}")
-        if not isinstance(e_step_kwargs, (dict, type(None))):
-            raise ValueError(f"e_step_kwargs must be a dict, got {e_step_kwargs!r}")
-        unknown = set(e_step_kwargs or {}) - set(E_STEP_DEFAULTS)
-        if unknown:
-            raise ValueError(f"e_step_kwargs keys must be among {sorted(E_STEP_DEFAULTS)}, got {sorted(unknown)}")
+        n_components = RULES["n_components"]("n_components", n_components)
+        self.e_step_interval = RULES["e_step_interval"]("e_step_interval", e_step_interval)
+        estimator = RULES["estimator"]("estimator", estimator)
+        likelihood_temperature = RULES["likelihood_temperature"]("likelihood_temperature", likelihood_temperature)
+        decoder_hidden = tuple(RULES["decoder_hidden"]("decoder_hidden", decoder_hidden))
+        e_step_kwargs = RULES["e_step_kwargs"]("e_step_kwargs", e_step_kwargs)
         for name, value in (("fusion", fusion), ("use_latent", use_latent), ("freeze_e_step", freeze_e_step),
                             ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling)):
-            if not isinstance(value, (bool, np.bool_)):
-                raise ValueError(f"{name} must be True or False, got {value!r}")
+            RULES[name](name, value)
         self.likelihood_temperature = float(likelihood_temperature)
         self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
         self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
@@ -97,11 +85,16 @@ class LatentAlgorithmMixin:
         self._encode_action = encode_actions(self.action_space)[0]
         self.e_step = None
         if self.policy.latent_model is not None:
-            self.e_step = EStep(self.policy.latent_model, estimator=self.estimator,
-                                likelihood_temperature=self.likelihood_temperature, seed=self.seed or 0,
-                                **self.e_step_kwargs)
-        self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
-        self._n_rollouts = 0
+            try:
+                self.e_step = EStep(self.policy.latent_model, estimator=self.estimator,
+                                    likelihood_temperature=self.likelihood_temperature, seed=self.seed or 0,
+                                    **self.e_step_kwargs)
+            except ValueError as error:
+                raise ValueError(f"e_step_kwargs: {error}") from None
+        # A loaded model keeps the counters it was saved with (they number the episodes of the E-step's data).
+        if getattr(self, "_episode_counters", None) is None or len(self._episode_counters) != self.n_envs:
+            self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
+        self._n_rollouts = int(getattr(self, "_n_rollouts", 0))
         self._attach_beliefs(self.env)
 
     def _attach_beliefs(self, env: VecEnv | None) -> None:
@@ -111,6 +104,15 @@ class LatentAlgorithmMixin:
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_layout"]
+
+    def save(self, path: Any, exclude: Any = None, include: Any = None) -> None:
+        """As SB3's ``save``, with the E-step's whole state (optimizer, counters, generator, kept transitions), so that
+        a loaded model trains on as if it had not stopped."""
+        self._e_step_state = self.e_step.get_state() if self.e_step is not None else None
+        try:
+            super().save(path, exclude=exclude, include=include)
+        finally:
+            del self._e_step_state
 
     @property
     def agents_per_copy(self) -> int:
@@ -202,5 +204,9 @@ class LatentAlgorithmMixin:
         if env is not None:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
             env = wrap_with_belief(env, data["policy_kwargs"]["latent_kwargs"]["n_components"])
-        return super().load(path, env=env, device=device, custom_objects=custom_objects,
-                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+        model = super().load(path, env=env, device=device, custom_objects=custom_objects,
+                             print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+        e_step_state = model.__dict__.pop("_e_step_state", None)
+        if e_step_state is not None and model.e_step is not None:
+            model.e_step.set_state(e_step_state)
+        return model

@@ -161,6 +161,14 @@ class BeliefWrapper(VecEnvWrapper):
         tracker = self.tracker
         tracker.model, tracker.likelihood_temperature, tracker.fusion = model, float(likelihood_temperature), bool(fusion)
 
+    def get_state(self) -> np.ndarray:
+        """The beliefs' state between steps (for checkpoints that resume mid-episode)."""
+        return self.tracker.get_state()
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Restore :meth:`get_state`."""
+        self.tracker.set_state(state)
+
     def _augment(self, observations: np.ndarray, beliefs: np.ndarray) -> np.ndarray:
         return np.concatenate([observations.reshape(len(observations), -1).astype(np.float32), beliefs], axis=1)
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -127,6 +128,23 @@ class EStep:
         self.n_updates = 0
         self.generator = th.Generator().manual_seed(seed)
 
+    def get_state(self) -> dict[str, Any]:
+        """Everything the next E-steps depend on besides the model's weights: the optimizer, the update counter (it
+        drives the Gumbel temperature), the random generator and the kept transitions (on the CPU)."""
+        return {"optimizer": self.optimizer.state_dict(), "n_updates": self.n_updates,
+                "generator": self.generator.get_state(),
+                "memory": [{name: getattr(part, name).cpu() for name in FIELDS} for part in self.memory]}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a :meth:`get_state` dict (the E-step then continues as if it had not stopped)."""
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.n_updates = int(state["n_updates"])
+        self.generator.set_state(state["generator"])
+        device = next(self.model.parameters()).device
+        self.memory.clear()
+        for part in state["memory"]:
+            self.memory.append(Transitions(*(part[name].to(device) for name in FIELDS)))
+
     @property
     def temperature(self) -> float:
         """The Gumbel-softmax temperature of the next E-step."""
@@ -182,6 +200,9 @@ class EStep:
                 (-recon.mean()).backward()
                 th.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
                 self.optimizer.step()
+        # No gradient may outlive the E-step: the policy's optimizer excludes the latent model, so its zero_grad
+        # would leave them, and the M-step's gradient clipping (over all the policy's parameters) would count them.
+        self.optimizer.zero_grad(set_to_none=True)
         self.model.train(False)
         # The statistics and the prior come from the last iteration's responsibilities, taken before its gradient
         # pass (as SB3 logs losses): one pass over the data fewer.

@@ -1,0 +1,50 @@
+"""Fuzz the zoo's hyperparameters (YAML files and -params) and flags; print how each case ended.
+
+The cases and their valid/invalid labels are in ``tests/fuzz_zoo.py`` (hyperparameters of PPO, DQN
+and EM-PPO set to wrong types, NaN, inf, zero, negative and huge values; broken or unsafe YAML files;
+unknown keys; every numeric flag out of range). Each case runs ``zoo/train.py``'s ``train_main`` in this
+process on a tiny reserve with a one-rollout budget. A case fails if an invalid value is accepted, a
+valid one refused, an error does not name the argument or leaves a run folder, or it takes more than
+60 s. Exit code 1 on any failure.
+
+Example: ``python benchmarks/fuzz_zoo.py`` (about a minute)
+"""
+
+from __future__ import annotations
+
+import collections
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch as th
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from fuzz_zoo import FAILURES, cases, run_case
+
+
+def main() -> int:
+    th.set_num_threads(1)
+    all_cases = cases()
+    counts: collections.Counter = collections.Counter()
+    slowest = (0.0, "")
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, case in enumerate(all_cases):
+            began = time.perf_counter()
+            outcome, text = run_case(case, Path(tmp) / str(i))
+            slowest = max(slowest, (time.perf_counter() - began, case.name))
+            counts[outcome] += 1
+            if outcome in FAILURES:
+                print(f"{outcome}: {case.name}: {text.strip()[-300:]}")
+    valid = sum(c.valid for c in all_cases)
+    print(f"{len(all_cases)} cases ({valid} valid, {len(all_cases) - valid} invalid) in {time.perf_counter() - start:.0f} s; "
+          f"slowest {slowest[0]:.1f} s ({slowest[1]})")
+    for outcome in ("ran", "clean", *FAILURES):
+        print(f"  {outcome:>9}: {counts[outcome]}")
+    return 1 if any(counts[f] for f in FAILURES) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""The zoo's runs survive: resume after a crash, continue with -i, refuse unsafe or broken files, stop at NaN."""
+
+import shutil
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_emmarl.common.checkpoints import REPLAY_BUFFER, TRAINING_STATE, companion, list_checkpoints
+from sb3_emmarl.zoo.cli import enjoy_main, train_main
+from wildlife_reserve.reserve.reserve import ReserveParallelEnv
+
+ENV = "WildlifeReserve-v0"
+TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
+QUIET = ["--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0"]
+
+
+def train(folder, *args):
+    return train_main(["-f", str(folder), "--seed", "1", *QUIET, *TINY, *args])
+
+
+def parameters(path):
+    _, params, _ = load_from_zip_file(path, device="cpu")
+    return params["policy"]
+
+
+def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
+    th.set_num_threads(1)
+    assert train(tmp_path / "a", "--algo", "em_ppo", "-n", "3000", "--save-freq", "500") == 0
+    run = tmp_path / "a" / "em_ppo" / f"{ENV}_1"
+    assert [steps for steps, _ in list_checkpoints(run)] == [1024, 2048]
+    assert all(companion(path, TRAINING_STATE).is_file() for _, path in list_checkpoints(run))
+    # The state a kill after the first checkpoint leaves (plus a file being written at that moment).
+    shutil.copytree(run, tmp_path / "b" / "em_ppo" / f"{ENV}_1")
+    killed = tmp_path / "b" / "em_ppo" / f"{ENV}_1"
+    for name in (f"{ENV}.zip", "rl_model_2048_steps.zip", "rl_model_training_state_2048_steps.pkl", "run_stats.json"):
+        (killed / name).unlink()
+    (killed / ".rl_model_2048_steps.zip.123.tmp").write_bytes(b"half a zip")
+    capsys.readouterr()
+    assert train_main(["--algo", "em_ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
+    assert "Resuming" in capsys.readouterr().out
+    assert not list(killed.glob(".*.tmp"))
+    reference, resumed = parameters(run / f"{ENV}.zip"), parameters(killed / f"{ENV}.zip")
+    assert all(th.equal(reference[k], resumed[k]) for k in reference)
+    assert (killed / "monitor.csv").is_file() and (killed / "resumed_rl_model_1024_steps.monitor.csv").is_file()
+    # A finished run has nothing to resume; a folder without checkpoints cannot be resumed.
+    assert train_main(["--algo", "em_ppo", "--resume", str(killed)]) == 0
+    assert "nothing to resume" in capsys.readouterr().out
+    assert train(tmp_path / "c", "--algo", "ppo", "-n", "500") == 0
+    (tmp_path / "c" / "ppo" / f"{ENV}_1" / f"{ENV}.zip").unlink()
+    with pytest.raises(SystemExit) as exit_info:
+        train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "c")])
+    assert exit_info.value.code == 2 and "has no checkpoint" in capsys.readouterr().err
+
+
+def test_trained_agent_continues_from_a_checkpoint_with_its_replay_buffer(tmp_path, capsys):
+    params = ["-params", "learning_starts:100", "buffer_size:5000", "train_freq:4"]
+    assert train(tmp_path, "--algo", "dqn", "-n", "1000", "--save-freq", "400", "--save-replay-buffer", *params) == 0
+    run = tmp_path / "dqn" / f"{ENV}_1"
+    _steps, checkpoint = list_checkpoints(run)[-1]
+    assert companion(checkpoint, REPLAY_BUFFER).is_file() and (run / "replay_buffer.pkl").is_file()
+    assert train(tmp_path, "--algo", "dqn", "-n", "500", "-i", str(checkpoint), *params) == 0
+    assert (tmp_path / "dqn" / f"{ENV}_2" / f"{ENV}.zip").is_file()
+    for bad, message in ((tmp_path / "missing.zip", "no model file"),
+                         (run / f"{ENV}.zip", "was not saved by PPO")):
+        with pytest.raises(SystemExit) as exit_info:
+            train(tmp_path, "--algo", "ppo", "-i", str(bad))
+        assert exit_info.value.code == 2 and message in capsys.readouterr().err
+    truncated = tmp_path / "truncated.zip"
+    truncated.write_bytes(checkpoint.read_bytes()[:1000])
+    with pytest.raises(SystemExit):
+        train(tmp_path, "--algo", "dqn", "-i", str(truncated))
+    assert "truncated.zip is incomplete or corrupt" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "dqn").iterdir()) == [f"{ENV}_1", f"{ENV}_2"]
+
+
+def test_run_files_are_plain_data_and_python_tags_are_refused(tmp_path, capsys):
+    assert train(tmp_path, "--algo", "ppo", "-n", "500") == 0
+    params = tmp_path / "ppo" / f"{ENV}_1" / ENV
+    assert "!!python" not in (params / "config.yml").read_text() + (params / "args.yml").read_text()
+    assert enjoy_main(["--algo", "ppo", "-f", str(tmp_path), "--episodes", "1", "--no-record"]) == 0
+    shutil.copytree(tmp_path / "ppo", tmp_path / "a2c")
+    config = params / "config.yml"
+    config.write_text(config.read_text() + "evil: !!python/object/apply:os.system ['touch " + str(tmp_path / "pwned") + "']\n")
+    capsys.readouterr()
+    assert enjoy_main(["--algo", "ppo", "-f", str(tmp_path), "--episodes", "1", "--no-record"]) == 2
+    err = capsys.readouterr().err
+    assert "refusing to load the run's config holding a Python object tag" in err and "config.yml" in err
+    assert not (tmp_path / "pwned").exists()
+    # A model of another algorithm in the folder is refused by name, not with an attribute error.
+    assert enjoy_main(["--algo", "a2c", "-f", str(tmp_path), "--episodes", "1", "--no-record"]) == 2
+    assert "was not saved by A2C" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("save_freq", [None, "200"])
+def test_a_nan_stops_training_with_a_message_and_no_model_less_folder(tmp_path, capsys, monkeypatch, save_freq):
+    original = ReserveParallelEnv.step
+    calls = []
+
+    def step(self, actions):
+        observations, rewards, terminations, truncations, infos = original(self, actions)
+        calls.append(1)
+        if len(calls) >= 4 * 45:  # 4 copies: step 45, in the third rollout, after the first checkpoint (step 256)
+            rewards = {agent: np.nan for agent in rewards}
+        return observations, rewards, terminations, truncations, infos
+
+    monkeypatch.setattr(ReserveParallelEnv, "step", step)
+    flags = ["--save-freq", save_freq] if save_freq else []
+    assert train(tmp_path, "--algo", "ppo", "-n", "5000", "-params", "n_steps:16", "batch_size:32", *flags) == 1
+    err = capsys.readouterr().err
+    assert "non-finite rewards (nan)" in err and "of the vector environment" in err
+    run = tmp_path / "ppo" / f"{ENV}_1"
+    if save_freq is None:
+        assert "no checkpoint had been written, so the run folder" in err and not (tmp_path / "ppo").exists()
+    else:
+        assert "keeps its checkpoints up to step" in err and "--resume" in err
+        assert list_checkpoints(run) and not (run / f"{ENV}.zip").exists()
+
+
+def test_overflowing_reward_weights_are_refused_before_anything_runs(tmp_path, capsys):
+    assert train(tmp_path, "--algo", "ppo", "--env-kwargs", "reward_weights:{'coverage':1e308}") == 2
+    assert "reward_weights" in capsys.readouterr().err and not tmp_path.joinpath("ppo").exists()
