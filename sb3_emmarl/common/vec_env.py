@@ -39,23 +39,49 @@ from wildlife_reserve import reserve_v0
 COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
 
 
-class _ReserveCopy(MarkovVectorEnv):
-    """SuperSuit's ``MarkovVectorEnv`` for one reserve copy, which takes its seed from the reset options."""
+#: Info keys of the global state (with ``with_state=True``): the state matching the returned observation (after an
+#: automatic reset, the new episode's), and at an episode's end the state it ended in (as ``terminal_observation``).
+STATE_KEY, TERMINAL_STATE_KEY = "state", "terminal_state"
 
-    def __init__(self, par_env: ParallelEnv, copy_index: int) -> None:
+
+class _ReserveCopy(MarkovVectorEnv):
+    """SuperSuit's ``MarkovVectorEnv`` for one reserve copy, which takes its seed from the reset options and, with
+    ``with_state``, puts the environment's global ``state()`` in every agent's infos."""
+
+    def __init__(self, par_env: ParallelEnv, copy_index: int, with_state: bool = False) -> None:
         super().__init__(par_env)
         self.copy_index = copy_index
+        self.with_state = with_state
+        self._in_step = False
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         options = dict(options or {})
         seeds = options.pop(COPY_SEEDS_KEY, None)
         if seeds is not None:
             seed = seeds[self.copy_index]
-        return super().reset(seed=seed, options=options or None)
+        extra: dict[str, Any] = {}
+        if self.with_state and self._in_step:  # an automatic reset: keep the state the episode ended in
+            extra[TERMINAL_STATE_KEY] = np.asarray(self.par_env.state(), dtype=np.float32)
+        observations, infos = super().reset(seed=seed, options=options or None)
+        if self.with_state:
+            extra[STATE_KEY] = np.asarray(self.par_env.state(), dtype=np.float32)
+            infos = [{**info, **extra} for info in infos]
+        return observations, infos
+
+    def step(self, actions):
+        self._in_step = True
+        try:
+            observations, rewards, terminations, truncations, infos = super().step(actions)
+        finally:
+            self._in_step = False
+        if self.with_state and (not infos or STATE_KEY not in infos[0]):  # no automatic reset: the current state
+            state = np.asarray(self.par_env.state(), dtype=np.float32)
+            infos = [{**info, STATE_KEY: state} for info in infos]
+        return observations, rewards, terminations, truncations, infos
 
 
-def _build_copy(env_fn: Callable[[], ParallelEnv], copy_index: int) -> _ReserveCopy:
-    return _ReserveCopy(env_fn(), copy_index)
+def _build_copy(env_fn: Callable[[], ParallelEnv], copy_index: int, with_state: bool = False) -> _ReserveCopy:
+    return _ReserveCopy(env_fn(), copy_index, with_state)
 
 
 class SharedPolicyVecEnv(VecEnv):
@@ -64,9 +90,12 @@ class SharedPolicyVecEnv(VecEnv):
     :param env_fn: builds one parallel environment (all agents with the same spaces; none leaves early)
     :param n_copies: number of independent copies
     :param num_cpus: worker processes (0 or 1: all copies in this process)
+    :param with_state: put the environment's global ``state()`` in every entry's infos (``infos[i]["state"]``, and
+        ``infos[i]["terminal_state"]`` at an episode's end) and its ``state_space`` in :attr:`state_space`
     """
 
-    def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, num_cpus: int = 0) -> None:
+    def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, num_cpus: int = 0,
+                 with_state: bool = False) -> None:
         if isinstance(n_copies, bool) or not isinstance(n_copies, (int, np.integer)) or n_copies < 1:
             raise ValueError(f"n_copies must be an int >= 1, got {n_copies!r}")
         if isinstance(num_cpus, bool) or not isinstance(num_cpus, (int, np.integer)) or num_cpus < 0:
@@ -79,7 +108,9 @@ class SharedPolicyVecEnv(VecEnv):
         agent = self.possible_agents[0]
         observation_space = self.prototype.observation_space(agent)
         action_space = self.prototype.action_space(agent)
-        builders = [partial(_build_copy, env_fn, c) for c in range(self.n_copies)]
+        self.with_state = bool(with_state)
+        self.state_space = self._state_space() if self.with_state else None
+        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
         if self.multiprocess:
             self.venv = MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
         else:
@@ -119,6 +150,30 @@ class SharedPolicyVecEnv(VecEnv):
             for index, info in pairs:
                 infos[start + index] = info
         return infos
+
+    # -------------------------------------------------------------- the global state
+    def _state_space(self) -> Any:
+        space = getattr(self.prototype, "state_space", None)
+        if not callable(getattr(self.prototype, "state", None)) or space is None:
+            raise ValueError(f"the global state is needed (with_state=True), but {type(self.prototype).__name__} has no "
+                             "state() and state_space")
+        return space
+
+    def enable_state(self) -> None:
+        """Put the global state in the infos from the next reset on (as ``with_state=True`` does at construction).
+
+        :raise ValueError: if the environment has no ``state()``, or its copies live in worker processes (then build
+            it with ``make_vec_env(..., with_state=True)``)
+        """
+        if self.with_state:
+            return
+        space = self._state_space()
+        if self.multiprocess:
+            raise ValueError("the copies live in worker processes: build the environment with "
+                             "make_vec_env(..., with_state=True) to have the global state")
+        for copy in self.venv.vec_envs:
+            copy.with_state = True
+        self.with_state, self.state_space = True, space
 
     # -------------------------------------------------------------- state, for checkpoints
     def get_state(self) -> bytes:
@@ -198,6 +253,23 @@ class SharedPolicyVecEnv(VecEnv):
         return self.venv.render()
 
 
+def require_state(venv: VecEnv, who: str) -> Any:
+    """Switch on the global state of a parameter-sharing vector environment (see
+    :meth:`SharedPolicyVecEnv.enable_state`) and return its ``state_space``.
+
+    :param venv: the vector environment (any wrappers around a :class:`SharedPolicyVecEnv`)
+    :param who: the algorithm asking, for the message
+    :raise ValueError: if ``venv`` is not a parameter-sharing vector environment over an environment with ``state()``
+    """
+    inner = venv.unwrapped if isinstance(venv, VecEnv) else None
+    if not isinstance(inner, SharedPolicyVecEnv):
+        raise ValueError(f"{who} needs the global state: give it the parameter-sharing vector environment "
+                         f"(sb3_emmarl.common.vec_env.make_vec_env) of a PettingZoo environment with state(), "
+                         f"got {type(venv).__name__}")
+    inner.enable_state()
+    return inner.state_space
+
+
 class FiniteCheck(VecCheckNan):
     """SB3's ``VecCheckNan`` that stops at the first NaN or inf with a short message naming the quantity
     (observations, rewards or actions), the step of the vector environment, the entries and where it came from.
@@ -240,6 +312,7 @@ def make_vec_env(
     monitor_dir: str | None = None,
     vec_env_wrapper: Callable[[VecEnv], VecEnvWrapper] | None = None,
     env_fn: Callable[..., ParallelEnv] = reserve_v0.parallel_env,
+    with_state: bool = False,
 ) -> VecEnv:
     """The parameter-sharing vector environment: ``n_copies`` reserves, one vector entry per UAV.
 
@@ -250,10 +323,12 @@ def make_vec_env(
     :param monitor_dir: folder for ``VecMonitor``'s ``monitor.csv`` (one row per agent-episode); None: no file
     :param vec_env_wrapper: optional wrapper applied last (e.g. the EM history wrapper)
     :param env_fn: environment constructor taking ``env_kwargs`` (default: the reserve)
+    :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`; MAPPO and QMIX need it)
     :return: ``VecMonitor(SharedPolicyVecEnv)``, wrapped by ``vec_env_wrapper`` if given
     """
     env_kwargs = dict(env_kwargs or {})
-    venv: VecEnv = SharedPolicyVecEnv(partial(env_fn, **env_kwargs), n_copies=n_copies, num_cpus=num_cpus)
+    venv: VecEnv = SharedPolicyVecEnv(partial(env_fn, **env_kwargs), n_copies=n_copies, num_cpus=num_cpus,
+                                      with_state=with_state)
     venv = VecMonitor(venv, filename=monitor_dir)
     if vec_env_wrapper is not None:
         venv = vec_env_wrapper(venv)
