@@ -292,6 +292,11 @@ class ReserveExperimentManager(ExperimentManager):
         if buffer_file.is_file() and hasattr(model, "replay_buffer"):
             model.replay_buffer = load_pickle(buffer_file)
             model.replay_buffer.device = model.device
+        elif self.resume_run is not None and getattr(model, "replay_buffer", None) is not None:
+            # Without its replay buffer (--save-replay-buffer) the run refills an empty one before learning again.
+            model.learning_starts = model.num_timesteps + model.learning_starts
+            print(f"warning: {self.trained_agent} has no saved replay buffer (train with --save-replay-buffer to resume "
+                  f"exactly); learning resumes after {model.learning_starts} steps", file=sys.stderr)
         if resuming:
             self._training_state = load_pickle(state_file)
         elif self.resume_run is not None:
