@@ -20,6 +20,9 @@ SETTINGS = {
     "ppo_lstm": {"n_steps": 64, "batch_size": 96, "n_epochs": 2, "policy_kwargs": {"lstm_hidden_size": 16}},
     "cppo": {"n_steps": 64, "batch_size": 64, "n_epochs": 2},
     "oracle_ppo": {"n_steps": 64, "batch_size": 96, "n_epochs": 2},
+    "mappo": {"n_steps": 64, "batch_size": 96, "n_epochs": 2},
+    "qmix": {"learning_starts": 500, "buffer_size": 5000, "batch_size": 32, "train_freq": 4},
+    "vdn": {"learning_starts": 500, "buffer_size": 5000, "batch_size": 32, "train_freq": 4},
 }
 
 

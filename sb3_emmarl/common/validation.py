@@ -48,7 +48,8 @@ class Rule:
         return self.check(name, value)
 
 
-def _fail(name: str, value: Any, allowed: str) -> None:
+def fail(name: str, value: Any, allowed: str) -> None:
+    """Raise the ValueError of every rule: ``<name> must be <allowed>, got <value>`` (the value abbreviated)."""
     text = repr(value)
     raise ValueError(f"{name} must be {allowed}, got {text if len(text) <= 80 else text[:77] + '...'}")
 
@@ -70,16 +71,17 @@ def integer(low: int, high: int, allow_float: bool = False) -> Rule:
         if allow_float and _is_number(value) and float(value).is_integer():
             value = int(value)
         if not _is_int(value) or not low <= value <= high:
-            _fail(name, value, allowed)
+            fail(name, value, allowed)
         return int(value)
 
     return Rule(check, allowed)
 
 
-def number(low: float, high: float, low_open: bool = False, schedule: bool = False) -> Rule:
-    """A finite number in ``[low, high]`` (``(low, high]`` if ``low_open``); with ``schedule``, also a callable or
-    rl_zoo3's ``lin_<value>`` string, whose value must be in the same range."""
-    allowed = f"a number in {'(' if low_open else '['}{low}, {high}]" + (" or 'lin_<value>'" if schedule else "")
+def number(low: float, high: float, low_open: bool = False, schedule: bool = False, high_open: bool = False) -> Rule:
+    """A finite number in ``[low, high]`` (``(`` / ``)`` with ``low_open`` / ``high_open``); with ``schedule``, also a
+    callable or rl_zoo3's ``lin_<value>`` string, whose value must be in the same range."""
+    allowed = (f"a number in {'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}"
+               + (" or 'lin_<value>'" if schedule else ""))
 
     def check(name: str, value: Any) -> Any:
         if schedule and callable(value):
@@ -89,9 +91,10 @@ def number(low: float, high: float, low_open: bool = False, schedule: bool = Fal
             try:
                 value = float(SCHEDULE.match(value)["value"])
             except ValueError:
-                _fail(name, raw, allowed)
-        if not _is_number(value) or value > high or value < low or (low_open and value == low):
-            _fail(name, raw, allowed)
+                fail(name, raw, allowed)
+        if not _is_number(value) or value > high or value < low or (low_open and value == low) \
+                or (high_open and value == high):
+            fail(name, raw, allowed)
         return raw
 
     return Rule(check, allowed)
@@ -100,7 +103,7 @@ def number(low: float, high: float, low_open: bool = False, schedule: bool = Fal
 def boolean() -> Rule:
     def check(name: str, value: Any) -> bool:
         if not isinstance(value, (bool, np.bool_)):
-            _fail(name, value, "true or false")
+            fail(name, value, "true or false")
         return bool(value)
 
     return Rule(check, "true or false")
@@ -111,7 +114,7 @@ def choice(*options: Any) -> Rule:
 
     def check(name: str, value: Any) -> Any:
         if not isinstance(value, (str, type(None))) or value not in options:
-            _fail(name, value, allowed)
+            fail(name, value, allowed)
         return value
 
     return Rule(check, allowed)
@@ -126,13 +129,24 @@ def one_of(*rules: Rule) -> Rule:
                 return rule(name, value)
             except ValueError:
                 pass
-        _fail(name, value, allowed)
+        fail(name, value, allowed)
 
     return Rule(check, allowed)
 
 
 def optional(rule: Rule) -> Rule:
-    return Rule(lambda name, value: None if value is None else rule(name, value), f"null or {rule.allowed}")
+    """None, or a value ``rule`` accepts (the message says both)."""
+    allowed = f"null or {rule.allowed}"
+
+    def check(name: str, value: Any) -> Any:
+        if value is None:
+            return None
+        try:
+            return rule(name, value)
+        except ValueError:
+            fail(name, value, allowed)
+
+    return Rule(check, allowed)
 
 
 def layers() -> Rule:
@@ -142,7 +156,7 @@ def layers() -> Rule:
 
     def check(name: str, value: Any) -> list[int]:
         if not isinstance(value, (list, tuple)) or len(value) > 16:
-            _fail(name, value, allowed)
+            fail(name, value, allowed)
         return [size(f"{name}[{i}]", v) for i, v in enumerate(value)]
 
     return Rule(check, allowed)
@@ -155,7 +169,7 @@ def train_freq() -> Rule:
     def check(name: str, value: Any) -> Any:
         if isinstance(value, (list, tuple)):
             if len(value) != 2 or value[1] not in ("step", "episode"):
-                _fail(name, value, allowed)
+                fail(name, value, allowed)
             return (steps(f"{name}[0]", value[0]), value[1])
         return steps(name, value)
 
@@ -170,7 +184,7 @@ def mapping(rules: dict[str, Rule], label: str) -> Rule:
         if value is None:
             return {}
         if not isinstance(value, dict):
-            _fail(name, value, allowed)
+            fail(name, value, allowed)
         unknown = sorted(set(value) - set(rules), key=str)
         if unknown:
             raise ValueError(f"{label} keys must be among {sorted(rules)}, got {unknown}")
@@ -198,8 +212,8 @@ RULES: dict[str, Rule] = {
     "n_timesteps": integer(1, MAX_TIMESTEPS, allow_float=True),
     "n_envs": integer(1, MAX_N_ENVS),
     "normalize": one_of(boolean(), Rule(lambda n, v: v if isinstance(v, str) and v.startswith("dict(") else
-                                        _fail(n, v, "a dict(...) expression"), "a dict(...) expression")),
-    "policy": Rule(lambda n, v: v if isinstance(v, str) else _fail(n, v, "a policy name (str)"), "a policy name"),
+                                        fail(n, v, "a dict(...) expression"), "a dict(...) expression")),
+    "policy": Rule(lambda n, v: v if isinstance(v, str) else fail(n, v, "a policy name (str)"), "a policy name"),
     "learning_rate": number(0.0, 10.0, low_open=True, schedule=True),
     "n_steps": integer(1, MAX_STEPS),
     "batch_size": integer(1, MAX_BUFFER),
@@ -210,7 +224,7 @@ RULES: dict[str, Rule] = {
     "clip_range_vf": optional(number(0.0, 10.0, low_open=True, schedule=True)),
     "normalize_advantage": boolean(),
     "ent_coef": one_of(number(0.0, 100.0), Rule(lambda n, v: v if isinstance(v, str) and v.startswith("auto") else
-                                                 _fail(n, v, "'auto'"), "'auto'")),
+                                                 fail(n, v, "'auto'"), "'auto'")),
     "vf_coef": number(0.0, 100.0),
     "max_grad_norm": number(0.0, 1e6, low_open=True),
     "use_sde": boolean(),
@@ -223,7 +237,7 @@ RULES: dict[str, Rule] = {
     "learning_starts": integer(0, MAX_TIMESTEPS, allow_float=True),
     "tau": number(0.0, 1.0),
     "train_freq": train_freq(),
-    "gradient_steps": one_of(integer(1, 10**4), Rule(lambda n, v: v if _is_int(v) and v == -1 else _fail(n, v, "-1"),
+    "gradient_steps": one_of(integer(1, 10**4), Rule(lambda n, v: v if _is_int(v) and v == -1 else fail(n, v, "-1"),
                                                      "-1")),
     "optimize_memory_usage": boolean(),
     "target_update_interval": integer(1, MAX_TIMESTEPS),
@@ -248,6 +262,16 @@ RULES: dict[str, Rule] = {
     "use_latent": boolean(),
     "freeze_e_step": boolean(),
     "freeze_m_step": boolean(),
+    # MAPPO (and QMIX / VDN: the agent's one-hot index as an input)
+    "agent_id": boolean(),
+    "use_value_norm": boolean(),
+    "value_norm_beta": number(0.0, 1.0, low_open=True, high_open=True),
+    "huber_delta": optional(number(0.0, 1e6, low_open=True)),
+    # QMIX and VDN (agent_id as MAPPO's)
+    "double_q": boolean(),
+    "mixing_embed_dim": integer(1, MAX_LAYER),
+    "hypernet_embed": integer(1, MAX_LAYER),
+    "hypernet_layers": integer(1, 2),
 }
 #: Names usable in a ``policy_kwargs`` string (rl_zoo3 evaluates it; we evaluate it with these names only).
 POLICY_KWARGS_NAMES = {"dict": dict, "list": list, "tuple": tuple, "nn": th.nn, "th": th, "True": True, "False": False,
@@ -266,7 +290,7 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any]:
             raise ValueError(f"policy_kwargs: {value!r} is not a valid expression ({type(error).__name__}: {error}); "
                              "write e.g. \"dict(net_arch=[64, 64])\"") from None
     if not isinstance(value, dict):
-        _fail("policy_kwargs", value, "a dict or a \"dict(...)\" string")
+        fail("policy_kwargs", value, "a dict or a \"dict(...)\" string")
     value = dict(value)
     if "net_arch" in value:
         arch = value["net_arch"]
@@ -310,7 +334,7 @@ def check_hyperparams(algo_name: str, algo: type[BaseAlgorithm], hyperparams: An
         elif key == "policy_kwargs":
             checked[key] = parse_policy_kwargs(value)
         elif key == "env_kwargs" and not isinstance(value, (dict, type(None))):
-            _fail(key, value, "a mapping of the reserve's arguments")
+            fail(key, value, "a mapping of the reserve's arguments")
     return checked
 
 

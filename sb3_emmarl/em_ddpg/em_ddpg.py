@@ -109,28 +109,13 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
             dim = int(np.prod(self.action_space.shape))
             self.action_noise = NormalActionNoise(np.zeros(dim), 0.2 * np.ones(dim))
         self._setup_latent()
-        self._e_step_pos = 0  # the replay buffer's position at the last E-step data handover
-        self._last_dones = np.ones(self.n_envs, dtype=bool)
-
-    def _new_transitions(self):
-        """The replay buffer's rows added since the last call, as E-step data."""
-        buffer = self.replay_buffer
-        if buffer.optimize_memory_usage:
-            raise ValueError("EM-DDPG needs the replay buffer's next observations: optimize_memory_usage=False")
-        rows = (self._e_step_pos + np.arange((buffer.pos - self._e_step_pos) % buffer.buffer_size)) % buffer.buffer_size
-        self._e_step_pos = buffer.pos
-        dones = buffer.dones[rows] > 0
-        new_episode = np.concatenate([self._last_dones[None], dones[:-1]])
-        if len(rows):
-            self._last_dones = dones[-1]
-        return self._transitions(self._features(buffer.observations[rows]), buffer.actions[rows],
-                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones))
+        self._init_replay_e_step()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """The E-step's data (and every ``e_step_interval`` calls the E-step), then DDPG's update, the M-step
         (skipped when ``freeze_m_step``)."""
         if self.e_step is not None:
-            self._run_e_step(self._new_transitions())
+            self._run_e_step(self._replay_transitions())
         if self.freeze_m_step:
             self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
             self.logger.record("train/m_step_frozen", 1.0)

@@ -12,7 +12,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
+from sb3_emmarl.mappo import MAPPO
 from sb3_emmarl.oracle_ppo import OraclePPO
+from sb3_emmarl.qmix import QMIX
+from sb3_emmarl.vdn import VDN
+from sb3_emmarl.vdn_em import EMVDN
 
 #: Algorithms trained with one policy shared by all UAVs (the parameter-sharing vector environment).
 SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
@@ -25,6 +29,10 @@ SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "em_ppo": EMPPO,  # the paper's method, with PPO as the M-step
     "em_ddpg": EMDDPG,  # the paper's method, with DDPG as the M-step (continuous action mode)
     "oracle_ppo": OraclePPO,  # PPO told the true hidden mode: the upper bound of every latent method
+    "mappo": MAPPO,  # PPO whose critic reads the global state (MAPPO)
+    "qmix": QMIX,  # shared agent Q-network, monotonic mixing conditioned on the global state
+    "vdn": VDN,  # shared agent Q-network, team value the sum of the agents'
+    "vdn_em": EMVDN,  # the paper's VDN+EM: VDN whose agents see the EM belief
 }
 #: Algorithms trained on the centralised view (global state in, joint action out).
 CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
@@ -32,7 +40,9 @@ CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
 }
 ZOO_ALGOS: dict[str, type[BaseAlgorithm]] = {**SHARED_ALGOS, **CENTRALIZED_ALGOS}
 #: The EM algorithms (they add their belief wrapper themselves; the zoo logs their latent metrics).
-LATENT_ALGOS = ("em_ppo", "em_ddpg")
+LATENT_ALGOS = ("em_ppo", "em_ddpg", "vdn_em")
+#: Algorithms that read the environment's global state (the zoo builds their environment with it).
+STATE_ALGOS = ("mappo", "qmix")
 #: Algorithms trained with another algorithm's hyperparameter file (the same settings by construction).
 SHARED_HYPERPARAMS: dict[str, str] = {"oracle_ppo": "ppo"}
 
@@ -44,6 +54,7 @@ def register_algorithms() -> None:
 
     for name, algo in ZOO_ALGOS.items():
         rl_zoo3.ALGOS.setdefault(name, algo)
-    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg"), ("oracle_ppo", "ppo")):
+    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg"), ("oracle_ppo", "ppo"), ("mappo", "ppo"),
+                       ("qmix", "dqn"), ("vdn", "dqn"), ("vdn_em", "dqn")):
         hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, hyperparams_opt.HYPERPARAMS_SAMPLER[like])
         hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, hyperparams_opt.HYPERPARAMS_CONVERTER[like])

@@ -62,7 +62,14 @@ from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS, LATENT_ALGOS, SHARED_HYPERPARAMS, ZOO_ALGOS, register_algorithms
+from sb3_emmarl.zoo.algos import (
+    CENTRALIZED_ALGOS,
+    LATENT_ALGOS,
+    SHARED_HYPERPARAMS,
+    STATE_ALGOS,
+    ZOO_ALGOS,
+    register_algorithms,
+)
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -199,6 +206,10 @@ class ReserveExperimentManager(ExperimentManager):
         obs_floats = int(np.prod(prototype.observation_space(agent).shape))
         if self.centralized:
             obs_floats = int(np.prod(prototype.state_space.shape)) if hasattr(prototype, "state_space") else obs_floats
+        elif self.algo in STATE_ALGOS:  # MAPPO: in every observation (with the one-hot); QMIX: once per team
+            state_floats = int(np.prod(prototype.state_space.shape))
+            n_agents = len(prototype.possible_agents)
+            obs_floats += state_floats + n_agents if "n_steps" in hyperparams else -(-state_floats // n_agents)
         if "buffer_size" in hyperparams:
             name, value = "buffer_size", int(hyperparams["buffer_size"])
             needed = value * (2 * obs_floats + 8) * 4
@@ -239,6 +250,7 @@ class ReserveExperimentManager(ExperimentManager):
                 num_cpus=0 if eval_env else self.num_cpus,
                 monitor_dir=monitor,
                 vec_env_wrapper=self.vec_env_wrapper,
+                with_state=self.algo in STATE_ALGOS and not eval_env,  # evaluations act on the plain observations
             )
             env = self._maybe_normalize(env, eval_env)
             if ZOO_ALGOS[self.algo] is OraclePPO:

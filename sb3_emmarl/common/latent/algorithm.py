@@ -133,6 +133,29 @@ class LatentAlgorithmMixin:
         return Transitions.from_numpy(features[t, e], self._encode_action(actions[t, e]), next_features[t, e], ids[t, e],
                                       self.device)
 
+    def _init_replay_e_step(self) -> None:
+        """Off-policy EM algorithms: the E-step reads the replay buffer's rows added since its last handover (a loaded
+        model keeps its position)."""
+        if getattr(self, "_e_step_pos", None) is None:
+            self._e_step_pos = 0  # the replay buffer's position at the last handover
+        if getattr(self, "_last_dones", None) is None or len(self._last_dones) != self.n_envs:
+            self._last_dones = np.ones(self.n_envs, dtype=bool)
+
+    def _replay_transitions(self) -> Transitions:
+        """The replay buffer's rows added since the last call, as E-step data (off-policy algorithms)."""
+        buffer = self.replay_buffer
+        if buffer.optimize_memory_usage:
+            raise ValueError(f"{type(self).__name__} needs the replay buffer's next observations: "
+                             "optimize_memory_usage=False")
+        rows = (self._e_step_pos + np.arange((buffer.pos - self._e_step_pos) % buffer.buffer_size)) % buffer.buffer_size
+        self._e_step_pos = buffer.pos
+        dones = buffer.dones[rows] > 0
+        new_episode = np.concatenate([self._last_dones[None], dones[:-1]])
+        if len(rows):
+            self._last_dones = dones[-1]
+        return self._transitions(self._features(buffer.observations[rows]), buffer.actions[rows],
+                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones))
+
     def _run_e_step(self, transitions: Transitions) -> None:
         """Remember the rollout's transitions; every ``e_step_interval`` rollouts, run the E-step and log it."""
         if self.e_step is None:

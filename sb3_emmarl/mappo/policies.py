@@ -1,0 +1,260 @@
+"""MAPPO's policy: SB3's ``ActorCriticPolicy`` whose actor reads the agent's own observation and whose critic reads
+MAPPO's agent-specific global state, and the value normaliser.
+
+The policy acts on augmented observations ``[observation, global state, agent one-hot]`` (see
+:class:`~sb3_emmarl.mappo.wrappers.StateLayout`): its actor network reads the first ``obs_dim`` values, so that the
+actions never depend on the state, and its critic network reads them all. ``predict`` also takes plain
+observations (``obs_dim`` values), which is all the actor needs: SB3's ``evaluate_policy`` then runs on the plain
+environment. Both networks are MLPs as in marlbenchmark/on-policy's ``MLPBase``: a LayerNorm on the input, then
+``Linear -> activation -> LayerNorm`` per hidden layer (``layer_norm=False``: SB3's plain MLPs), ReLU, orthogonal
+initialisation (gain sqrt(2), 0.01 on the action logits, 1 on the value; biases 0).
+
+:class:`ValueNorm` is on-policy's ``ValueNorm``: debiased exponential running averages of the returns and of
+their squares. With value normalisation on, the value head predicts normalised returns; ``forward``,
+``predict_values`` and ``evaluate_actions`` give values in the returns' own units (denormalised) as SB3's rollout
+collection, bootstrapping and GAE expect, and :meth:`MAPPOPolicy.evaluate_actions_normalized` the head's own
+output, for MAPPO's value loss. The normaliser's statistics are buffers of the policy: saved and loaded with it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+from sb3_emmarl.mappo.wrappers import StateLayout
+
+#: Defaults of on-policy's ValueNorm: the averaging factor, the floor of the debiasing term and of the variance.
+VALUE_NORM_BETA, VALUE_NORM_EPSILON, VALUE_NORM_MIN_VAR = 0.99999, 1e-5, 1e-2
+
+
+def check_value_norm_beta(value: Any) -> float:
+    """``value_norm_beta`` as a float in the open interval (0, 1), or a ValueError naming it."""
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not 0.0 < float(value) < 1.0):
+        raise ValueError(f"value_norm_beta must be a number in the open interval (0, 1), got {value!r}")
+    return float(value)
+
+
+class ValueNorm(nn.Module):
+    """Running mean and standard deviation of the returns, debiased (on-policy's ``ValueNorm``, one value).
+
+    Each :meth:`update` with a batch ``x`` sets ``m <- beta m + (1 - beta) mean(x)``, ``s <- beta s + (1 - beta)
+    mean(x^2)`` and ``d <- beta d + (1 - beta)``, with ``m = s = d = 0`` at first; the statistics are the debiased
+    ``mean = m / max(d, epsilon)`` and ``var = max(s / max(d, epsilon) - mean^2, min_var)`` (so ``d = 1 - beta^n``
+    after ``n`` updates, and after one update they are the batch's own mean and variance). Before any update:
+    mean 0 and the variance floor. Kept in float64 (``beta`` is within 1e-5 of 1).
+
+    :param beta: weight of the past at each update, in (0, 1): every batch weighs about the same when it is close to 1
+    :param epsilon: floor of the debiasing term
+    :param min_var: floor of the variance
+    """
+
+    def __init__(self, beta: float = VALUE_NORM_BETA, epsilon: float = VALUE_NORM_EPSILON,
+                 min_var: float = VALUE_NORM_MIN_VAR) -> None:
+        super().__init__()
+        self.beta = check_value_norm_beta(beta)
+        self.epsilon, self.min_var = float(epsilon), float(min_var)
+        self.register_buffer("running_mean", th.zeros((), dtype=th.float64))
+        self.register_buffer("running_mean_sq", th.zeros((), dtype=th.float64))
+        self.register_buffer("debiasing_term", th.zeros((), dtype=th.float64))
+
+    @th.no_grad()
+    def update(self, values: th.Tensor | np.ndarray) -> None:
+        """Add a batch of returns (any shape; every element counts once, the batch as one update)."""
+        x = th.as_tensor(np.asarray(values) if not isinstance(values, th.Tensor) else values)
+        x = x.to(device=self.running_mean.device, dtype=th.float64).reshape(-1)
+        if x.numel() == 0:
+            return
+        beta = self.beta
+        self.running_mean.mul_(beta).add_((1.0 - beta) * x.mean())
+        self.running_mean_sq.mul_(beta).add_((1.0 - beta) * (x**2).mean())
+        self.debiasing_term.mul_(beta).add_(1.0 - beta)
+
+    def mean_var(self) -> tuple[th.Tensor, th.Tensor]:
+        """The debiased mean and variance (float64 scalars)."""
+        debias = self.debiasing_term.clamp(min=self.epsilon)
+        mean = self.running_mean / debias
+        var = (self.running_mean_sq / debias - mean**2).clamp(min=self.min_var)
+        return mean, var
+
+    def mean_std(self) -> tuple[float, float]:
+        """The debiased mean and standard deviation, as floats."""
+        mean, var = self.mean_var()
+        return float(mean), float(var.sqrt())
+
+    def normalize(self, values: th.Tensor) -> th.Tensor:
+        """``(values - mean) / std``, in ``values``' dtype."""
+        mean, var = self.mean_var()
+        return ((values.double() - mean) / var.sqrt()).to(values.dtype)
+
+    def denormalize(self, values: th.Tensor) -> th.Tensor:
+        """``values * std + mean``, in ``values``' dtype."""
+        mean, var = self.mean_var()
+        return (values.double() * var.sqrt() + mean).to(values.dtype)
+
+    def extra_repr(self) -> str:
+        return f"beta={self.beta}, epsilon={self.epsilon}, min_var={self.min_var}"
+
+
+def _mlp(input_dim: int, sizes: list[int], activation_fn: type[nn.Module], layer_norm: bool) -> nn.Sequential:
+    """on-policy's ``MLPBase``: [LayerNorm(input)], then ``Linear -> activation -> [LayerNorm]`` per hidden layer."""
+    layers: list[nn.Module] = [nn.LayerNorm(input_dim)] if layer_norm else []
+    size = input_dim
+    for hidden in sizes:
+        layers += [nn.Linear(size, hidden), activation_fn()]
+        if layer_norm:
+            layers.append(nn.LayerNorm(hidden))
+        size = hidden
+    return nn.Sequential(*layers)
+
+
+class MAPPOExtractor(nn.Module):
+    """The actor's and the critic's hidden layers (SB3's ``MlpExtractor`` interface) over an augmented observation.
+
+    :param layout: where the observation sits in the augmented one (the actor reads it alone)
+    :param net_arch: hidden sizes, shared by both networks (a list) or ``dict(pi=[...], vf=[...])``
+    :param activation_fn: activation
+    :param layer_norm: LayerNorm on the input and after each hidden layer
+    """
+
+    def __init__(self, layout: StateLayout, net_arch: list[int] | dict[str, list[int]],
+                 activation_fn: type[nn.Module], layer_norm: bool) -> None:
+        super().__init__()
+        if isinstance(net_arch, dict):
+            pi_sizes, vf_sizes = list(net_arch.get("pi", [])), list(net_arch.get("vf", []))
+        else:
+            pi_sizes = vf_sizes = list(net_arch)
+        self.obs_dim = layout.obs_dim
+        self.policy_net = _mlp(layout.obs_dim, pi_sizes, activation_fn, layer_norm)
+        self.value_net = _mlp(layout.critic_dim, vf_sizes, activation_fn, layer_norm)
+        self.latent_dim_pi = pi_sizes[-1] if pi_sizes else layout.obs_dim
+        self.latent_dim_vf = vf_sizes[-1] if vf_sizes else layout.critic_dim
+
+    def forward(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+    def forward_actor(self, features: th.Tensor) -> th.Tensor:
+        """The actor's latent from the agent's own observation (the first ``obs_dim`` values) only."""
+        return self.policy_net(features[..., : self.obs_dim])
+
+    def forward_critic(self, features: th.Tensor) -> th.Tensor:
+        """The critic's latent from the whole augmented observation."""
+        return self.value_net(features)
+
+
+class MAPPOPolicy(ActorCriticPolicy):
+    """SB3's ``ActorCriticPolicy`` with a decentralised actor and a critic over MAPPO's agent-specific global state.
+
+    Takes ``ActorCriticPolicy``'s arguments (``net_arch`` as a list shared by both networks or ``dict(pi, vf)``),
+    with on-policy's defaults, plus:
+
+    :param state_layout: the :class:`~sb3_emmarl.mappo.wrappers.StateLayout` fields (set by MAPPO)
+    :param layer_norm: LayerNorm on each network's input and after each hidden layer (on-policy's
+        ``use_feature_normalization`` and ``MLPLayer``)
+    :param value_norm: the value head predicts normalised returns (:class:`ValueNorm`)
+    :param value_norm_beta: the normaliser's ``beta``
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        lr_schedule: Schedule,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        *args: Any,
+        state_layout: dict[str, Any],
+        layer_norm: bool = True,
+        value_norm: bool = True,
+        value_norm_beta: float = VALUE_NORM_BETA,
+        **kwargs: Any,
+    ) -> None:
+        layout = StateLayout.from_dict(state_layout)
+        if not isinstance(observation_space, spaces.Box) or observation_space.shape != (layout.critic_dim,):
+            raise ValueError(f"the observation space must be a Box of shape ({layout.critic_dim},) (observation, state "
+                             f"and agent id), got {observation_space}")
+        extractor = kwargs.get("features_extractor_class", FlattenExtractor)
+        if extractor is not FlattenExtractor:
+            raise ValueError("MAPPOPolicy slices the observation itself: features_extractor_class must be "
+                             f"FlattenExtractor, got {getattr(extractor, '__name__', extractor)}")
+        for name, value in (("layer_norm", layer_norm), ("value_norm", value_norm)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {value!r}")
+        # Plain attributes: nn.Module.__init__ has not run yet, and _build_mlp_extractor (inside it) reads them.
+        object.__setattr__(self, "state_layout", layout)
+        object.__setattr__(self, "layer_norm", bool(layer_norm))
+        if net_arch is None:
+            net_arch = dict(pi=[64, 64], vf=[64, 64])  # on-policy: hidden_size 64, two hidden layers
+        super().__init__(observation_space, action_space, lr_schedule, net_arch, activation_fn, *args, **kwargs)
+        self.value_norm = ValueNorm(check_value_norm_beta(value_norm_beta)) if value_norm else None
+        self._value_norm_beta = check_value_norm_beta(value_norm_beta)
+        self.to(self.device)
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = MAPPOExtractor(self.state_layout, self.net_arch, self.activation_fn, self.layer_norm)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(state_layout=self.state_layout.to_dict(), layer_norm=self.layer_norm,
+                    value_norm=self.value_norm is not None, value_norm_beta=self._value_norm_beta)
+        return data
+
+    # ------------------------------------------------------------------ values in the returns' units
+    def denormalize(self, values: th.Tensor) -> th.Tensor:
+        """The value head's output in the returns' units (unchanged without value normalisation)."""
+        return values if self.value_norm is None else self.value_norm.denormalize(values)
+
+    def forward(self, obs: th.Tensor, deterministic: bool = False) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        actions, values, log_prob = super().forward(obs, deterministic)
+        return actions, self.denormalize(values), log_prob
+
+    def predict_values(self, obs: PyTorchObs) -> th.Tensor:
+        return self.denormalize(super().predict_values(obs))
+
+    def evaluate_actions(self, obs: PyTorchObs, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
+        values, log_prob, entropy = super().evaluate_actions(obs, actions)
+        return self.denormalize(values), log_prob, entropy
+
+    def evaluate_actions_normalized(self, obs: PyTorchObs,
+                                    actions: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
+        """As ``evaluate_actions``, with the value head's own (normalised) output: MAPPO's value loss."""
+        return super().evaluate_actions(obs, actions)
+
+    # ------------------------------------------------------------------ parameter groups
+    def critic_parameters(self) -> list[nn.Parameter]:
+        """The critic's parameters (its hidden layers and the value head)."""
+        return [*self.mlp_extractor.value_net.parameters(), *self.value_net.parameters()]
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        """Every other parameter: the actor's hidden layers, the action head (and ``log_std``)."""
+        critic = {id(p) for p in self.critic_parameters()}
+        return [p for p in self.parameters() if id(p) not in critic]
+
+    # ------------------------------------------------------------------ plain observations
+    def predict(self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | None = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict``, for augmented observations or plain ones (``obs_dim`` values: the actor's whole input;
+        the critic's part is filled with zeros, which the actions do not depend on).
+
+        :raise ValueError: for observations of another size
+        """
+        obs = np.asarray(observation)
+        layout = self.state_layout
+        if obs.ndim >= 1 and obs.shape[-1] == layout.obs_dim:
+            obs = np.concatenate([obs, np.zeros((*obs.shape[:-1], layout.critic_dim - layout.obs_dim), obs.dtype)], -1)
+        elif obs.ndim == 0 or obs.shape[-1] != layout.critic_dim:
+            raise ValueError(f"observations must have {layout.obs_dim} values (plain) or {layout.critic_dim} (with the "
+                             f"global state), got shape {obs.shape}")
+        return super().predict(obs, state, episode_start, deterministic)
+
+
+#: MAPPO's ``"MlpPolicy"``.
+MlpPolicy = MAPPOPolicy
