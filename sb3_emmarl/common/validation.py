@@ -272,6 +272,10 @@ RULES: dict[str, Rule] = {
     "mixing_embed_dim": integer(1, MAX_LAYER),
     "hypernet_embed": integer(1, MAX_LAYER),
     "hypernet_layers": integer(1, 2),
+    "recurrent": boolean(),
+    "rnn_hidden_dim": integer(1, MAX_LAYER),
+    "sequence_length": integer(1, 10**4),
+    "burn_in": integer(0, 10**4 - 1),
 }
 #: Names usable in a ``policy_kwargs`` string (rl_zoo3 evaluates it; we evaluate it with these names only).
 POLICY_KWARGS_NAMES = {"dict": dict, "list": list, "tuple": tuple, "nn": th.nn, "th": th, "True": True, "False": False,
@@ -305,11 +309,21 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any]:
 
 
 def allowed_hyperparams(algo: type[BaseAlgorithm]) -> set[str]:
-    """Keys a zoo YAML entry may hold for ``algo``: its constructor's arguments (and its bases') and the zoo's."""
-    from sb3_emmarl.common.checkpoints import _parameters
+    """Keys a zoo YAML entry may hold for ``algo``: the zoo's, and the constructor arguments of ``algo`` and of the base
+    classes its constructor passes ``**kwargs`` on to (down to the first constructor without ``**kwargs``)."""
+    import inspect
 
-    return (_parameters(algo) - set(FLAG_KEYS) - {"self", "args", "kwargs", "support_multi_env", "sde_support",
-                                                   "supported_action_spaces"}) | set(ZOO_KEYS)
+    names: set[str] = set()
+    for cls in algo.__mro__:
+        init = cls.__dict__.get("__init__")
+        if init is None or cls is object:
+            continue
+        parameters = inspect.signature(init).parameters
+        names |= set(parameters)
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+            break
+    return (names - set(FLAG_KEYS) - {"self", "args", "kwargs", "support_multi_env", "sde_support",
+                                      "supported_action_spaces"}) | set(ZOO_KEYS)
 
 
 def check_hyperparams(algo_name: str, algo: type[BaseAlgorithm], hyperparams: Any) -> dict[str, Any]:

@@ -17,6 +17,10 @@ the reset infos.
 The team reward is the mean of the copy's agents' rewards (the team reward itself on the reserve, where every agent
 gets it with the default ``shaping=0``); a copy's transition is terminal if an agent's episode terminated (not
 truncated: after a truncation the target bootstraps from the terminal state, as SB3's ``TimeLimit.truncated``).
+
+:class:`RecurrentJointReplayBuffer` (QMIX's and VDN's ``recurrent=True``) also keeps each row's episode-start flags
+and the hidden states the agent network acted from (``rnn_hidden_dim`` floats per agent-transition), and samples
+stretches of ``sequence_length`` consecutive rows of one copy that never cross the write position.
 """
 
 from __future__ import annotations
@@ -138,4 +142,118 @@ class JointReplayBuffer(ReplayBuffer):
             rewards=self.to_torch(rewards.astype(np.float32)),
             states=states,
             next_states=next_states,
+        )
+
+
+class JointSequenceSamples(NamedTuple):
+    """A batch of ``batch_size`` stretches of ``length`` consecutive team transitions of one copy each."""
+
+    observations: th.Tensor  # (batch, length, n_agents, *obs_shape)
+    actions: th.Tensor  # (batch, length, n_agents), long
+    next_observations: th.Tensor  # (batch, length, n_agents, *obs_shape): the terminal observation at an episode's end
+    dones: th.Tensor  # (batch, length): 1 if the episode terminated (a truncation bootstraps)
+    rewards: th.Tensor  # (batch, length): the team reward
+    states: th.Tensor | None  # (batch, length, *state_shape), or None without states
+    next_states: th.Tensor | None  # (batch, length, *state_shape)
+    episode_starts: th.Tensor  # (batch, length, n_agents): 1 where the observation is an episode's first
+    hidden: th.Tensor  # (batch, n_agents, rnn_hidden_dim): the stored hidden state entering the stretch's first step
+
+
+class RecurrentJointReplayBuffer(JointReplayBuffer):
+    """:class:`JointReplayBuffer` for the recurrent agent network: ``sample`` returns stretches of rows.
+
+    Besides the joint buffer's arrays it keeps, per row and entry, whether the observation is an episode's first
+    (``episode_starts``) and the hidden state the agent network had when it acted on it (``hidden``, already zeroed at
+    an episode's start). The algorithm hands both over before each ``add`` (:meth:`set_recurrent_inputs`), as it hands
+    over the reset states. ``sample(batch_size)`` draws ``batch_size`` (start row, copy) pairs and returns the
+    ``sequence_length`` consecutive rows from each (:class:`JointSequenceSamples`), never across the write position
+    (a stretch holds rows written one after another: when full, it never runs from the newest row into the oldest).
+
+    :param sequence_length: rows per stretch
+    :param rnn_hidden_dim: size of the stored hidden states
+    :param kwargs: :class:`JointReplayBuffer`'s arguments
+    """
+
+    def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Space,
+                 device: th.device | str = "auto", n_envs: int = 1, optimize_memory_usage: bool = False,
+                 handle_timeout_termination: bool = True, n_agents: int = 1,
+                 state_shape: tuple[int, ...] | None = None, sequence_length: int = 16, rnn_hidden_dim: int = 64) -> None:
+        super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
+                         optimize_memory_usage=optimize_memory_usage,
+                         handle_timeout_termination=handle_timeout_termination, n_agents=n_agents,
+                         state_shape=state_shape)
+        for name, value in (("sequence_length", sequence_length), ("rnn_hidden_dim", rnn_hidden_dim)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        if sequence_length > self.buffer_size:
+            raise ValueError(f"sequence_length={sequence_length} is longer than the buffer's {self.buffer_size} rows "
+                             f"(buffer_size / n_envs): raise buffer_size or shorten the stretches")
+        self.sequence_length, self.rnn_hidden_dim = int(sequence_length), int(rnn_hidden_dim)
+        self.episode_starts = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+        self.hidden = np.zeros((self.buffer_size, self.n_envs, self.rnn_hidden_dim), dtype=np.float32)
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None
+
+    def set_recurrent_inputs(self, hidden: np.ndarray, episode_starts: np.ndarray) -> None:
+        """The hidden states ``(n_envs, rnn_hidden_dim)`` and episode-start flags ``(n_envs,)`` of the next ``add``'s
+        observations."""
+        hidden = np.asarray(hidden, dtype=np.float32)
+        if hidden.shape != (self.n_envs, self.rnn_hidden_dim):
+            raise ValueError(f"hidden must have shape ({self.n_envs}, {self.rnn_hidden_dim}), got {hidden.shape}")
+        self._pending = (hidden.copy(), np.asarray(episode_starts, dtype=bool).reshape(self.n_envs).copy())
+
+    def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray, done: np.ndarray,
+            infos: list[dict[str, Any]]) -> None:
+        """:class:`JointReplayBuffer`'s ``add``, with the hidden states and episode starts :meth:`set_recurrent_inputs`
+        gave (each used once)."""
+        if self._pending is None:
+            raise RuntimeError("the recurrent joint replay buffer needs the hidden states and episode starts of the "
+                               "observations: call set_recurrent_inputs(hidden, episode_starts) before every add")
+        self.hidden[self.pos], self.episode_starts[self.pos] = self._pending
+        self._pending = None
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def n_rows(self) -> int:
+        """Rows stored (at most ``buffer_size``)."""
+        return self.buffer_size if self.full else self.pos
+
+    def can_sample(self) -> bool:
+        """Whether one stretch of ``sequence_length`` rows is stored."""
+        return self.n_rows() >= self.sequence_length
+
+    def sequence_starts(self, offsets: np.ndarray) -> np.ndarray:
+        """The first rows of stretches number ``offsets`` in ``[0, n_rows - sequence_length]``, counted from the oldest
+        row: every stretch of consecutive rows that does not cross the write position."""
+        return (offsets + (self.pos if self.full else 0)) % self.buffer_size
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> JointSequenceSamples:
+        """``batch_size`` stretches of ``sequence_length`` rows, uniformly over the valid first rows and copies."""
+        if not self.can_sample():
+            raise ValueError(f"the buffer holds {self.n_rows()} rows, fewer than sequence_length={self.sequence_length}")
+        offsets = np.random.randint(0, self.n_rows() - self.sequence_length + 1, size=batch_size)
+        copies = np.random.randint(0, self.n_copies, size=batch_size)
+        return self._get_sequences(self.sequence_starts(offsets), copies, env)
+
+    def _get_sequences(self, first_rows: np.ndarray, copies: np.ndarray,
+                       env: VecNormalize | None = None) -> JointSequenceSamples:
+        """The stretches beginning at rows ``first_rows`` ``(batch,)`` of copies ``copies`` ``(batch,)``."""
+        rows = ((first_rows[:, None] + np.arange(self.sequence_length)) % self.buffer_size)[:, :, None]  # (batch, L, 1)
+        entries = (copies[:, None] * self.n_agents + np.arange(self.n_agents))[:, None, :]  # (batch, 1, n_agents)
+        dones = self.dones[rows, entries]
+        if self.handle_timeout_termination:
+            dones = dones * (1 - self.timeouts[rows, entries])
+        rewards = self._normalize_reward(self.rewards[rows, entries], env).mean(axis=2)
+        states = next_states = None
+        if self.state_shape is not None:
+            states = self.to_torch(self.states[rows[:, :, 0], copies[:, None]])
+            next_states = self.to_torch(self.next_states[rows[:, :, 0], copies[:, None]])
+        return JointSequenceSamples(  # the fancy indexing copied the observations already
+            observations=self.to_torch(self._normalize_obs(self.observations[rows, entries], env), copy=False),
+            actions=self.to_torch(self.actions[rows, entries, 0]).long(),
+            next_observations=self.to_torch(self._normalize_obs(self.next_observations[rows, entries], env), copy=False),
+            dones=self.to_torch(dones.max(axis=2).astype(np.float32)),
+            rewards=self.to_torch(rewards.astype(np.float32)),
+            states=states,
+            next_states=next_states,
+            episode_starts=self.to_torch(self.episode_starts[rows, entries].astype(np.float32)),
+            hidden=self.to_torch(self.hidden[first_rows[:, None], entries[:, 0]]),
         )

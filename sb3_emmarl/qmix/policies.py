@@ -5,6 +5,11 @@ another extractor, e.g. the EM belief's, can slot in), optionally the agent's in
 to the features (``agent_id``, EPyMARL's ``obs_agent_id``), then an MLP to one value per action. Acting is
 decentralised: each entry's greedy action on its own Q-values (``predict`` on per-entry observations); the mixer
 is used in training only.
+
+With ``recurrent=True`` the agent network is :class:`RecurrentAgentQNetwork` (EPyMARL's ``RNNAgent``): the same
+features extractor, agent index and MLP, then a ``GRUCell`` of ``rnn_hidden_dim`` units and a linear Q-head; its
+hidden state travels in ``predict``'s ``state`` (``(n, rnn_hidden_dim)``, zeroed where ``episode_start``), as
+sb3-contrib's RecurrentPPO carries its LSTM state.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 from itertools import chain
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
@@ -72,6 +78,72 @@ class AgentQNetwork(BasePolicy):
         return data
 
 
+class RecurrentAgentQNetwork(BasePolicy):
+    """The shared recurrent agent network: observation (and one-hot agent index) -> MLP -> ``GRUCell`` -> Q-values.
+
+    EPyMARL's ``RNNAgent`` (``fc1 -> ReLU -> GRUCell -> fc2``) with SB3's features extractor and ``net_arch`` in
+    place of ``fc1`` (``net_arch=[]``: the GRU reads the features directly). One call is one time step of ``n``
+    entries: ``forward(obs, hidden)`` returns the Q-values and the next hidden state.
+
+    :param observation_space: one agent's observation space
+    :param action_space: one agent's action space (``Discrete``)
+    :param features_extractor: the features extractor
+    :param features_dim: its output size
+    :param n_agents: agents per team (the size of the one-hot index)
+    :param agent_id: append the one-hot agent index to the features
+    :param net_arch: hidden layer sizes before the GRU (default ``[64]``, EPyMARL's ``fc1``)
+    :param activation_fn: activation function
+    :param normalize_images: divide image observations by 255
+    :param rnn_hidden_dim: the GRU's hidden size
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete,
+                 features_extractor: BaseFeaturesExtractor, features_dim: int, n_agents: int = 1,
+                 agent_id: bool = False, net_arch: list[int] | None = None,
+                 activation_fn: type[nn.Module] = nn.ReLU, normalize_images: bool = True,
+                 rnn_hidden_dim: int = 64) -> None:
+        super().__init__(observation_space, action_space, features_extractor=features_extractor,
+                         normalize_images=normalize_images)
+        self.net_arch = [64] if net_arch is None else list(net_arch)
+        self.activation_fn, self.features_dim = activation_fn, features_dim
+        self.n_agents, self.agent_id = int(n_agents), bool(agent_id)
+        self.rnn_hidden_dim = int(rnn_hidden_dim)
+        input_dim = features_dim + (self.n_agents if self.agent_id else 0)
+        self.mlp = nn.Sequential(*create_mlp(input_dim, -1, self.net_arch, activation_fn))
+        self.rnn = nn.GRUCell(self.net_arch[-1] if self.net_arch else input_dim, self.rnn_hidden_dim)
+        self.q_head = nn.Linear(self.rnn_hidden_dim, int(action_space.n))
+
+    def embed(self, obs: PyTorchObs, agent_ids: th.Tensor | None = None) -> th.Tensor:
+        """The GRU's inputs ``(n, gru_input)`` of ``n`` observations made by the agents ``agent_ids``."""
+        features = self.extract_features(obs, self.features_extractor)
+        if self.agent_id:
+            if agent_ids is None:
+                raise ValueError("this Q-network takes the agent's index (agent_id=True): pass agent_ids")
+            features = th.cat([features, F.one_hot(agent_ids.long(), self.n_agents).to(features.dtype)], dim=-1)
+        return self.mlp(features)
+
+    def forward(self, obs: PyTorchObs, hidden: th.Tensor, agent_ids: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor]:
+        """One step: Q-values ``(n, n_actions)`` and the next hidden state ``(n, rnn_hidden_dim)`` of ``n``
+        observations whose entries had the hidden state ``hidden``."""
+        hidden = self.rnn(self.embed(obs, agent_ids), hidden)
+        return self.q_head(hidden), hidden
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        """Greedy actions from a zero hidden state (the first step of an episode; ``predict`` carries the state)."""
+        first = observation if isinstance(observation, th.Tensor) else next(iter(observation.values()))
+        hidden = th.zeros(first.shape[0], self.rnn_hidden_dim, device=first.device)
+        return self(observation, hidden, entry_agent_ids(observation, self.n_agents, self.agent_id))[0].argmax(dim=1)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(net_arch=self.net_arch, features_dim=self.features_dim, activation_fn=self.activation_fn,
+                    features_extractor=self.features_extractor, n_agents=self.n_agents, agent_id=self.agent_id,
+                    rnn_hidden_dim=self.rnn_hidden_dim)
+        return data
+
+
 def entry_agent_ids(observation: PyTorchObs, n_agents: int, agent_id: bool) -> th.Tensor | None:
     """The agent index of each of ``n`` per-entry observations, in the parameter-sharing vector environment's order
     (entry ``i`` is agent ``i % n_agents``); None when the network does not take it.
@@ -108,10 +180,13 @@ class ValueDecompositionPolicy(BasePolicy):
     :param normalize_images: divide image observations by 255
     :param optimizer_class: optimizer (of the agent network and the mixer together)
     :param optimizer_kwargs: its arguments (without the learning rate)
+    :param recurrent: the agent network is a :class:`RecurrentAgentQNetwork` (set by the algorithm); its
+        ``net_arch`` defaults to ``[64]``
+    :param rnn_hidden_dim: its GRU's hidden size
     """
 
-    q_net: AgentQNetwork
-    q_net_target: AgentQNetwork
+    q_net: AgentQNetwork | RecurrentAgentQNetwork
+    q_net_target: AgentQNetwork | RecurrentAgentQNetwork
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, lr_schedule: Schedule,
                  n_agents: int = 1, state_dim: int = 0, mixer: str = "qmix", mixing_embed_dim: int = 32,
@@ -120,11 +195,13 @@ class ValueDecompositionPolicy(BasePolicy):
                  features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
                  features_extractor_kwargs: dict[str, Any] | None = None, normalize_images: bool = True,
                  optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
-                 optimizer_kwargs: dict[str, Any] | None = None) -> None:
+                 optimizer_kwargs: dict[str, Any] | None = None, recurrent: bool = False,
+                 rnn_hidden_dim: int = 64) -> None:
         super().__init__(observation_space, action_space, features_extractor_class, features_extractor_kwargs,
                          optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs,
                          normalize_images=normalize_images)
-        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
+        self.recurrent, self.rnn_hidden_dim = bool(recurrent), int(rnn_hidden_dim)
+        self.net_arch = ([64] if self.recurrent else [64, 64]) if net_arch is None else list(net_arch)
         self.activation_fn = activation_fn
         self.n_agents, self.state_dim, self.mixer_name = int(n_agents), int(state_dim), mixer
         self.mixer_kwargs = {"embed_dim": mixing_embed_dim, "hypernet_layers": hypernet_layers,
@@ -133,6 +210,8 @@ class ValueDecompositionPolicy(BasePolicy):
         self.net_args = {"observation_space": self.observation_space, "action_space": self.action_space,
                          "net_arch": self.net_arch, "activation_fn": activation_fn, "normalize_images": normalize_images,
                          "n_agents": self.n_agents, "agent_id": self.agent_id}
+        if self.recurrent:
+            self.net_args["rnn_hidden_dim"] = self.rnn_hidden_dim
         self._build(lr_schedule)
 
     def _build(self, lr_schedule: Schedule) -> None:
@@ -144,10 +223,10 @@ class ValueDecompositionPolicy(BasePolicy):
         self.mixer_target.train(False)
         self.optimizer = self.optimizer_class(self.online_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
-    def make_q_net(self) -> AgentQNetwork:
+    def make_q_net(self) -> AgentQNetwork | RecurrentAgentQNetwork:
         # a separate features extractor per network, as SB3's DQNPolicy
         net_args = self._update_features_extractor(self.net_args, features_extractor=None)
-        return AgentQNetwork(**net_args).to(self.device)
+        return (RecurrentAgentQNetwork if self.recurrent else AgentQNetwork)(**net_args).to(self.device)
 
     def make_mixer(self) -> nn.Module:
         return make_mixer(self.mixer_name, self.n_agents, self.state_dim, **self.mixer_kwargs).to(self.device)
@@ -167,10 +246,107 @@ class ValueDecompositionPolicy(BasePolicy):
 
     def team_q_values(self, observations: th.Tensor, target: bool = False) -> th.Tensor:
         """Agent Q-values of team observations ``(batch, n_agents, *obs_shape)`` -> ``(batch, n_agents, n_actions)``."""
+        if self.recurrent:
+            raise ValueError("the recurrent agent network's Q-values need hidden states: use unroll and q_from_hidden")
         batch, n_agents = observations.shape[:2]
         net = self.q_net_target if target else self.q_net
         ids = th.arange(n_agents, device=observations.device).repeat(batch) if self.agent_id else None
         return net(observations.reshape(batch * n_agents, *observations.shape[2:]), ids).view(batch, n_agents, -1)
+
+    # ------------------------------------------------------------------ the recurrent agent network over stretches
+    def _embed_team(self, net: RecurrentAgentQNetwork, observations: th.Tensor) -> th.Tensor:
+        """GRU inputs of observations ``(batch, length, n_agents, *obs_shape)`` -> ``(batch, length, n_agents, dim)``."""
+        lead = observations.shape[:3]
+        ids = th.arange(lead[2], device=observations.device).repeat(lead[0] * lead[1]) if self.agent_id else None
+        return net.embed(observations.reshape(-1, *observations.shape[3:]), ids).view(*lead, -1)
+
+    def unroll(self, observations: th.Tensor, episode_starts: th.Tensor, hidden: th.Tensor, target: bool = False,
+               burn_in: int = 0) -> th.Tensor:
+        """The hidden states after each step of stretches of team observations (recurrent agent network only).
+
+        :param observations: ``(batch, length, n_agents, *obs_shape)``
+        :param episode_starts: ``(batch, length, n_agents)``, 1 where an observation is an episode's first: the hidden
+            state entering that step is zeroed
+        :param hidden: ``(batch, n_agents, rnn_hidden_dim)``, the hidden state entering the first step
+        :param target: unroll the target network
+        :param burn_in: the first ``burn_in`` steps run without gradient (R2D2's burn-in: they only warm the state up)
+        :return: ``(batch, length, n_agents, rnn_hidden_dim)``: ``h_t``, from which step ``t``'s Q-values are read
+        """
+        net = self.q_net_target if target else self.q_net
+        batch, length, n_agents = observations.shape[:3]
+        grad = th.is_grad_enabled()
+        with th.no_grad():  # the burn-in's inputs, then the rest's (with gradient if enabled)
+            inputs = [self._embed_team(net, observations[:, :burn_in])] if burn_in > 0 else []
+        inputs = th.cat([*inputs, self._embed_team(net, observations[:, burn_in:])], dim=1)
+        keep = (1.0 - episode_starts.to(hidden.dtype)).reshape(batch, length, n_agents, 1)
+        h, hiddens = hidden, []
+        for t in range(length):
+            with th.set_grad_enabled(grad and t >= burn_in):
+                h = net.rnn(inputs[:, t].reshape(batch * n_agents, -1), (h * keep[:, t]).reshape(batch * n_agents, -1))
+            h = h.view(batch, n_agents, -1)
+            hiddens.append(h)
+        return th.stack(hiddens, dim=1)
+
+    def q_from_hidden(self, hiddens: th.Tensor, target: bool = False) -> th.Tensor:
+        """Q-values ``(..., n_actions)`` read from hidden states ``(..., rnn_hidden_dim)`` by the Q-head."""
+        return (self.q_net_target if target else self.q_net).q_head(hiddens)
+
+    def next_q_values(self, next_observations: th.Tensor, hiddens: th.Tensor, q_values: th.Tensor | None = None,
+                      boundaries: th.Tensor | None = None, target: bool = False) -> th.Tensor:
+        """Q-values of the next observations of stretches' rows: one more GRU step from each row's hidden state on its
+        next observation (the terminal one at an episode's end: a truncated episode bootstraps from it with the
+        episode's own hidden state).
+
+        Within an episode the next observation is the next row's and that step is the unroll's own: given the rows'
+        Q-values ``q_values``, only the ``boundaries`` rows (an episode starts in the next row) and the last row take the
+        extra step, the others read the next row's Q-values (the same numbers, computed once).
+
+        :param next_observations: ``(batch, length, n_agents, *obs_shape)``
+        :param hiddens: ``(batch, length, n_agents, rnn_hidden_dim)``, ``unroll``'s
+        :param q_values: ``(batch, length, n_agents, n_actions)``, the Q-values read from ``hiddens`` (None: every row
+            takes the extra step)
+        :param boundaries: ``(batch, length)`` bools, the rows followed by an episode start (with ``q_values``)
+        :param target: the target network
+        :return: ``(batch, length, n_agents, n_actions)``
+        """
+        net = self.q_net_target if target else self.q_net
+
+        def step(next_obs: th.Tensor, h: th.Tensor) -> th.Tensor:
+            x = self._embed_team(net, next_obs)
+            return net.q_head(net.rnn(x.reshape(-1, x.shape[-1]), h.reshape(-1, h.shape[-1]))).view(*h.shape[:-1], -1)
+
+        if q_values is None:
+            return step(next_observations, hiddens)
+        extra = boundaries.clone()
+        extra[:, -1] = True
+        next_q = th.cat([q_values[:, 1:], q_values[:, -1:]], dim=1)
+        rows = extra.nonzero(as_tuple=True)
+        next_q[rows] = step(next_observations[rows].unsqueeze(1), hiddens[rows].unsqueeze(1)).squeeze(1)
+        return next_q
+
+    def predict(self, observation: np.ndarray | dict[str, np.ndarray], state: Any = None,
+                episode_start: np.ndarray | None = None, deterministic: bool = False) -> tuple[np.ndarray, Any]:
+        """Each entry's greedy action; with the recurrent agent network, from the hidden states ``state``
+        (``(n, rnn_hidden_dim)``, zeros if None, zeroed where ``episode_start``), returning the next ones (as
+        RecurrentPPO; without it, ``state`` is returned unchanged)."""
+        if not self.recurrent:
+            return super().predict(observation, state, episode_start, deterministic)
+        self.set_training_mode(False)
+        obs, vectorized = self.obs_to_tensor(observation)
+        first = obs if isinstance(obs, th.Tensor) else next(iter(obs.values()))
+        n = first.shape[0]
+        hidden = np.zeros((n, self.rnn_hidden_dim), dtype=np.float32) if state is None else \
+            np.asarray(state, dtype=np.float32)
+        if hidden.shape != (n, self.rnn_hidden_dim):
+            raise ValueError(f"state must be the hidden states of the {n} observations, shape ({n}, {self.rnn_hidden_dim}), "
+                             f"got shape {hidden.shape}")
+        if episode_start is not None:
+            hidden = hidden * (1.0 - np.asarray(episode_start, dtype=np.float32).reshape(n, 1))
+        with th.no_grad():
+            q_values, next_hidden = self.q_net(obs, th.as_tensor(hidden, device=self.device),
+                                               entry_agent_ids(obs, self.n_agents, self.agent_id))
+        actions = q_values.argmax(dim=1).cpu().numpy()
+        return (actions if vectorized else actions.squeeze(axis=0)), next_hidden.cpu().numpy()
 
     def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         return self._predict(obs, deterministic=deterministic)
@@ -192,7 +368,8 @@ class ValueDecompositionPolicy(BasePolicy):
                     net_arch=self.net_arch, activation_fn=self.activation_fn, lr_schedule=self._dummy_schedule,
                     optimizer_class=self.optimizer_class, optimizer_kwargs=self.optimizer_kwargs,
                     features_extractor_class=self.features_extractor_class,
-                    features_extractor_kwargs=self.features_extractor_kwargs)
+                    features_extractor_kwargs=self.features_extractor_kwargs, recurrent=self.recurrent,
+                    rnn_hidden_dim=self.rnn_hidden_dim)
         return data
 
 

@@ -15,11 +15,23 @@ It reuses SB3's machinery: ``OffPolicyAlgorithm``'s rollouts (``learning_starts`
 ``i % n_agents`` of copy ``i // n_agents``, so ``num_timesteps`` counts agent-steps, as for DQN on the same
 environment.
 
+With ``recurrent=True`` the agent network is a GRU (EPyMARL's ``RNNAgent``, ``rnn_hidden_dim`` units; see
+:class:`~sb3_emmarl.qmix.policies.RecurrentAgentQNetwork`): rollouts carry each vector entry's hidden state
+(zeroed at episode starts; ``predict(obs, state, episode_start)`` takes and returns it, as RecurrentPPO), the
+buffer (:class:`~sb3_emmarl.qmix.buffers.RecurrentJointReplayBuffer`) stores it with each row and samples
+``batch_size`` stretches of ``sequence_length`` consecutive rows of one copy, and the loss unrolls the online and
+target networks over each stretch from the stored hidden state (R2D2's "stored state"), zeroing it where an episode
+starts, with no loss and no gradient on the first ``burn_in`` steps. Every row of a stretch is a whole transition
+with its own next observation and state, so rows on both sides of an episode's end are trained on (the hidden state
+resets at the start flag) and nothing is masked but the burn-in: the next Q-values of row ``t`` are one more GRU
+step from row ``t``'s hidden state on its next observation (the terminal one at an episode's end).
+
 Departures from the paper and EPyMARL (``src/learners/q_learner.py``):
 
-- transitions, not episodes: the buffer keeps single team transitions and samples ``batch_size`` of them (EPyMARL
-  samples ``batch_size`` whole episodes for its recurrent agents); the agent network is an MLP on the current
-  observation (EPyMARL's ``use_rnn: False``; there is no recurrent option here);
+- transitions or stretches, not episodes: the buffer keeps single team transitions and samples ``batch_size`` of
+  them, or with ``recurrent=True`` ``batch_size`` stretches of ``sequence_length`` rows with a stored initial
+  hidden state and a burn-in (EPyMARL samples ``batch_size`` whole episodes and unrolls from a zero state);
+  the default agent network is an MLP on the current observation (EPyMARL's ``use_rnn: False``);
 - every agent explores on its own coin (as EPyMARL), where SB3's DQN draws one coin for the whole vector;
 - the optimizer is Adam (EPyMARL's; the paper used RMSprop), gradients clipped at ``max_grad_norm``;
 - the team reward is the mean of the copy's agents' rewards (the team reward itself on the reserve with
@@ -44,7 +56,12 @@ from torch.nn import functional as F
 
 from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.vec_env import SharedPolicyVecEnv, require_state
-from sb3_emmarl.qmix.buffers import JointReplayBuffer, JointReplaySamples
+from sb3_emmarl.qmix.buffers import (
+    JointReplayBuffer,
+    JointReplaySamples,
+    JointSequenceSamples,
+    RecurrentJointReplayBuffer,
+)
 from sb3_emmarl.qmix.policies import QMIXPolicy, ValueDecompositionPolicy
 
 SelfQMIX = TypeVar("SelfQMIX", bound="QMIX")
@@ -106,6 +123,13 @@ class QMIX(OffPolicyAlgorithm):
     :param mixing_embed_dim: width of the mixing network
     :param hypernet_embed: hidden width of two-layer hypernetworks
     :param hypernet_layers: 1 (linear hypernetworks, the paper) or 2 (EPyMARL)
+    :param recurrent: a GRU agent network trained on stretches of ``sequence_length`` rows (see the module
+        docstring); ``predict`` then takes and returns the hidden states. ``batch_size`` counts stretches, and
+        ``net_arch`` (the layers before the GRU) defaults to ``[64]``
+    :param rnn_hidden_dim: the GRU's hidden size (EPyMARL's ``hidden_dim``), with ``recurrent``
+    :param sequence_length: rows (team steps) per sampled stretch, with ``recurrent``
+    :param burn_in: first steps of each stretch that only warm the hidden state up (no loss, no gradient), with
+        ``recurrent``; in ``[0, sequence_length - 1]``
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: tensorboard folder
     :param policy_kwargs: policy arguments (``net_arch``, ``activation_fn``, ``features_extractor_class``, ...)
@@ -145,6 +169,10 @@ class QMIX(OffPolicyAlgorithm):
         mixing_embed_dim: int = 32,
         hypernet_embed: int = 64,
         hypernet_layers: int = 2,
+        recurrent: bool = False,
+        rnn_hidden_dim: int = 64,
+        sequence_length: int = 16,
+        burn_in: int = 4,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -162,11 +190,16 @@ class QMIX(OffPolicyAlgorithm):
                             ("exploration_final_eps", exploration_final_eps), ("max_grad_norm", max_grad_norm),
                             ("double_q", double_q), ("agent_id", agent_id),
                             ("mixing_embed_dim", mixing_embed_dim), ("hypernet_embed", hypernet_embed),
-                            ("hypernet_layers", hypernet_layers), ("stats_window_size", stats_window_size)):
+                            ("hypernet_layers", hypernet_layers), ("recurrent", recurrent),
+                            ("rnn_hidden_dim", rnn_hidden_dim), ("sequence_length", sequence_length),
+                            ("burn_in", burn_in), ("stats_window_size", stats_window_size)):
             _check(name, value)
+        if burn_in >= sequence_length:
+            raise ValueError(f"burn_in must be smaller than sequence_length={sequence_length} (a stretch needs a step to "
+                             f"train on), got {burn_in}")
         policy_kwargs = dict(policy_kwargs or {})
         own = sorted(set(policy_kwargs) & {"n_agents", "state_dim", "mixer", "mixing_embed_dim", "hypernet_embed",
-                                           "hypernet_layers", "agent_id"})
+                                           "hypernet_layers", "agent_id", "recurrent", "rnn_hidden_dim"})
         if own:
             raise ValueError(f"policy_kwargs may not set {own}: they are {type(self).__name__}'s own arguments or come "
                              "from the environment")
@@ -177,10 +210,14 @@ class QMIX(OffPolicyAlgorithm):
         policy_kwargs.update(n_agents=self.n_agents, state_dim=int(np.prod(self.state_shape or (0,))), mixer=self.mixer_type,
                              mixing_embed_dim=mixing_embed_dim, hypernet_embed=hypernet_embed,
                              hypernet_layers=hypernet_layers, agent_id=bool(agent_id))
+        buffer_kwargs: dict[str, Any] = {"n_agents": self.n_agents, "state_shape": self.state_shape}
+        if recurrent:
+            policy_kwargs.update(recurrent=True, rnn_hidden_dim=rnn_hidden_dim)
+            buffer_kwargs.update(sequence_length=sequence_length, rnn_hidden_dim=rnn_hidden_dim)
         super().__init__(
             policy, env, learning_rate, buffer_size, learning_starts, batch_size, tau, gamma, train_freq, gradient_steps,
-            action_noise=None, replay_buffer_class=JointReplayBuffer,
-            replay_buffer_kwargs={"n_agents": self.n_agents, "state_shape": self.state_shape},
+            action_noise=None, replay_buffer_class=RecurrentJointReplayBuffer if recurrent else JointReplayBuffer,
+            replay_buffer_kwargs=buffer_kwargs,
             optimize_memory_usage=False, policy_kwargs=policy_kwargs, stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log, verbose=verbose, device=device, seed=seed, sde_support=False,
             supported_action_spaces=(spaces.Discrete,), support_multi_env=True,
@@ -193,6 +230,13 @@ class QMIX(OffPolicyAlgorithm):
         self.double_q = bool(double_q)
         self.agent_id = bool(agent_id)
         self.mixing_embed_dim, self.hypernet_embed, self.hypernet_layers = mixing_embed_dim, hypernet_embed, hypernet_layers
+        self.recurrent, self.rnn_hidden_dim = bool(recurrent), rnn_hidden_dim
+        self.sequence_length, self.burn_in = sequence_length, burn_in
+        #: ``(n_envs, rnn_hidden_dim)``: the hidden states entering the next step of ``_last_obs`` (recurrent; kept with
+        #: the model, as ``_last_obs``), before the ``_last_episode_starts`` reset
+        self._last_hidden: np.ndarray | None = None
+        #: the hidden states of the step under way, ``(entering, leaving)`` (recurrent; not saved)
+        self._step_hidden: tuple[np.ndarray, np.ndarray] | None = None
         self.exploration_rate = 0.0
         self._n_calls = 0
         #: ``(n_copies, *state_shape)``: the global states of ``_last_obs`` (kept with the model, as ``_last_obs``)
@@ -225,7 +269,7 @@ class QMIX(OffPolicyAlgorithm):
         super().set_env(venv, force_reset=force_reset)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "q_net", "q_net_target", "mixer", "mixer_target"]
+        return [*super()._excluded_save_params(), "q_net", "q_net_target", "mixer", "mixer_target", "_step_hidden"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
@@ -240,13 +284,36 @@ class QMIX(OffPolicyAlgorithm):
         elif self.replay_buffer.last_states is None and self._last_states is not None:
             self.replay_buffer.last_states = self._last_states.copy()
         self._last_states = self.replay_buffer.last_states
+        if self.recurrent and (resets or self._last_hidden is None
+                               or self._last_hidden.shape != (self.n_envs, self.rnn_hidden_dim)):
+            self._last_hidden = np.zeros((self.n_envs, self.rnn_hidden_dim), dtype=np.float32)
         return result
+
+    def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """SB3's, and with the recurrent agent network the hidden states' step: the network runs on every step (also
+        before ``learning_starts``, whose actions are uniformly random) so that the stored hidden states are the ones it
+        had on each observation."""
+        if not self.recurrent:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        entering = self._last_hidden * (1.0 - np.asarray(self._last_episode_starts, dtype=np.float32)[:, None])
+        greedy, leaving = self.policy.predict(self._last_obs, entering, None, deterministic=True)
+        self._step_hidden = (entering, leaving)
+        if self.num_timesteps < learning_starts:
+            actions = np.array([self.action_space.sample() for _ in range(n_envs)])
+        else:
+            actions = self._explore(greedy)
+        return actions, actions
 
     def _store_transition(self, replay_buffer: JointReplayBuffer, buffer_action: np.ndarray,
                           new_obs: np.ndarray | dict[str, np.ndarray], reward: np.ndarray, dones: np.ndarray,
                           infos: list[dict[str, Any]]) -> None:
+        if self.recurrent:
+            replay_buffer.set_recurrent_inputs(self._step_hidden[0], self._last_episode_starts)
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
         self._last_states = replay_buffer.last_states
+        if self.recurrent:  # the next step's: the hidden states the network left, reset where an episode ended
+            self._last_hidden, self._step_hidden = self._step_hidden[1], None
+            self._last_episode_starts = np.asarray(dones, dtype=bool).copy()
 
     def _on_step(self) -> None:
         """After every vector step (as DQN): target update every ``target_update_interval`` agent-steps, epsilon."""
@@ -264,10 +331,12 @@ class QMIX(OffPolicyAlgorithm):
 
         :param observation: per-entry observations ``(n, *obs_shape)`` or one observation (with ``agent_id``: a
             whole number of teams, in the vector environment's order)
-        :param state: unused (no recurrent state)
-        :param episode_start: unused
+        :param state: with ``recurrent``: the hidden states ``(n, rnn_hidden_dim)`` (None: zeros, an episode's first
+            step); otherwise unused
+        :param episode_start: with ``recurrent``: ``(n,)`` flags of the entries whose episode starts (their hidden state
+            is zeroed); otherwise unused
         :param deterministic: greedy actions only
-        :return: the actions and ``state``
+        :return: the actions and the next hidden states (without ``recurrent``: ``state``)
         """
         actions, state = self.policy.predict(observation, state, episode_start, deterministic)
         return (actions if deterministic else self._explore(actions)), state
@@ -290,12 +359,18 @@ class QMIX(OffPolicyAlgorithm):
         greedy actions (``double_q=False``)."""
         with th.no_grad():
             next_target = self.policy.team_q_values(data.next_observations, target=True)
-            if self.double_q:
-                next_chosen = next_target.gather(2, next_online.argmax(dim=2, keepdim=True)).squeeze(-1)
-            else:
-                next_chosen = next_target.max(dim=2).values
-            next_tot = self.policy.mixer_target(next_chosen, data.next_states)
-            return data.rewards + (1.0 - data.dones) * self.gamma * next_tot
+            return self._bootstrap(data.rewards, data.dones, next_online, next_target, data.next_states)
+
+    def _bootstrap(self, rewards: th.Tensor, dones: th.Tensor, next_online: th.Tensor, next_target: th.Tensor,
+                   next_states: th.Tensor | None) -> th.Tensor:
+        """``r + gamma (1 - terminated) Q_tot^-(o', u*, s')`` ``(batch,)`` from the next Q-values ``(batch, n_agents,
+        n_actions)`` of the online network (which picks ``u*``, double Q) and of the target network."""
+        if self.double_q:
+            next_chosen = next_target.gather(2, next_online.argmax(dim=2, keepdim=True)).squeeze(-1)
+        else:
+            next_chosen = next_target.max(dim=2).values
+        next_tot = self.policy.mixer_target(next_chosen, next_states)
+        return rewards + (1.0 - dones) * self.gamma * next_tot
 
     def _loss(self, data: JointReplaySamples) -> tuple[th.Tensor, dict[str, float]]:
         """The squared TD error of a batch of team transitions (as the paper and EPyMARL) and its statistics."""
@@ -311,14 +386,55 @@ class QMIX(OffPolicyAlgorithm):
                  "target_mean": targets.mean().item(), "td_error_abs": (q_tot - targets).abs().mean().item()}
         return loss, stats
 
+    def _sequence_targets(self, data: JointSequenceSamples, online_hiddens: th.Tensor,
+                          online_q: th.Tensor) -> th.Tensor:
+        """The targets ``(batch, length - burn_in)`` of the stretches' trained rows: the target network unrolled over the
+        same stretch from the same stored state, one more step on each row's next observation (read from the next row
+        within an episode); ``u*`` picked by the online network's next Q-values likewise, from its hidden states
+        ``online_hiddens`` and Q-values ``online_q`` of the trained rows (double Q)."""
+        b = self.burn_in
+        with th.no_grad():
+            next_observations = data.next_observations[:, b:]
+            boundaries = (data.episode_starts[:, b + 1:] > 0).any(dim=2)  # an episode starts in the next row
+            boundaries = th.cat([boundaries, th.ones_like(boundaries[:, :1])], dim=1)
+            next_online = self.policy.next_q_values(next_observations, online_hiddens, online_q.detach(), boundaries)
+            target_hiddens = self.policy.unroll(data.observations, data.episode_starts, data.hidden, target=True)[:, b:]
+            next_target = self.policy.next_q_values(next_observations, target_hiddens,
+                                                    self.policy.q_from_hidden(target_hiddens, target=True), boundaries,
+                                                    target=True)
+            batch, length, n_agents, n_actions = next_online.shape
+            next_states = None if data.next_states is None else data.next_states[:, b:].reshape(batch * length, -1)
+            targets = self._bootstrap(data.rewards[:, b:].reshape(-1), data.dones[:, b:].reshape(-1),
+                                      next_online.reshape(-1, n_agents, n_actions),
+                                      next_target.reshape(-1, n_agents, n_actions), next_states)
+            return targets.view(batch, length)
+
+    def _sequence_loss(self, data: JointSequenceSamples) -> tuple[th.Tensor, dict[str, float]]:
+        """The squared TD error over the stretches' rows after the burn-in (none is masked otherwise: see the module
+        docstring) and its statistics."""
+        b = self.burn_in
+        hiddens = self.policy.unroll(data.observations, data.episode_starts, data.hidden, burn_in=b)[:, b:]
+        q_values = self.policy.q_from_hidden(hiddens)
+        chosen = q_values.gather(3, data.actions[:, b:].unsqueeze(-1)).squeeze(-1)
+        targets = self._sequence_targets(data, hiddens, q_values).reshape(-1)
+        states = None if data.states is None else data.states[:, b:].reshape(targets.shape[0], -1)
+        q_tot = self.policy.mixer(chosen.reshape(targets.shape[0], -1), states)
+        loss = F.mse_loss(q_tot, targets)
+        stats = {"q_taken_mean": chosen.mean().item(), "q_tot_mean": q_tot.mean().item(),
+                 "target_mean": targets.mean().item(), "td_error_abs": (q_tot - targets).abs().mean().item()}
+        return loss, stats
+
     def train(self, gradient_steps: int, batch_size: int = 32) -> None:
-        """``gradient_steps`` TD updates on ``batch_size`` team transitions each."""
+        """``gradient_steps`` TD updates on ``batch_size`` team transitions each (``recurrent``: stretches; none until
+        the buffer holds one stretch)."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
+        if self.recurrent and not self.replay_buffer.can_sample():
+            return
         losses, norms, stats = [], [], []
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            loss, step_stats = self._loss(data)
+            loss, step_stats = self._sequence_loss(data) if self.recurrent else self._loss(data)
             self.policy.optimizer.zero_grad()
             loss.backward()
             norms.append(th.nn.utils.clip_grad_norm_(self.policy.online_parameters(), self.max_grad_norm).item())

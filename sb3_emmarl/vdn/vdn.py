@@ -5,8 +5,10 @@ agent's index), team transitions of the joint replay buffer, double Q with targe
 exploration on DQN's linear schedule. The sum needs no global state, so VDN trains on any parameter-sharing vector
 environment with ``Discrete`` actions (and on a plain SB3 ``VecEnv``, as teams of one agent: double DQN).
 
-Departures from the paper: an MLP agent network (the paper's agents are recurrent, with a dueling head), trained on
-single team transitions rather than episode stretches, and the team reward is the mean of the agents' rewards.
+Departures from the paper: by default an MLP agent network trained on single team transitions (the paper's agents
+are recurrent, with a dueling head); ``recurrent=True`` gives QMIX's GRU agent network trained on stretches of
+``sequence_length`` rows with a stored hidden state and a burn-in (no dueling head). The team reward is the mean of
+the agents' rewards.
 """
 
 from __future__ import annotations
@@ -44,6 +46,10 @@ class VDN(QMIX):
     :param max_grad_norm: gradient clipping
     :param double_q: double Q-learning targets
     :param agent_id: the agent network also sees the one-hot agent index
+    :param recurrent: a GRU agent network trained on stretches (QMIX's option; ``batch_size`` then counts stretches)
+    :param rnn_hidden_dim: the GRU's hidden size
+    :param sequence_length: rows per sampled stretch
+    :param burn_in: first steps of each stretch without loss (in ``[0, sequence_length - 1]``)
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: tensorboard folder
     :param policy_kwargs: policy arguments
@@ -77,6 +83,10 @@ class VDN(QMIX):
         max_grad_norm: float = 10.0,
         double_q: bool = True,
         agent_id: bool = False,
+        recurrent: bool = False,
+        rnn_hidden_dim: int = 64,
+        sequence_length: int = 16,
+        burn_in: int = 4,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -94,7 +104,8 @@ class VDN(QMIX):
                          train_freq=train_freq, gradient_steps=gradient_steps,
                          target_update_interval=target_update_interval, exploration_fraction=exploration_fraction,
                          exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
-                         max_grad_norm=max_grad_norm, double_q=double_q, agent_id=agent_id,
+                         max_grad_norm=max_grad_norm, double_q=double_q, agent_id=agent_id, recurrent=recurrent,
+                         rnn_hidden_dim=rnn_hidden_dim, sequence_length=sequence_length, burn_in=burn_in,
                          stats_window_size=stats_window_size, tensorboard_log=tensorboard_log,
                          policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
                          _init_setup_model=_init_setup_model)
