@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines
+	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -83,3 +83,7 @@ benchmark-matrix-game: install
 # MAPPO, QMIX, VDN and VDN+EM against PPO and EM-PPO on the default reserve, 3 seeds x 300k agent-steps (about 20 minutes).
 benchmark-baselines: install
 	$(PYTHON) zoo/compare.py --variants ppo em_ppo mappo qmix vdn vdn_em --seeds 0 1 2 -n 300000 --n-jobs 2
+
+# The paper's table 6: PPO with graph attention and with a transformer over the messages, against PPO and EM-PPO, 3 seeds x 200k agent-steps (about 25 minutes).
+benchmark-message-policies: install
+	$(PYTHON) zoo/compare.py --variants ppo em_ppo ppo_gat ppo_transformer --seeds 0 1 2 -n 200000 --n-jobs 2

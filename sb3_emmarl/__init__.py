@@ -3,10 +3,11 @@
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
 from sb3_emmarl.mappo import MAPPO
+from sb3_emmarl.message_ppo import MessagePPO
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.qmix import QMIX
 from sb3_emmarl.vdn import VDN
 from sb3_emmarl.vdn_em import EMVDN
 from sb3_emmarl.version import __version__
 
-__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "QMIX", "VDN", "OraclePPO", "__version__"]
+__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "MessagePPO", "QMIX", "VDN", "OraclePPO", "__version__"]

@@ -23,6 +23,8 @@ SETTINGS = {
     "mappo": {"n_steps": 64, "batch_size": 96, "n_epochs": 2},
     "qmix": {"learning_starts": 500, "buffer_size": 5000, "batch_size": 32, "train_freq": 4},
     "vdn": {"learning_starts": 500, "buffer_size": 5000, "batch_size": 32, "train_freq": 4},
+    "ppo_gat": {"n_steps": 64, "batch_size": 96, "n_epochs": 2, "extractor": "gat"},
+    "ppo_transformer": {"n_steps": 64, "batch_size": 96, "n_epochs": 2, "extractor": "transformer"},
 }
 
 
@@ -37,8 +39,9 @@ def build(name):
         settings["action_noise"] = NormalActionNoise(np.zeros(3), 0.2 * np.ones(3))
     policy = "MlpLstmPolicy" if name == "ppo_lstm" else "MlpPolicy"
     model = ZOO_ALGOS[name](policy, env, seed=0, **settings)
-    # The oracle reads the true mode from its environment's infos: it acts on its own wrapped environment.
-    return model, model.get_env() if name == "oracle_ppo" else env
+    # The oracle reads the true mode from its environment's infos, the message policies what teammates sent: they act
+    # on their own wrapped environments.
+    return model, model.get_env() if name in ("oracle_ppo", "ppo_gat", "ppo_transformer") else env
 
 
 def test_every_stock_baseline_is_covered():

@@ -272,6 +272,13 @@ RULES: dict[str, Rule] = {
     "mixing_embed_dim": integer(1, MAX_LAYER),
     "hypernet_embed": integer(1, MAX_LAYER),
     "hypernet_layers": integer(1, 2),
+    # PPO over the neighbour messages (graph attention, transformer)
+    "extractor": choice("gat", "transformer"),
+    "max_messages": integer(1, 64),
+    "extractor_kwargs": mapping({"features_dim": integer(1, MAX_LAYER), "hidden_dim": integer(1, MAX_LAYER),
+                                 "n_heads": integer(1, 64), "n_rounds": integer(1, 2), "d_model": integer(1, MAX_LAYER),
+                                 "n_layers": integer(1, 16), "dim_feedforward": integer(1, MAX_LAYER)},
+                                "extractor_kwargs"),
     "recurrent": boolean(),
     "rnn_hidden_dim": integer(1, MAX_LAYER),
     "sequence_length": integer(1, 10**4),

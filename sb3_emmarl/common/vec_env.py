@@ -42,6 +42,10 @@ COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
 #: Info keys of the global state (with ``with_state=True``): the state matching the returned observation (after an
 #: automatic reset, the new episode's), and at an episode's end the state it ended in (as ``terminal_observation``).
 STATE_KEY, TERMINAL_STATE_KEY = "state", "terminal_state"
+#: Info keys of the links: the teammates whose messages reached an agent this step (the reserve's ``heard_from``; none
+#: after an automatic reset), and at an episode's end the links of its last step (SuperSuit's automatic reset would
+#: otherwise overwrite them with the new episode's empty ones).
+LINKS_KEY, TERMINAL_LINKS_KEY = "heard_from", "terminal_heard_from"
 
 
 class _ReserveCopy(MarkovVectorEnv):
@@ -52,7 +56,7 @@ class _ReserveCopy(MarkovVectorEnv):
         super().__init__(par_env)
         self.copy_index = copy_index
         self.with_state = with_state
-        self._in_step = False
+        self._in_step = self._auto_reset = False
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         options = dict(options or {})
@@ -66,14 +70,20 @@ class _ReserveCopy(MarkovVectorEnv):
         if self.with_state:
             extra[STATE_KEY] = np.asarray(self.par_env.state(), dtype=np.float32)
             infos = [{**info, **extra} for info in infos]
+        if self._in_step:  # SuperSuit merges these into the last step's infos: leave that step's links in place
+            self._auto_reset = True
+            infos = [{k: v for k, v in info.items() if k != LINKS_KEY} for info in infos]
         return observations, infos
 
     def step(self, actions):
-        self._in_step = True
+        self._in_step, self._auto_reset = True, False
         try:
             observations, rewards, terminations, truncations, infos = super().step(actions)
         finally:
             self._in_step = False
+        if self._auto_reset:  # the last step's links move to their terminal key; the new episode has heard nobody
+            infos = [{**info, TERMINAL_LINKS_KEY: info[LINKS_KEY], LINKS_KEY: ()} if LINKS_KEY in info else info
+                     for info in infos]
         if self.with_state and (not infos or STATE_KEY not in infos[0]):  # no automatic reset: the current state
             state = np.asarray(self.par_env.state(), dtype=np.float32)
             infos = [{**info, STATE_KEY: state} for info in infos]

@@ -13,6 +13,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
 from sb3_emmarl.mappo import MAPPO
+from sb3_emmarl.message_ppo import MessagePPO
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.qmix import QMIX
 from sb3_emmarl.vdn import VDN
@@ -33,6 +34,8 @@ SHARED_ALGOS: dict[str, type[BaseAlgorithm]] = {
     "qmix": QMIX,  # shared agent Q-network, monotonic mixing conditioned on the global state
     "vdn": VDN,  # shared agent Q-network, team value the sum of the agents'
     "vdn_em": EMVDN,  # the paper's VDN+EM: VDN whose agents see the EM belief
+    "ppo_gat": MessagePPO,  # PPO with graph attention over the messages the UAV received (table 6)
+    "ppo_transformer": MessagePPO,  # PPO with a transformer over the UAV, its messages and its window (table 6)
 }
 #: Algorithms trained on the centralised view (global state in, joint action out).
 CENTRALIZED_ALGOS: dict[str, type[BaseAlgorithm]] = {
@@ -55,6 +58,7 @@ def register_algorithms() -> None:
     for name, algo in ZOO_ALGOS.items():
         rl_zoo3.ALGOS.setdefault(name, algo)
     for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg"), ("oracle_ppo", "ppo"), ("mappo", "ppo"),
-                       ("qmix", "dqn"), ("vdn", "dqn"), ("vdn_em", "dqn")):
+                       ("qmix", "dqn"), ("vdn", "dqn"), ("vdn_em", "dqn"),
+                       ("ppo_gat", "ppo"), ("ppo_transformer", "ppo")):
         hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, hyperparams_opt.HYPERPARAMS_SAMPLER[like])
         hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, hyperparams_opt.HYPERPARAMS_CONVERTER[like])

@@ -7,7 +7,8 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   one vector entry per UAV) instead of ``gym.make`` copies, with the true mode for ``oracle_ppo`` (the EM
   algorithms add their belief wrapper themselves, and evaluate on plain environments through
   ``predict(obs, state, episode_start)``); the centralised algorithms keep rl_zoo3's own path
-  through the Gymnasium id ``WildlifeReserve-v0``;
+  through the Gymnasium id ``WildlifeReserve-v0``; ``ppo_gat`` / ``ppo_transformer`` get the neighbour messages
+  (training and evaluation environments alike);
 - ``oracle_ppo`` reads ``ppo.yml``: the same settings as PPO by construction;
 - ``n_envs`` is counted in vector entries (copies x UAVs) once the YAML is read, so that rl_zoo3's
   ``--eval-freq`` / ``--save-freq`` / optuna arithmetic, which divides by ``n_envs``, stays right;
@@ -61,6 +62,8 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
+from sb3_emmarl.message_ppo import MessagePPO
+from sb3_emmarl.message_ppo.message_ppo import wrap_with_messages
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import (
     CENTRALIZED_ALGOS,
@@ -195,6 +198,7 @@ class ReserveExperimentManager(ExperimentManager):
             self.n_envs *= self.agents_per_copy  # rl_zoo3 divides step counts by n_envs: count vector entries
         if self.vec_env_class.__name__ == "SubprocVecEnv":
             self.num_cpus = min(os.cpu_count() or 1, max(1, self.n_envs // self.agents_per_copy))
+        self._message_slots = int(processed[0].get("max_messages", 8))
         self._check_buffer_memory(processed[0], prototype)
         prototype.close()
         return processed
@@ -255,6 +259,8 @@ class ReserveExperimentManager(ExperimentManager):
             env = self._maybe_normalize(env, eval_env)
             if ZOO_ALGOS[self.algo] is OraclePPO:
                 env = wrap_with_mode(env)
+            elif ZOO_ALGOS[self.algo] is MessagePPO:  # evaluations need the messages too
+                env = wrap_with_messages(env, self._message_slots)
         return FiniteCheck(env)
 
     def _maybe_normalize(self, env: VecEnv, eval_env: bool) -> VecEnv:

@@ -30,9 +30,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepR
 
 from sb3_emmarl.common.latent.features import default_features, encode_actions
 from sb3_emmarl.common.latent.model import LatentModel
-
-#: Info key under which the reserve lists the senders whose messages reached an agent this step.
-LINKS_KEY = "heard_from"
+from sb3_emmarl.common.vec_env import LINKS_KEY
 
 
 class BeliefTracker:
