@@ -10,4 +10,4 @@ from sb3_emmarl.vdn import VDN
 from sb3_emmarl.vdn_em import EMVDN
 from sb3_emmarl.version import __version__
 
-__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "MessagePPO", "QMIX", "VDN", "OraclePPO", "__version__"]
+__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "QMIX", "VDN", "MessagePPO", "OraclePPO", "__version__"]
