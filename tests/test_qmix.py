@@ -250,7 +250,7 @@ class NoStateGame(TwoStepGame):
     ({"gamma": 2}, r"gamma must be a number in \[0.0, 1.0\], got 2"),
     ({"double_q": "yes"}, r"double_q must be true or false, got 'yes'"),
     ({"batch_size": 0}, r"batch_size must be an int in \[1, 10000000\], got 0"),
-    ({"learning_rate": "lin_1e-3"}, r"learning_rate must be a number in \(0, 10\] or a schedule"),
+    ({"learning_rate": "lin_1e-3"}, r"learning_rate must be a number in \(0.0, 10.0\] or a schedule"),
     ({"policy_kwargs": {"n_agents": 3}}, r"policy_kwargs may not set \['n_agents'\]"),
 ])
 def test_bad_arguments_are_rejected_with_a_message(kwargs, message):

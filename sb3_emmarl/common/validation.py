@@ -149,6 +149,22 @@ def optional(rule: Rule) -> Rule:
     return Rule(check, allowed)
 
 
+def no_schedule_string(rule: Rule) -> Rule:
+    """``rule`` without rl_zoo3's ``"lin_<value>"`` strings, for constructors: the zoo turns those strings into
+    schedules before it calls the constructor, so a string there is a mistake."""
+    allowed = rule.allowed.replace(" or 'lin_<value>'", " or a schedule")
+
+    def check(name: str, value: Any) -> Any:
+        if isinstance(value, str):
+            fail(name, value, allowed)
+        try:
+            return rule(name, value)
+        except ValueError:
+            fail(name, value, allowed)
+
+    return Rule(check, allowed)
+
+
 def layers() -> Rule:
     """A list of layer sizes (ints in ``[1, MAX_LAYER]``)."""
     size = integer(1, MAX_LAYER)

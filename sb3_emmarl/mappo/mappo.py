@@ -40,38 +40,23 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_emmarl.common.validation import RULES, Rule, fail, number, optional
+from sb3_emmarl.common.validation import RULES, Rule, fail, no_schedule_string, number, optional
 from sb3_emmarl.mappo.policies import VALUE_NORM_BETA, MAPPOPolicy, MlpPolicy
 from sb3_emmarl.mappo.wrappers import StateLayout, find_state_wrapper, wrap_with_state
 
 SelfMAPPO = TypeVar("SelfMAPPO", bound="MAPPO")
 
 
-def _not_text(rule: Rule) -> Rule:
-    """``rule`` without rl_zoo3's ``"lin_<value>"`` strings (the zoo turns them into schedules before the constructor)."""
-    allowed = rule.allowed.replace(" or 'lin_<value>'", " or a schedule")
-
-    def check(name: str, value: Any) -> Any:
-        if isinstance(value, str):
-            fail(name, value, allowed)
-        try:
-            return rule(name, value)
-        except ValueError:
-            fail(name, value, allowed)
-
-    return Rule(check, allowed)
-
-
 #: The rule of every MAPPO constructor argument it checks (PPO's from the zoo's rules, MAPPO's own below).
 MAPPO_RULES: dict[str, Rule] = {
-    "learning_rate": _not_text(RULES["learning_rate"]),
+    "learning_rate": no_schedule_string(RULES["learning_rate"]),
     "n_steps": RULES["n_steps"],
     "batch_size": optional(RULES["batch_size"]),
     "n_epochs": RULES["n_epochs"],
     "gamma": RULES["gamma"],
     "gae_lambda": RULES["gae_lambda"],
-    "clip_range": _not_text(RULES["clip_range"]),
-    "clip_range_vf": optional(_not_text(number(0.0, 10.0, low_open=True, schedule=True))),
+    "clip_range": no_schedule_string(RULES["clip_range"]),
+    "clip_range_vf": optional(no_schedule_string(number(0.0, 10.0, low_open=True, schedule=True))),
     "normalize_advantage": RULES["normalize_advantage"],
     "ent_coef": number(0.0, 100.0),
     "vf_coef": RULES["vf_coef"],

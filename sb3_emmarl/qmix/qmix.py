@@ -54,7 +54,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
-from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.validation import RULES, no_schedule_string
 from sb3_emmarl.common.vec_env import SharedPolicyVecEnv, require_state
 from sb3_emmarl.qmix.buffers import (
     JointReplayBuffer,
@@ -66,15 +66,12 @@ from sb3_emmarl.qmix.policies import QMIXPolicy, ValueDecompositionPolicy
 
 SelfQMIX = TypeVar("SelfQMIX", bound="QMIX")
 
-#: Rules of the arguments QMIX and VDN add to SB3's (the zoo's ``RULES`` should hold them too).
-
 
 def _check(name: str, value: Any) -> Any:
     """``value`` checked by the zoo's rule for ``name`` (a ValueError naming the argument, the value and what is
     allowed); the zoo's ``lin_<value>`` schedule strings are for YAML files, not for the constructor."""
-    if name == "learning_rate" and isinstance(value, str):
-        raise ValueError(f"learning_rate must be a number in (0, 10] or a schedule (callable), got {value!r}")
-    return RULES[name](name, value)
+    rule = no_schedule_string(RULES[name]) if name == "learning_rate" else RULES[name]
+    return rule(name, value)
 
 
 def team_layout(env: VecEnv, needs_state: bool, who: str) -> tuple[int, tuple[int, ...] | None]:
