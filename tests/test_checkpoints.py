@@ -9,7 +9,7 @@ import torch as th
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_emmarl import EMPPO
+from sb3_emmarl import EMPPO, MessagePPO
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     ResumableCheckpointCallback,
@@ -95,10 +95,11 @@ def test_pickled_views_stay_views():
     assert copy["base"][0, 1, 2] == 5.0 and copy["base"][0, 0, 0] == 7.0
 
 
-@pytest.mark.parametrize("algo", [PPO, EMPPO])
+@pytest.mark.parametrize("algo", [PPO, EMPPO, MessagePPO])
 def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo):
     """Checkpoints hold the model, the random generators and the reserves mid-episode: continuing from one gives
-    exactly the parameters of the run that never stopped (EM-PPO: with its E-step's optimizer, counters and data)."""
+    exactly the parameters of the run that never stopped (EM-PPO: with its E-step's optimizer, counters and data;
+    MessagePPO: with the links its message wrapper keeps)."""
     th.set_num_threads(1)
     kwargs = {"e_step_interval": 1} if algo is EMPPO else {}
     total = 32 * 4 * 5

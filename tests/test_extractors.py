@@ -3,10 +3,15 @@
 import numpy as np
 import pytest
 import torch as th
+from gymnasium import spaces
 from stable_baselines3 import PPO
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.torch_layers import FlattenExtractor
 
 from sb3_emmarl.common.extractors import (
+    EXTRACTORS,
     GraphAttentionExtractor,
+    SplitFeaturesExtractor,
     TransformerExtractor,
     message_policy_kwargs,
     split_observation,
@@ -99,6 +104,13 @@ def test_wrapper_steps_and_rewrites_terminal_observations():
     assert all(t["terminal_observation"].shape == (lay.total_dim,) for t in terminal)
     assert any(slots_of(t["terminal_observation"], lay)[:, 3].any() for t in terminal)
     assert any(slots_of(o, lay)[..., 3].any() for o in obs)
+    state = venv.get_state()  # the last step's links, for checkpoints
+    assert state == [tuple(info["heard_from"]) for info in infos[-1]] and any(state)
+    other = wrapped(3, n_copies=2, max_cycles=8)
+    other.set_state(state)
+    assert other.get_state() == state
+    with pytest.raises(ValueError, match="saved links are for 6 entries, this environment has 3"):
+        wrapped(3).set_state(state)
 
 
 def test_comm_loss_masks_every_neighbour():
@@ -214,3 +226,76 @@ def test_message_ppo_wraps_every_environment_and_runs_on_other_team_sizes(tmp_pa
     assert np.array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
     with pytest.raises(ValueError, match=r"extractor must be one of \['gat', 'transformer'\], got 'cnn'"):
         MessagePPO("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=short), extractor="cnn")
+
+
+def test_split_extractor_runs_the_inner_extractor_on_the_head_and_appends_the_rest(samples):
+    """What EM-PPO (observation + belief) and MAPPO (observation + state + id) build around a user's extractor."""
+    venv, obs = samples
+    layout = venv.layout
+    tail = th.rand(len(obs), 5)
+    augmented = th.cat([obs, tail], dim=1)
+    space = spaces.Box(-np.inf, np.inf, (augmented.shape[1],), np.float32)
+    th.manual_seed(0)
+    split = SplitFeaturesExtractor(space, layout.total_dim, GraphAttentionExtractor,
+                                   {"layout": layout, "features_dim": 32}).eval()
+    assert isinstance(split.inner, GraphAttentionExtractor) and split.features_dim == 32 + 5
+    with th.no_grad():
+        out = split(augmented)
+        th.testing.assert_close(out[:, :32], split.inner(obs))
+    th.testing.assert_close(out[:, 32:], tail)
+    flat = SplitFeaturesExtractor(space, layout.total_dim, FlattenExtractor, keep=layout.total_dim + 2)
+    assert flat.features_dim == layout.total_dim + 2
+    th.testing.assert_close(flat(augmented), augmented[:, :layout.total_dim + 2])
+    for head, keep in ((0, None), (10, 5), (10, augmented.shape[1] + 1)):
+        with pytest.raises(ValueError, match="need 0 < head_dim <= keep"):
+            SplitFeaturesExtractor(space, head, keep=keep)
+    with pytest.raises(ValueError, match="flat Box"):
+        SplitFeaturesExtractor(spaces.Box(0, 1, (2, 3)), 2)
+
+
+@pytest.mark.parametrize("algo,kind", [("em_ppo", "gat"), ("mappo", "transformer"), ("em_ddpg", "gat"),
+                                       ("vdn_em", "gat")])
+def test_em_algorithms_and_mappo_take_the_message_extractors(algo, kind, tmp_path):
+    """The same policy_kwargs as PPO's: the extractor reads the wrapped observation, the belief (or MAPPO's state)
+    follows its features; trained, saved, loaded (same actions) and evaluated by SB3 on the plain wrapped env."""
+    from sb3_emmarl import EMDDPG, EMPPO, EMVDN, MAPPO
+
+    continuous = algo == "em_ddpg"
+    env_kwargs = {**SMALL, "max_cycles": 20, "continuous_actions": continuous}
+
+    def env(seed):
+        return NeighbourMessageWrapper(make_vec_env(1, seed=seed, env_kwargs=env_kwargs, with_state=algo == "mappo"))
+
+    venv = env(0)
+    policy_kwargs = message_policy_kwargs(venv, kind, features_dim=24, net_arch=[32])
+    cls = {"em_ppo": EMPPO, "mappo": MAPPO, "em_ddpg": EMDDPG, "vdn_em": EMVDN}[algo]
+    off_policy = algo in ("em_ddpg", "vdn_em")
+    fast = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000} if off_policy else \
+        {"n_steps": 20, "batch_size": 30, "n_epochs": 1}
+    model = cls("MlpPolicy", venv, seed=0, policy_kwargs=policy_kwargs, **fast)
+    policy = model.policy
+    extractor = {"em_ddpg": lambda: policy.actor.features_extractor,
+                 "vdn_em": lambda: policy.q_net.features_extractor}.get(algo, lambda: policy.features_extractor)()
+    assert isinstance(extractor, SplitFeaturesExtractor) and isinstance(extractor.inner, EXTRACTORS[kind])
+    assert extractor.head_dim == venv.layout.total_dim
+    if algo == "mappo":  # actor and critic have their own extractor; clipping groups keep them apart
+        assert policy.pi_features_extractor is not policy.vf_features_extractor
+        critic = {id(p) for p in policy.critic_parameters()}
+        assert all(id(p) in critic for p in policy.vf_features_extractor.parameters())
+        assert not any(id(p) in critic for p in policy.pi_features_extractor.parameters())
+    else:  # the belief follows the extractor's features
+        assert extractor.features_dim == 24 + policy.latent_layout.n_components
+    model.learn(60)
+    model.save(tmp_path / algo)
+    loaded = cls.load(tmp_path / algo, env=env(0), device="cpu")
+    plain = env(4)
+    obs = plain.reset()
+    state, starts = None, np.ones(plain.num_envs, dtype=bool)
+    loaded_state = None
+    for _ in range(5):
+        actions, state = model.predict(obs, state, starts, deterministic=True)
+        again, loaded_state = loaded.predict(obs, loaded_state, starts, deterministic=True)
+        np.testing.assert_allclose(actions, again, atol=1e-6)
+        obs, _, starts, _ = plain.step(actions)
+    reward, _ = evaluate_policy(loaded, env(5), n_eval_episodes=1)
+    assert np.isfinite(reward)

@@ -12,8 +12,9 @@ from pettingzoo import ParallelEnv
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import NatureCNN
 
+from sb3_emmarl.common.extractors import GraphAttentionExtractor
+from sb3_emmarl.common.messages import NeighbourMessageWrapper
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.mappo import MAPPO, GlobalStateWrapper, MAPPOPolicy, ValueNorm
 from wildlife_reserve import reserve_v0
@@ -309,8 +310,10 @@ def test_bad_arguments_are_rejected_with_a_message():
             MAPPO("MlpPolicy", env, **{name: value})
     with pytest.raises(ValueError, match="policy must be 'MlpPolicy' or a MAPPOPolicy subclass, got ActorCriticPolicy"):
         MAPPO(ActorCriticPolicy, env)
-    with pytest.raises(ValueError, match="features_extractor_class must be FlattenExtractor, got NatureCNN"):
-        MAPPO(MAPPOPolicy, env, policy_kwargs={"features_extractor_class": NatureCNN})
+    layout = NeighbourMessageWrapper(make_vec_env(1, env_kwargs=SMALL)).layout  # an extractor of messages, none sent
+    with pytest.raises(ValueError, match=f"observation_space must be a flat Box of {layout.total_dim} floats"):
+        MAPPO(MAPPOPolicy, env, policy_kwargs={"features_extractor_class": GraphAttentionExtractor,
+                                               "features_extractor_kwargs": {"layout": layout}})
     model = MAPPO("MlpPolicy", env, agent_id=True)
     with pytest.raises(ValueError, match="GlobalStateWrapper has agent_id=True, but agent_id=False"):
         MAPPO("MlpPolicy", model.env, agent_id=False)

@@ -193,6 +193,18 @@ class NeighbourMessageWrapper(VecEnvWrapper):
     def _links(infos: Sequence[dict[str, Any]], key: str = LINKS_KEY) -> list[tuple[int, ...]]:
         return [tuple(info.get(key, ())) if isinstance(info, dict) else () for info in infos]
 
+    # ------------------------------------------------------------------ checkpoints
+    def get_state(self) -> list[tuple[int, ...]]:
+        """The links of the last step (for :mod:`~sb3_emmarl.common.checkpoints`: a resumed run rebuilds the same
+        terminal observations)."""
+        return list(self._last_links)
+
+    def set_state(self, state: list[tuple[int, ...]]) -> None:
+        """Restore :meth:`get_state`."""
+        if len(state) != self.num_envs:
+            raise ValueError(f"the saved links are for {len(state)} entries, this environment has {self.num_envs}")
+        self._last_links = [tuple(int(j) for j in links) for links in state]
+
     # ------------------------------------------------------------------ VecEnv
     def reset(self) -> VecEnvObs:
         observations = self.venv.reset()

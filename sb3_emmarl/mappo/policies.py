@@ -2,8 +2,9 @@
 MAPPO's agent-specific global state, and the value normaliser.
 
 The policy acts on augmented observations ``[observation, global state, agent one-hot]`` (see
-:class:`~sb3_emmarl.mappo.wrappers.StateLayout`): its actor network reads the first ``obs_dim`` values, so that the
-actions never depend on the state, and its critic network reads them all. ``predict`` also takes plain
+:class:`~sb3_emmarl.mappo.wrappers.StateLayout`): its actor network reads the first ``obs_dim`` values (through
+the features extractor of ``policy_kwargs``, if any), so that the actions never depend on the state, and its critic
+network reads them all. ``predict`` also takes plain
 observations (``obs_dim`` values), which is all the actor needs: SB3's ``evaluate_policy`` then runs on the plain
 environment. Both networks are MLPs as in marlbenchmark/on-policy's ``MLPBase``: a LayerNorm on the input, then
 ``Linear -> activation -> LayerNorm`` per hidden layer (``layer_norm=False``: SB3's plain MLPs), ReLU, orthogonal
@@ -24,10 +25,10 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
+from sb3_emmarl.common.extractors import SplitFeaturesExtractor
 from sb3_emmarl.mappo.wrappers import StateLayout
 
 #: Defaults of on-policy's ValueNorm: the averaging factor, the floor of the debiasing term and of the variance.
@@ -118,30 +119,31 @@ def _mlp(input_dim: int, sizes: list[int], activation_fn: type[nn.Module], layer
 class MAPPOExtractor(nn.Module):
     """The actor's and the critic's hidden layers (SB3's ``MlpExtractor`` interface) over an augmented observation.
 
-    :param layout: where the observation sits in the augmented one (the actor reads it alone)
+    :param actor_dim: the features of the agent's own observation, first in the features (the actor reads them alone)
+    :param critic_dim: all the features (the critic reads them all)
     :param net_arch: hidden sizes, shared by both networks (a list) or ``dict(pi=[...], vf=[...])``
     :param activation_fn: activation
     :param layer_norm: LayerNorm on the input and after each hidden layer
     """
 
-    def __init__(self, layout: StateLayout, net_arch: list[int] | dict[str, list[int]],
+    def __init__(self, actor_dim: int, critic_dim: int, net_arch: list[int] | dict[str, list[int]],
                  activation_fn: type[nn.Module], layer_norm: bool) -> None:
         super().__init__()
         if isinstance(net_arch, dict):
             pi_sizes, vf_sizes = list(net_arch.get("pi", [])), list(net_arch.get("vf", []))
         else:
             pi_sizes = vf_sizes = list(net_arch)
-        self.obs_dim = layout.obs_dim
-        self.policy_net = _mlp(layout.obs_dim, pi_sizes, activation_fn, layer_norm)
-        self.value_net = _mlp(layout.critic_dim, vf_sizes, activation_fn, layer_norm)
-        self.latent_dim_pi = pi_sizes[-1] if pi_sizes else layout.obs_dim
-        self.latent_dim_vf = vf_sizes[-1] if vf_sizes else layout.critic_dim
+        self.obs_dim = actor_dim
+        self.policy_net = _mlp(actor_dim, pi_sizes, activation_fn, layer_norm)
+        self.value_net = _mlp(critic_dim, vf_sizes, activation_fn, layer_norm)
+        self.latent_dim_pi = pi_sizes[-1] if pi_sizes else actor_dim
+        self.latent_dim_vf = vf_sizes[-1] if vf_sizes else critic_dim
 
     def forward(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
 
     def forward_actor(self, features: th.Tensor) -> th.Tensor:
-        """The actor's latent from the agent's own observation (the first ``obs_dim`` values) only."""
+        """The actor's latent from the features of the agent's own observation (the first ``obs_dim`` values) only."""
         return self.policy_net(features[..., : self.obs_dim])
 
     def forward_critic(self, features: th.Tensor) -> th.Tensor:
@@ -153,7 +155,9 @@ class MAPPOPolicy(ActorCriticPolicy):
     """SB3's ``ActorCriticPolicy`` with a decentralised actor and a critic over MAPPO's agent-specific global state.
 
     Takes ``ActorCriticPolicy``'s arguments (``net_arch`` as a list shared by both networks or ``dict(pi, vf)``),
-    with on-policy's defaults, plus:
+    with on-policy's defaults, plus the ones below. A ``features_extractor_class`` (e.g. the message extractors of
+    :mod:`sb3_emmarl.common.extractors`) reads the agent's own observation; the critic's copy of it (actor and
+    critic do not share it unless ``share_features_extractor=True``) is followed by the global state and agent id.
 
     :param state_layout: the :class:`~sb3_emmarl.mappo.wrappers.StateLayout` fields (set by MAPPO)
     :param layer_norm: LayerNorm on each network's input and after each hidden layer (on-policy's
@@ -180,10 +184,7 @@ class MAPPOPolicy(ActorCriticPolicy):
         if not isinstance(observation_space, spaces.Box) or observation_space.shape != (layout.critic_dim,):
             raise ValueError(f"the observation space must be a Box of shape ({layout.critic_dim},) (observation, state "
                              f"and agent id), got {observation_space}")
-        extractor = kwargs.get("features_extractor_class", FlattenExtractor)
-        if extractor is not FlattenExtractor:
-            raise ValueError("MAPPOPolicy slices the observation itself: features_extractor_class must be "
-                             f"FlattenExtractor, got {getattr(extractor, '__name__', extractor)}")
+        kwargs.setdefault("share_features_extractor", False)  # on-policy's actor and critic are separate networks
         for name, value in (("layer_norm", layer_norm), ("value_norm", value_norm)):
             if not isinstance(value, (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {value!r}")
@@ -197,8 +198,17 @@ class MAPPOPolicy(ActorCriticPolicy):
         self._value_norm_beta = check_value_norm_beta(value_norm_beta)
         self.to(self.device)
 
+    def make_features_extractor(self) -> SplitFeaturesExtractor:
+        """``policy_kwargs``' features extractor (default: none) over the agent's observation, then the global state
+        and agent id as they are."""
+        return SplitFeaturesExtractor(self.observation_space, self.state_layout.obs_dim, self.features_extractor_class,
+                                      self.features_extractor_kwargs)
+
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = MAPPOExtractor(self.state_layout, self.net_arch, self.activation_fn, self.layer_norm)
+        layout = self.state_layout
+        actor_dim = self.features_dim - (layout.critic_dim - layout.obs_dim)
+        self.mlp_extractor = MAPPOExtractor(actor_dim, self.features_dim, self.net_arch, self.activation_fn,
+                                            self.layer_norm)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -229,8 +239,9 @@ class MAPPOPolicy(ActorCriticPolicy):
 
     # ------------------------------------------------------------------ parameter groups
     def critic_parameters(self) -> list[nn.Parameter]:
-        """The critic's parameters (its hidden layers and the value head)."""
-        return [*self.mlp_extractor.value_net.parameters(), *self.value_net.parameters()]
+        """The critic's parameters (its hidden layers and the value head, and its features extractor unless shared)."""
+        own = [] if self.share_features_extractor else list(self.vf_features_extractor.parameters())
+        return [*own, *self.mlp_extractor.value_net.parameters(), *self.value_net.parameters()]
 
     def actor_parameters(self) -> list[nn.Parameter]:
         """Every other parameter: the actor's hidden layers, the action head (and ``log_std``)."""

@@ -11,37 +11,20 @@ from __future__ import annotations
 
 from typing import Any
 
-import torch as th
-from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.td3.policies import TD3Policy
 
+from sb3_emmarl.common.extractors import SplitFeaturesExtractor
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-
-
-class LatentFeaturesExtractor(BaseFeaturesExtractor):
-    """``[observation, belief]`` from an augmented observation, or ``observation`` alone (``use_latent=False``).
-
-    :param observation_space: the augmented observation space
-    :param layout: the latent layout
-    :param use_latent: keep the belief (False: the no-latent ablation drops it)
-    """
-
-    def __init__(self, observation_space: spaces.Box, layout: LatentLayout, use_latent: bool = True) -> None:
-        super().__init__(observation_space, layout.total_dim if use_latent else layout.obs_dim)
-        self.keep = layout.total_dim if use_latent else layout.obs_dim
-
-    def forward(self, observations: th.Tensor) -> th.Tensor:
-        return observations[..., : self.keep]
 
 
 class LatentPolicyMixin:
     """Create the latent model with the policy and give every features extractor the latent layout.
 
     ``latent_kwargs`` holds the :class:`LatentLayout` fields; ``use_latent=False`` builds no model (the
-    no-latent ablation).
+    no-latent ablation). A ``features_extractor_class`` in ``policy_kwargs`` (e.g. the message extractors of
+    :mod:`sb3_emmarl.common.extractors`) reads the environment's observation; the belief is appended to its features.
     """
 
     def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
@@ -55,8 +38,13 @@ class LatentPolicyMixin:
         self.latent_model = LatentModel(layout) if use_latent else None
         self.to(self.device)
 
-    def make_features_extractor(self) -> LatentFeaturesExtractor:
-        return LatentFeaturesExtractor(self.observation_space, self.latent_layout, self._latent_config[1])
+    def make_features_extractor(self) -> SplitFeaturesExtractor:
+        """``policy_kwargs``' features extractor (default: none) over the environment's observation, then the belief
+        (dropped when ``use_latent=False``, the no-latent ablation)."""
+        layout = self.latent_layout
+        return SplitFeaturesExtractor(self.observation_space, layout.obs_dim, self.features_extractor_class,
+                                      self.features_extractor_kwargs,
+                                      keep=layout.total_dim if self._latent_config[1] else layout.obs_dim)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
