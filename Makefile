@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies
+	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -54,6 +54,11 @@ benchmark-em: install
 # Wall time of EM-PPO against PPO and RecurrentPPO at equal agent-steps, taking turns in one process (about 15 minutes).
 benchmark-em-speed: install
 	$(PYTHON) benchmarks/em_speed.py
+
+# PPO and EM-PPO through the batched and SuperSuit paths against a zero-cost environment, raw stepping from 1 to 64
+# copies and at 50 and 200 UAVs, and PPO through the zoo at 10, 50 and 200 UAVs (about 15 minutes).
+benchmark-train-speed: install
+	$(PYTHON) benchmarks/train_speed.py
 
 # EM-PPO with default arguments on the two hidden-mode tasks, against PPO told the mode and plain PPO (about 30 minutes).
 benchmark-latent-tasks: install

@@ -28,12 +28,21 @@ from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR
 ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
 
 
-def build(algo: str, seed: int):
-    """The algorithm with its zoo YAML's settings on ``n_envs`` default reserves."""
+def zoo_settings(algo: str) -> dict:
+    """The zoo YAML's settings of ``algo`` on the reserve."""
     settings = dict(yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())[ENV_ID])
     if settings.get("normalize"):
         raise ValueError(f"{algo}.yml normalizes observations; this benchmark does not")
-    env = make_vec_env(n_copies=int(settings["n_envs"]), seed=seed, env_kwargs=settings.get("env_kwargs") or {})
+    return settings
+
+
+def build(algo: str, seed: int, env=None, vec_env_type: str | None = None):
+    """The algorithm with its zoo YAML's settings on ``n_envs`` default reserves (through ``vec_env_type``), or on
+    ``env``."""
+    settings = zoo_settings(algo)
+    if env is None:
+        env = make_vec_env(n_copies=int(settings["n_envs"]), seed=seed, env_kwargs=settings.get("env_kwargs") or {},
+                           vec_env_type=vec_env_type)
     kwargs = {k: v for k, v in settings.items() if k not in ZOO_ONLY}
     if isinstance(kwargs.get("policy_kwargs"), str):
         kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"dict": dict})  # rl-zoo's format: "dict(...)"

@@ -5,7 +5,7 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_emmarl.common.vec_env import SharedPolicyVecEnv, make_vec_env
+from sb3_emmarl.common.vec_env import ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
 from wildlife_reserve import reserve_v0
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 25}
@@ -162,3 +162,103 @@ def test_bad_arguments_fail_early():
         make_vec_env(env_kwargs={"comm_loss": 2.0})
     with pytest.raises(TypeError, match="n_drones"):
         make_vec_env(env_kwargs={"n_drones": 2})
+
+
+def assert_same(a, b, where="") -> None:
+    """Equal values, types and dtypes, recursively (VecMonitor's wall-clock ``episode["t"]`` excepted)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), (where, set(a) ^ set(b))
+        for key in a:
+            if not (where.endswith("episode") and key == "t"):
+                assert_same(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape, (where, a.dtype, b.dtype)
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    else:
+        assert type(a) is type(b) and a == b, (where, a, b)
+
+
+def record(vec_env_type, env_kwargs, steps, n_copies=2, with_state=False):
+    venv = make_vec_env(n_copies, seed=11, env_kwargs=env_kwargs, vec_env_type=vec_env_type, with_state=with_state)
+    rng = np.random.default_rng(5)
+    out = [venv.reset(), venv.unwrapped.reset_infos]
+    continuous = venv.action_space.shape != ()
+    for _ in range(steps):
+        actions = rng.uniform(-1.2, 1.2, (venv.num_envs, 3)) if continuous else rng.integers(0, 15, venv.num_envs)
+        out.append(venv.step(actions))
+    return out
+
+
+@pytest.mark.parametrize("env_kwargs,with_state", [
+    ({"max_cycles": 120}, True),
+    ({"n_uavs": 1, "max_cycles": 90}, False),
+    ({"n_uavs": 50, "grid_size": 200, "max_cycles": 150}, False),
+    ({"continuous_actions": True, "max_cycles": 100}, True),
+    ({"sensor_noise": 0.5, "max_cycles": 110}, False),
+    ({"comm_loss": 0.4, "max_cycles": 130}, False),
+    ({"adversarial": True, "max_cycles": 100}, True),
+], ids=["default", "one-uav", "50-uavs-200x200", "continuous", "sensor-noise", "comm-loss", "adversarial"])
+def test_batched_and_supersuit_paths_give_identical_data(env_kwargs, with_state):
+    """500 steps of random actions across several episode ends: observations, rewards, dones and every info
+    (terminal observations, truncation flags, the mode, the links, the metrics, the state) are identical."""
+    batched = record("batched", env_kwargs, 500, with_state=with_state)
+    reference = record("supersuit", env_kwargs, 500, with_state=with_state)
+    assert sum(int(step[2].any()) for step in reference[2:]) >= 3  # several automatic resets
+    assert_same(batched, reference)
+
+
+def test_batched_path_is_the_default_for_the_reserve_and_refuses_worker_processes():
+    assert isinstance(make_vec_env(env_kwargs=SMALL).unwrapped, ReserveVecEnv)
+    assert type(make_vec_env(env_kwargs=SMALL, vec_env_type="supersuit").unwrapped) is SharedPolicyVecEnv
+    assert type(make_vec_env(2, env_kwargs=SMALL, num_cpus=2).unwrapped) is SharedPolicyVecEnv
+    with pytest.raises(ValueError, match="vec_env_type must be one of \\['batched', 'supersuit'\\] or None, got 'fast'"):
+        make_vec_env(env_kwargs=SMALL, vec_env_type="fast")
+    with pytest.raises(ValueError, match="num_cpus must be 0 or 1, got 2"):
+        make_vec_env(2, env_kwargs=SMALL, num_cpus=2, vec_env_type="batched")
+    venv = make_vec_env(env_kwargs=SMALL)
+    venv.reset()
+    with pytest.raises(ValueError, match="discrete actions must be 3 ints in \\[0, 14\\]"):
+        venv.step(np.array([0, 1, 15]))
+
+
+def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
+    from scripts import load_benchmark
+
+    train_speed = load_benchmark("train_speed")
+    assert train_speed.main(["-n", "256", "--rounds", "1", "--algos", "ppo", "--step-agent-steps", "100",
+                             "--copies", "1", "3", "--large-teams", "20", "--team-sizes", "2", "--team-n", "512"]) == 0
+    out = capsys.readouterr().out
+    assert "outside networks" in out and "zero-cost" in out and "batched" in out
+    rows = [line.split() for line in out.splitlines()]
+    assert [row[:2] for row in rows if row[:2] in (["1", "10"], ["3", "10"], ["1", "20"])] == \
+        [["1", "10"], ["3", "10"], ["1", "20"]]
+    assert any(row[:1] == ["2"] and row[3] == "1.00" for row in rows)  # the zoo run, against itself
+
+
+@pytest.mark.parametrize("algo", ["em_ppo", "mappo", "qmix"])
+def test_what_is_built_on_the_vector_environment_gives_the_same_on_both_paths(algo):
+    """EM beliefs, MAPPO's state (switched on after construction), QMIX's joint buffer, team evaluation: trained on
+    either path from the same seed, the same parameters and the same team metrics."""
+    from stable_baselines3.common.utils import set_random_seed
+
+    from sb3_emmarl import EMPPO, MAPPO, QMIX
+    from sb3_emmarl.common.evaluation import evaluate_team
+
+    fast = {"em_ppo": (EMPPO, {"n_steps": 16, "batch_size": 48}), "mappo": (MAPPO, {"n_steps": 16, "n_epochs": 1}),
+            "qmix": (QMIX, {"learning_starts": 20, "batch_size": 4, "buffer_size": 200})}
+    cls, kwargs = fast[algo]
+    params, metrics = [], []
+    for path in ("batched", "supersuit"):
+        set_random_seed(0)
+        venv = make_vec_env(2, seed=3, env_kwargs=SMALL, vec_env_type=path)
+        model = cls("MlpPolicy", venv, seed=0, **kwargs).learn(96)
+        params.append({k: v.clone() for k, v in model.policy.state_dict().items()})
+        eval_env = make_vec_env(1, seed=9, env_kwargs=SMALL, vec_env_type=path)
+        metrics.append(evaluate_team(model, 2, seed=9, vec_env=eval_env))
+    for key, value in params[0].items():
+        assert (value == params[1][key]).all(), key
+    assert metrics[0] == metrics[1]

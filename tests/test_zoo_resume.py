@@ -95,17 +95,17 @@ def test_run_files_are_plain_data_and_python_tags_are_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("save_freq", [None, "200"])
 def test_a_nan_stops_training_with_a_message_and_no_model_less_folder(tmp_path, capsys, monkeypatch, save_freq):
-    original = ReserveParallelEnv.step
+    original = ReserveParallelEnv.step_arrays  # what the zoo's (batched) vector environment calls
     calls = []
 
-    def step(self, actions):
-        observations, rewards, terminations, truncations, infos = original(self, actions)
+    def step_arrays(self, actions):
+        observations, rewards, *rest = original(self, actions)
         calls.append(1)
         if len(calls) >= 4 * 45:  # 4 copies: step 45, in the third rollout, after the first checkpoint (step 256)
-            rewards = {agent: np.nan for agent in rewards}
-        return observations, rewards, terminations, truncations, infos
+            rewards = np.full_like(rewards, np.nan)
+        return observations, rewards, *rest
 
-    monkeypatch.setattr(ReserveParallelEnv, "step", step)
+    monkeypatch.setattr(ReserveParallelEnv, "step_arrays", step_arrays)
     flags = ["--save-freq", save_freq] if save_freq else []
     assert train(tmp_path, "--algo", "ppo", "-n", "5000", "-params", "n_steps:16", "batch_size:32", *flags) == 1
     err = capsys.readouterr().err

@@ -106,7 +106,8 @@ def evaluate_team(
     :param seed: evaluation seed
     :param env_kwargs: the reserve's arguments (as in training)
     :param deterministic: the most likely actions instead of sampled ones
-    :param vec_env: evaluate on this vector environment instead (one reserve copy; its seed is yours)
+    :param vec_env: evaluate on this vector environment instead (one reserve copy; its seed is yours); a model with
+        ``wrap_env`` (EM, oracle and message models) gets its wrapper on top, as on its own environment
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training, if the model used them
     :return: one dict per episode: every metric of the episode, ``mode``, ``episode`` and ``seed``
     """
@@ -115,6 +116,8 @@ def evaluate_team(
     own_env = vec_env is None
     if own_env:
         vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model)
+    elif hasattr(model, "wrap_env"):  # kept when it is already there
+        vec_env = model.wrap_env(vec_env)
     per_copy = int(getattr(vec_env, "agents_per_copy", 1))
     has_latent = getattr(getattr(model, "policy", None), "latent_model", None) is not None
     latent = LatentTracker(model, vec_env) if has_latent else None

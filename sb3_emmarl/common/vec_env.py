@@ -1,4 +1,4 @@
-"""Parameter-sharing vector environment: SuperSuit flattens the agents, a thin adapter of ours talks to SB3.
+"""Parameter-sharing vector environments: SuperSuit's (any PettingZoo environment) and the reserve's batched one.
 
 ``make_vec_env(n_copies, seed, env_kwargs)`` builds ``n_copies`` independent reserves. SuperSuit's
 ``pettingzoo_env_to_vec_env_v1`` (``MarkovVectorEnv``) turns each reserve's agents into vector
@@ -18,6 +18,11 @@ The adapter replaces SuperSuit's ``SB3VecEnvWrapper`` and mends its faults:
 - ``dones`` are booleans, and ``get_attr`` / ``set_attr`` / ``env_method`` reach the reserves;
 - the reset infos are one dict per vector entry with worker processes too (``ProcConcatVec.reset``
   returned each worker's compressed ``(index, info)`` pairs).
+
+:class:`ReserveVecEnv` is the same adapter over the reserve's array API (``ReserveParallelEnv.step_arrays``)
+instead of SuperSuit: the same data, step for step and seed for seed, without the per-agent dictionaries. It is
+``make_vec_env``'s default for the reserve; ``vec_env_type="supersuit"`` keeps the SuperSuit path (the reference,
+and the one with worker processes).
 """
 
 from __future__ import annotations
@@ -34,6 +39,9 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv
 
 from wildlife_reserve import reserve_v0
+
+#: The two parameter-sharing paths (see :func:`make_vec_env`).
+VEC_ENV_TYPES = ("batched", "supersuit")
 
 #: Key of the ``reset`` options that carries one seed per reserve copy.
 COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
@@ -120,14 +128,23 @@ class SharedPolicyVecEnv(VecEnv):
         action_space = self.prototype.action_space(agent)
         self.with_state = bool(with_state)
         self.state_space = self._state_space() if self.with_state else None
-        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
         if self.multiprocess:
+            builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
             self.venv = MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
         else:
-            self.venv = ConcatVecEnv(builders, observation_space, action_space)
+            self.venv = self._local_copies(env_fn, observation_space, action_space)
         super().__init__(self.n_copies * self.agents_per_copy, observation_space, action_space)
         self._copy_seeds: list[int] | None = None
         self._never_reset = True
+
+    def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
+        """The copies in this process: SuperSuit's ``ConcatVecEnv`` of ``MarkovVectorEnv`` s."""
+        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
+        return ConcatVecEnv(builders, observation_space, action_space)
+
+    def _par_envs(self) -> list[ParallelEnv]:
+        """The copies' environments (in this process)."""
+        return [copy.par_env for copy in self.venv.vec_envs]
 
     # -------------------------------------------------------------- seeding and reset
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
@@ -181,7 +198,8 @@ class SharedPolicyVecEnv(VecEnv):
         if self.multiprocess:
             raise ValueError("the copies live in worker processes: build the environment with "
                              "make_vec_env(..., with_state=True) to have the global state")
-        for copy in self.venv.vec_envs:
+        self.venv.with_state = True  # ConcatVecEnv passes it to no copy: set it on each
+        for copy in getattr(self.venv, "vec_envs", ()):
             copy.with_state = True
         self.with_state, self.state_space = True, space
 
@@ -235,7 +253,8 @@ class SharedPolicyVecEnv(VecEnv):
                 "the environments live in worker processes (num_cpus > 1); get_attr reads the local prototype, "
                 "set_attr and env_method need num_cpus <= 1"
             )
-        return [self.venv.vec_envs[i // self.agents_per_copy].par_env for i in self._get_indices(indices)]
+        envs = self._par_envs()
+        return [envs[i // self.agents_per_copy] for i in self._get_indices(indices)]
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """Attribute of the reserve copy behind each index (of the local prototype when ``num_cpus > 1``)."""
@@ -261,6 +280,117 @@ class SharedPolicyVecEnv(VecEnv):
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """Render reserve copy 0 (its ``render_mode`` is set when the environment is built)."""
         return self.venv.render()
+
+
+def _workers(num_cpus: Any) -> bool:
+    """Whether ``num_cpus`` asks for worker processes (more than one)."""
+    return isinstance(num_cpus, (int, np.integer)) and not isinstance(num_cpus, bool) and num_cpus > 1
+
+
+class _SteppedCopies:
+    """The reserve copies stepped in turn through :meth:`ReserveParallelEnv.step_arrays`, giving what SuperSuit's
+    ``ConcatVecEnv`` of :class:`_ReserveCopy` gives (observations, rewards, terminations, truncations, infos,
+    automatic resets), without its per-agent dictionaries and copies. Hand-written because SuperSuit's vector
+    environments only speak PettingZoo's dictionaries; the dynamics are the reserve's own (``step`` is
+    ``step_arrays`` plus the dictionaries)."""
+
+    def __init__(self, envs: list[Any], action_space: Any, with_state: bool) -> None:
+        self.envs = envs
+        self.n = len(envs[0].possible_agents)
+        self.obs_dim = int(envs[0].obs_dim)
+        self.action_dtype = action_space.dtype  # SuperSuit casts the actions to the space's dtype: so do we
+        self.with_state = with_state
+        self._actions: np.ndarray | None = None
+
+    def _state(self, env: Any) -> np.ndarray:
+        return np.asarray(env.state(), dtype=np.float32)
+
+    def _reset_copy(self, env: Any, seed: int | None, options: dict | None) -> tuple[np.ndarray, list[dict]]:
+        observations, infos = env.reset(seed=seed, options=options)
+        agents = env.possible_agents
+        return np.stack([observations[a] for a in agents]), [infos.get(a, {}) for a in agents]
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, list[dict]]:
+        options = dict(options or {})
+        seeds = options.pop(COPY_SEEDS_KEY, None)
+        observations = np.empty((len(self.envs) * self.n, self.obs_dim), dtype=np.float32)
+        infos: list[dict] = []
+        for c, env in enumerate(self.envs):
+            copy_seed = seeds[c] if seeds is not None else (None if seed is None else seed + c)
+            observations[c * self.n:(c + 1) * self.n], copy_infos = self._reset_copy(env, copy_seed, options or None)
+            if self.with_state:
+                state = self._state(env)
+                copy_infos = [{**info, STATE_KEY: state} for info in copy_infos]
+            infos.extend(copy_infos)
+        return observations, infos
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions).astype(self.action_dtype, copy=False)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        actions, n = self._actions, self.n
+        total = len(self.envs) * n
+        observations = np.empty((total, self.obs_dim), dtype=np.float32)
+        rewards = np.empty(total, dtype=np.float32)
+        terminations, truncations = np.zeros(total, dtype=bool), np.zeros(total, dtype=bool)
+        infos: list[dict] = []
+        for c, env in enumerate(self.envs):
+            lo, hi = c * n, (c + 1) * n
+            obs, reward, terminated, truncated, info, heard = env.step_arrays(actions[lo:hi])
+            rewards[lo:hi] = reward
+            if not (terminated or truncated):
+                observations[lo:hi] = obs
+                if self.with_state:
+                    info = {**info, STATE_KEY: self._state(env)}
+                infos.extend({**info, LINKS_KEY: senders} for senders in heard)
+                continue
+            terminations[lo:hi], truncations[lo:hi] = terminated, truncated
+            ended = {TERMINAL_STATE_KEY: self._state(env)} if self.with_state else {}
+            observations[lo:hi], reset_infos = self._reset_copy(env, None, None)  # an automatic reset, unseeded
+            for k, (senders, reset_info) in enumerate(zip(heard, reset_infos)):
+                new = {key: value for key, value in reset_info.items() if key != LINKS_KEY}
+                if self.with_state:
+                    new[STATE_KEY] = self._state(env)
+                infos.append({**info, "terminal_observation": obs[k], **new, **ended,
+                              TERMINAL_LINKS_KEY: senders, LINKS_KEY: ()})
+        return observations, rewards, terminations, truncations, infos
+
+    def render(self) -> Any:
+        return self.envs[0].render()
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+class ReserveVecEnv(SharedPolicyVecEnv):
+    """The fast parameter-sharing vector environment of the reserve: :class:`SharedPolicyVecEnv` (same entry order,
+    seeds, observations, rewards, dones, infos, terminal observations and automatic resets, tested equal step for
+    step) whose copies are stepped through the reserve's array API (``step_arrays``) instead of SuperSuit's
+    per-agent dictionaries. All copies live in this process.
+
+    :param env_fn: builds one reserve (``reserve_v0.parallel_env`` with its arguments)
+    :param n_copies: number of independent copies
+    :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`)
+    :param num_cpus: 0 or 1 (every copy is stepped in this process)
+    """
+
+    def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, with_state: bool = False,
+                 num_cpus: int = 0) -> None:
+        if _workers(num_cpus):
+            raise ValueError(f"the batched vector environment steps every copy in this process: num_cpus must be 0 "
+                             f"or 1, got {num_cpus} (use vec_env_type='supersuit' for worker processes)")
+        super().__init__(env_fn, n_copies=n_copies, num_cpus=num_cpus, with_state=with_state)
+
+    def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
+        envs = [env_fn() for _ in range(self.n_copies)]
+        if not callable(getattr(envs[0], "step_arrays", None)):
+            raise ValueError(f"the batched vector environment needs the reserve's step_arrays(); "
+                             f"{type(envs[0]).__name__} has none: use vec_env_type='supersuit'")
+        return _SteppedCopies(envs, action_space, self.with_state)
+
+    def _par_envs(self) -> list[ParallelEnv]:
+        return list(self.venv.envs)
 
 
 def require_state(venv: VecEnv, who: str) -> Any:
@@ -323,6 +453,7 @@ def make_vec_env(
     vec_env_wrapper: Callable[[VecEnv], VecEnvWrapper] | None = None,
     env_fn: Callable[..., ParallelEnv] = reserve_v0.parallel_env,
     with_state: bool = False,
+    vec_env_type: str | None = None,
 ) -> VecEnv:
     """The parameter-sharing vector environment: ``n_copies`` reserves, one vector entry per UAV.
 
@@ -334,11 +465,22 @@ def make_vec_env(
     :param vec_env_wrapper: optional wrapper applied last (e.g. the EM history wrapper)
     :param env_fn: environment constructor taking ``env_kwargs`` (default: the reserve)
     :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`; MAPPO and QMIX need it)
-    :return: ``VecMonitor(SharedPolicyVecEnv)``, wrapped by ``vec_env_wrapper`` if given
+    :param vec_env_type: ``"batched"`` (:class:`ReserveVecEnv`: the reserve's array API, in this process) or
+        ``"supersuit"`` (:class:`SharedPolicyVecEnv`: SuperSuit's conversion, any PettingZoo environment, worker
+        processes with ``num_cpus > 1``); both give the same data. None: ``"batched"`` for the reserve
+        (``env_fn`` left at its default) with ``num_cpus <= 1``, else ``"supersuit"``
+    :return: ``VecMonitor(ReserveVecEnv or SharedPolicyVecEnv)``, wrapped by ``vec_env_wrapper`` if given
     """
+    if vec_env_type not in (*VEC_ENV_TYPES, None):
+        raise ValueError(f"vec_env_type must be one of {list(VEC_ENV_TYPES)} or None, got {vec_env_type!r}")
     env_kwargs = dict(env_kwargs or {})
-    venv: VecEnv = SharedPolicyVecEnv(partial(env_fn, **env_kwargs), n_copies=n_copies, num_cpus=num_cpus,
-                                      with_state=with_state)
+    build = partial(env_fn, **env_kwargs)
+    if vec_env_type is None:
+        vec_env_type = "batched" if env_fn is reserve_v0.parallel_env and not _workers(num_cpus) else "supersuit"
+    if vec_env_type == "batched":
+        venv: VecEnv = ReserveVecEnv(build, n_copies=n_copies, with_state=with_state, num_cpus=num_cpus)
+    else:
+        venv = SharedPolicyVecEnv(build, n_copies=n_copies, num_cpus=num_cpus, with_state=with_state)
     venv = VecMonitor(venv, filename=monitor_dir)
     if vec_env_wrapper is not None:
         venv = vec_env_wrapper(venv)

@@ -35,11 +35,26 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
+from sb3_emmarl.common.vec_env import VEC_ENV_TYPES
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from wildlife_reserve import reserve_v0
 
+#: The --vec-env choices: the two parameter-sharing paths of make_vec_env, rl-zoo's "dummy" (SuperSuit in this
+#: process, the name rl-zoo gives its in-process choice) and "subproc" (SuperSuit with worker processes).
+ZOO_VEC_ENVS = (*VEC_ENV_TYPES, "dummy", "subproc")
+
 #: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
 TEAM_EVAL_SEED_OFFSET = 20_000
+
+
+def peak_rss_mib() -> float:
+    """This process's peak resident memory in MiB: Linux's ``VmHWM`` (``ru_maxrss`` of a process started by a large
+    one, e.g. a benchmark, starts from its parent's peak inherited at fork), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmHWM")) / 1024
+    except (OSError, StopIteration, ValueError):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
@@ -103,8 +118,10 @@ def train_parser() -> argparse.ArgumentParser:
                         help="overwrite hyperparameters, e.g. learning_rate:0.01")
     parser.add_argument("-conf", "--conf-file", default=None, help="YAML file instead of zoo/hyperparams/<algo>.yml")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
-    parser.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"],
-                        help="subproc: reserve copies in worker processes (checkpoints then resume with new episodes)")
+    parser.add_argument("--vec-env", default="batched", choices=list(ZOO_VEC_ENVS),
+                        help="batched: the reserve's array API in this process (fastest); supersuit (or rl-zoo's "
+                             "dummy): SuperSuit's conversion in this process; subproc: SuperSuit with reserve copies "
+                             "in worker processes (checkpoints then resume with new episodes)")
     parser.add_argument("--num-threads", type=int_flag(1, 1024, extra=(-1,)), default=1,
                         help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
     parser.add_argument("--log-interval", type=int_flag(-2, 10**6), default=-1,
@@ -258,7 +275,7 @@ def train_main(argv: list[str] | None = None) -> int:
     train_seconds = time.perf_counter() - start
     manager.save_trained_model(model)
     stats = {"train_seconds": train_seconds, "n_timesteps": int(model.num_timesteps),
-             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+             "peak_rss_mib": peak_rss_mib()}
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:
         vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"

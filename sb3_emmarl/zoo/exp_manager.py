@@ -73,6 +73,7 @@ from sb3_emmarl.zoo.algos import (
     ZOO_ALGOS,
     register_algorithms,
 )
+from sb3_emmarl.zoo.cli import ZOO_VEC_ENVS
 from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
@@ -136,6 +137,13 @@ class ReserveExperimentManager(ExperimentManager):
         if Path(kwargs["config"]).suffix not in (".yml", ".yaml"):
             raise ValueError(f"the hyperparameter file must be YAML (.yml or .yaml), got {kwargs['config']!r}")
         self.num_cpus = 0
+        # rl-zoo's --vec-env picks SB3's DummyVecEnv or SubprocVecEnv; here it picks the parameter-sharing path:
+        # "batched" (ReserveVecEnv), "supersuit" or rl-zoo's "dummy" (SuperSuit in this process), "subproc"
+        # (SuperSuit with worker processes). rl_zoo3 itself only needs to know whether there are workers.
+        self.vec_env_path = kwargs.get("vec_env_type", "dummy")
+        if self.vec_env_path not in ZOO_VEC_ENVS:
+            raise ValueError(f"vec_env_type must be one of {list(ZOO_VEC_ENVS)}, got {self.vec_env_path!r}")
+        kwargs["vec_env_type"] = "subproc" if self.vec_env_path == "subproc" else "dummy"
         super().__init__(args, algo, env_id, *posargs, **kwargs)
         self.centralized = algo in CENTRALIZED_ALGOS
         self.agents_per_copy = 1
@@ -255,6 +263,7 @@ class ReserveExperimentManager(ExperimentManager):
                 monitor_dir=monitor,
                 vec_env_wrapper=self.vec_env_wrapper,
                 with_state=self.algo in STATE_ALGOS and not eval_env,  # evaluations act on the plain observations
+                vec_env_type="batched" if self.vec_env_path == "batched" else "supersuit",
             )
             env = self._maybe_normalize(env, eval_env)
             if ZOO_ALGOS[self.algo] is OraclePPO:

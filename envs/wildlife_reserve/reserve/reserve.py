@@ -345,7 +345,31 @@ class ReserveParallelEnv(ParallelEnv):
         """
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset() first")
-        move, comm = self._decode_actions(actions)
+        agents = self.agents
+        obs, rewards_arr, terminated, truncated, info, heard = self._advance(*self._decode_actions(actions))
+        observations = dict(zip(agents, obs))
+        rewards = dict(zip(agents, rewards_arr.tolist()))
+        terminations = dict.fromkeys(agents, terminated)
+        truncations = dict.fromkeys(agents, truncated)
+        infos = {a: {**info, "heard_from": senders} for a, senders in zip(agents, heard)}
+        return observations, rewards, terminations, truncations, infos
+
+    def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, bool, dict[str, Any],
+                                                         list[tuple[int, ...]]]:
+        """:meth:`step` on arrays, in agent order, without the per-agent dictionaries (the fast vector environment,
+        ``sb3_emmarl.common.vec_env.ReserveVecEnv``, steps the reserve through it; ``step`` is this plus the dicts).
+
+        :param actions: ``(n,)`` ints (discrete) or ``(n, 3)`` floats (continuous), one row per UAV
+        :return: observations ``(n, obs_dim)``, rewards ``(n,)``, terminated, truncated (every UAV alike), the info
+            every UAV shares (``mode``, and ``metrics`` on the last step) and each UAV's ``heard_from``
+        """
+        if not self.agents:
+            raise RuntimeError("step_arrays() called on a finished episode: call reset() first")
+        return self._advance(*self._action_arrays(actions))
+
+    def _advance(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, bool,
+                                                                   dict[str, Any], list[tuple[int, ...]]]:
+        """The step itself, from decoded actions (see :meth:`step_arrays` for what it returns)."""
         airborne = ~self.grounded
         if self.grounded.any():
             move[self.grounded] = 0.0
@@ -359,7 +383,7 @@ class ReserveParallelEnv(ParallelEnv):
         signals, seen, readings, signs_found = self._sense(cells, airborne)
         poaching_events = self._poach()
         own_new, new_cells = self._share(comm, airborne, readings)
-        rewards_arr = self._rewards(seen, signs_found, own_new, new_cells, poaching_events, own_collisions, energy)
+        rewards = self._rewards(seen, signs_found, own_new, new_cells, poaching_events, own_collisions, energy)
 
         obs = build_observations(self, signals)
         truncated = self.t >= self.max_cycles
@@ -367,18 +391,10 @@ class ReserveParallelEnv(ParallelEnv):
         info: dict[str, Any] = {"mode": self.mode}
         if truncated or terminated:
             info["metrics"] = self.episode_metrics()
-        agents = self.agents
-        heard = self.team.heard_from()
-        observations = dict(zip(agents, obs))
-        rewards = dict(zip(agents, rewards_arr.tolist()))
-        terminations = dict.fromkeys(agents, terminated)
-        truncations = dict.fromkeys(agents, truncated and not terminated)
-        infos = {a: {**info, "heard_from": senders} for a, senders in zip(agents, heard)}
-        if truncated or terminated:
             self.agents = []
         if self.render_mode == "human":
             self.render()
-        return observations, rewards, terminations, truncations, infos
+        return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from()
 
     # ------------------------------------------------------------------ the phases of a step
     def _fly(self, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray) -> np.ndarray:
@@ -551,25 +567,41 @@ class ReserveParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ helpers
     def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
-        """Turn the action dict into ``(n, 2)`` unit moves and ``(n,)`` communication choices."""
+        """Turn the action dict into ``(n, 2)`` unit moves and ``(n,)`` communication choices (a missing or None
+        action means "stay, no message")."""
         if self.config.continuous_actions:
             act = np.zeros((self.n, 3))
             for i, agent in enumerate(self.agents):
                 if actions.get(agent) is not None:
                     act[i] = actions[agent]
+            return self._action_arrays(act)
+        try:
+            choices = np.array([actions[agent] for agent in self.agents], dtype=np.int64).reshape(-1)
+        except (KeyError, TypeError):
+            choices = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
+        return self._action_arrays(choices)
+
+    def _action_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(n, 2)`` unit moves and ``(n,)`` communication choices from ``(n,)`` ints or ``(n, 3)`` floats."""
+        if self.config.continuous_actions:
+            act = np.asarray(actions, dtype=np.float64)
+            if act.size != 3 * self.n:
+                raise ValueError(f"continuous actions must be {self.n} rows of 3 floats, got shape {act.shape}")
+            act = act.reshape(self.n, 3)
             if not np.all(np.isfinite(act)):
                 raise ValueError(f"continuous actions must be finite, got {act}")
             act = np.clip(act, -1.0, 1.0)
             comm = np.select([act[:, 2] > 1 / 3, act[:, 2] < -1 / 3], [COMM_BROADCAST, COMM_QUERY], COMM_NONE)
             return act[:, :2], comm
-        choices: np.ndarray
-        try:
-            choices = np.array([actions[agent] for agent in self.agents], dtype=np.int64).reshape(-1)
-        except (KeyError, TypeError):  # a missing or None action means "stay, no message"
-            choices = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
+        choices = np.asarray(actions).reshape(-1)
+        if choices.dtype.kind not in "iu":
+            if choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)):
+                choices = choices.astype(np.int64)
+            else:
+                raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
         if choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
             raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
-        comm, move = np.divmod(choices, N_MOVES)
+        comm, move = np.divmod(choices.astype(np.int64, copy=False), N_MOVES)
         return _MOVES[move], comm
 
     def _uav_cells(self) -> np.ndarray:

@@ -1,0 +1,210 @@
+"""Training speed on the reserve through the two parameter-sharing paths, against a zero-cost environment.
+
+Three parts, all printed as figures measured in this run:
+
+1. **Training**: PPO and EM-PPO with their zoo YAMLs (4 copies x 10 UAVs, one torch thread) train ``-n``
+   agent-steps on the reserve through the batched path (``ReserveVecEnv``), through SuperSuit
+   (``SharedPolicyVecEnv``) and on a zero-cost vector environment with the same spaces, entries and episode length
+   (constant observations, zero rewards: only the networks and SB3 cost anything). The configurations take turns,
+   ``--rounds`` times; the table gives medians, and the share of training time spent outside the networks,
+   ``1 - t(zero-cost) / t(path)`` (the environment plus the vector environment).
+2. **Raw stepping** of the batched path with random actions: 1, 4, 16 and 64 copies of 10 UAVs, and 50 and 200
+   UAVs (one copy, 200 x 200 cells), beside the SuperSuit path at the same sizes; peak memory that tracemalloc
+   saw while the vector environment was built and stepped (a separate pass: tracing slows every allocation).
+3. **Team size through the zoo** (``--team-sizes``): ``zoo/train.py --algo ppo`` for the same agent-steps with 10,
+   50 and 200 UAVs, each in its own process: its training time (``run_stats.json``), cost per agent-step against
+   10 UAVs and the process's peak resident memory.
+
+Example: ``python benchmarks/train_speed.py`` (or ``make benchmark-train-speed``; about 15 minutes)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import torch as th
+from em_speed import build, zoo_settings
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+
+from sb3_emmarl.common.vec_env import make_vec_env
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class ZeroCostVecEnv(VecEnv):
+    """A vector environment with the reserve's spaces and entries that costs nothing: the same observation every
+    step, zero rewards, every entry's episode ending after ``max_cycles`` steps (as the reserve's do)."""
+
+    def __init__(self, observation_space: spaces.Box, action_space: spaces.Space, n_copies: int, agents_per_copy: int,
+                 max_cycles: int) -> None:
+        super().__init__(n_copies * agents_per_copy, observation_space, action_space)
+        self.agents_per_copy, self.max_cycles = agents_per_copy, max_cycles
+        self._obs = np.random.default_rng(0).random((self.num_envs, *observation_space.shape)).astype(np.float32)
+        self._t = 0
+
+    def reset(self):
+        self._t = 0
+        return self._obs.copy()
+
+    def step_async(self, actions):
+        pass
+
+    def step_wait(self):
+        self._t += 1
+        dones = np.full(self.num_envs, self._t >= self.max_cycles)
+        infos = [{} for _ in range(self.num_envs)]
+        if self._t >= self.max_cycles:
+            self._t = 0
+            for info in infos:
+                info.update({"terminal_observation": self._obs[0], "TimeLimit.truncated": True})
+        return self._obs.copy(), np.zeros(self.num_envs, dtype=np.float32), dones, infos
+
+    def close(self):
+        pass
+
+    def get_attr(self, attr_name, indices=None):
+        raise AttributeError(attr_name)
+
+    def set_attr(self, attr_name, value, indices=None):
+        pass
+
+    def env_method(self, method_name, *args, indices=None, **kwargs):
+        raise AttributeError(method_name)
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False] * self.num_envs
+
+
+def zero_cost_like(algo: str) -> VecEnv:
+    settings = zoo_settings(algo)
+    reserve = make_vec_env(1, seed=0, env_kwargs=settings.get("env_kwargs") or {})
+    inner = reserve.unwrapped
+    env = ZeroCostVecEnv(reserve.observation_space, reserve.action_space, int(settings["n_envs"]),
+                         inner.agents_per_copy, inner.prototype.max_cycles)
+    reserve.close()
+    return VecMonitor(env)
+
+
+def training(algos: list[str], n: int, rounds: int) -> None:
+    paths = ["batched", "supersuit", "zero-cost"]
+    seconds = {(algo, path): [] for algo in algos for path in paths}
+    for round_ in range(rounds):
+        for algo in algos:
+            for path in paths:
+                env = zero_cost_like(algo) if path == "zero-cost" else None
+                model = build(algo, seed=round_, env=env, vec_env_type=None if env is not None else path)
+                start = time.perf_counter()
+                model.learn(n)
+                seconds[algo, path].append(time.perf_counter() - start)
+                model.get_env().close()
+                print(f"  round {round_} {algo:<7} {path:<10} {seconds[algo, path][-1]:6.1f} s", flush=True)
+    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings, one torch thread")
+    print(f"{'algo':<8}{'path':<11}{'seconds':>9}{'agent-steps/s':>15}{'outside networks':>18}")
+    for algo in algos:
+        zero = np.median(seconds[algo, "zero-cost"])
+        for path in paths:
+            t = np.median(seconds[algo, path])
+            share = "" if path == "zero-cost" else f"{1 - zero / t:.0%}"
+            print(f"{algo:<8}{path:<11}{t:>9.1f}{n / t:>15,.0f}{share:>18}")
+
+
+def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, trace: bool = False) -> float:
+    if trace:
+        tracemalloc.start()
+    venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type)
+    venv.reset()
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, venv.action_space.n, (64, venv.num_envs))
+    for k in range(min(20, steps)):  # warm-up (numba's compiled kernels, first allocations)
+        venv.step(actions[k % 64])
+    start = time.perf_counter()
+    for k in range(steps):
+        venv.step(actions[k % 64])
+    elapsed = time.perf_counter() - start
+    venv.close()
+    if trace:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return peak / 2**20
+    return steps * venv.num_envs / elapsed
+
+
+def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> None:
+    sizes = [(c, 10, {}) for c in copies] + [(1, u, {"n_uavs": u, "grid_size": 200}) for u in large_teams]
+    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3), one process")
+    print(f"{'copies':>7}{'UAVs':>6}{'batched /s':>13}{'supersuit /s':>15}{'ratio':>7}{'batched MiB':>13}"
+          f"{'supersuit MiB':>15}")
+    for copies, uavs, kwargs in sizes:
+        steps = max(50, agent_steps // (copies * uavs))
+        rates = {path: np.median([_step_rate(path, copies, kwargs, steps) for _ in range(3)])
+                 for path in ("batched", "supersuit")}
+        memory = {path: _step_rate(path, copies, kwargs, 50, trace=True) for path in ("batched", "supersuit")}
+        print(f"{copies:>7}{uavs:>6}{rates['batched']:>13,.0f}{rates['supersuit']:>15,.0f}"
+              f"{rates['batched'] / rates['supersuit']:>7.2f}{memory['batched']:>13.1f}{memory['supersuit']:>15.1f}",
+              flush=True)
+
+
+def team_sizes(n: int, sizes: list[int], vec_env: str) -> None:
+    print(f"\nTeam size through the zoo: zoo/train.py --algo ppo -n {n:,} --vec-env {vec_env} (ppo.yml: 4 copies), "
+          "each in its own process; the training time and peak memory the zoo writes in run_stats.json")
+    print(f"{'UAVs':>6}{'seconds':>9}{'us/agent-step':>15}{'x 10 UAVs':>11}{'peak RSS MiB':>14}")
+    first = None
+    with tempfile.TemporaryDirectory() as folder:
+        for uavs in sizes:
+            cmd = [sys.executable, "zoo/train.py", "--algo", "ppo", "-n", str(n), "--seed", "0", "-f", folder,
+                   "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--vec-env", vec_env,
+                   "--env-kwargs", f"n_uavs:{uavs}"]
+            out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
+                                 env={**os.environ, "OMP_NUM_THREADS": "1"})
+            if out.returncode:
+                raise RuntimeError(f"zoo run with {uavs} UAVs failed:\n{out.stderr[-2000:]}")
+            stats = json.loads(max(Path(folder).glob("ppo/*/run_stats.json"), key=os.path.getmtime).read_text())
+            cost = stats["train_seconds"] / stats["n_timesteps"] * 1e6
+            first = first or cost
+            print(f"{uavs:>6}{stats['train_seconds']:>9.1f}{cost:>15.1f}{cost / first:>11.2f}"
+                  f"{stats['peak_rss_mib']:>14.0f}", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("-n", "--n-timesteps", type=int, default=100_000, help="agent-steps per training turn")
+    parser.add_argument("--rounds", type=int, default=3, help="turns of each training configuration")
+    parser.add_argument("--algos", nargs="+", default=["ppo", "em_ppo"], choices=["ppo", "em_ppo"])
+    parser.add_argument("--step-agent-steps", type=int, default=100_000, help="agent-steps per raw stepping measure")
+    parser.add_argument("--copies", type=int, nargs="*", default=[1, 4, 16, 64], help="copies of 10 UAVs stepped raw")
+    parser.add_argument("--large-teams", type=int, nargs="*", default=[50, 200],
+                        help="UAVs of the one-copy raw stepping runs on 200 x 200 cells")
+    parser.add_argument("--team-sizes", type=int, nargs="*", default=[10, 50, 200],
+                        help="UAVs of the zoo runs (none: skip that part)")
+    parser.add_argument("--team-n", type=int, default=204_800, help="agent-steps of each zoo run")
+    parser.add_argument("--vec-env", default="batched", choices=["batched", "supersuit"], help="path of the zoo runs")
+    parser.add_argument("--skip", nargs="*", default=[], choices=["training", "stepping"], help="parts to skip")
+    args = parser.parse_args(argv)
+    for name in ("n_timesteps", "rounds", "step_agent_steps", "team_n"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    for name in ("copies", "large_teams", "team_sizes"):
+        if any(value < 1 for value in getattr(args, name)):
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    th.set_num_threads(1)
+    if "training" not in args.skip:
+        training(args.algos, args.n_timesteps, args.rounds)
+    if "stepping" not in args.skip:
+        stepping(args.step_agent_steps, args.copies, args.large_teams)
+    if args.team_sizes:
+        team_sizes(args.team_n, args.team_sizes, args.vec_env)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
