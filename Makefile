@@ -5,7 +5,8 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed
+	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
+	experiments-quick experiments-full experiments-report
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
@@ -54,6 +55,17 @@ benchmark-em: install
 # Wall time of EM-PPO against PPO and RecurrentPPO at equal agent-steps, taking turns in one process (about 15 minutes).
 benchmark-em-speed: install
 	$(PYTHON) benchmarks/em_speed.py
+
+# The paper's experiments (sb3_emmarl/experiments/specs): the missing cells only (a killed run resumes), then the
+# tables and figures of docs/results.md. quick: each experiment within about 30 minutes here; full: the paper's budget.
+experiments-quick: install
+	$(PYTHON) zoo/experiment.py --all --budget quick
+
+experiments-full: install
+	$(PYTHON) zoo/experiment.py --all --budget full
+
+experiments-report: install
+	$(PYTHON) zoo/experiment.py --all --budget quick --report-only
 
 # PPO and EM-PPO through the batched and SuperSuit paths against a zero-cost environment, raw stepping from 1 to 64
 # copies and at 50 and 200 UAVs, and PPO through the zoo at 10, 50 and 200 UAVs (about 15 minutes).

@@ -116,7 +116,8 @@ def train_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation reserve arguments")
     parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=KeyValues,
                         help="overwrite hyperparameters, e.g. learning_rate:0.01")
-    parser.add_argument("-conf", "--conf-file", default=None, help="YAML file instead of zoo/hyperparams/<algo>.yml")
+    parser.add_argument("-conf", "--conf-file", default=None,
+                        help="YAML file instead of sb3_emmarl/zoo/hyperparams/<algo>.yml")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--vec-env", default="batched", choices=list(ZOO_VEC_ENVS),
                         help="batched: the reserve's array API in this process (fastest); supersuit (or rl-zoo's "
@@ -257,7 +258,7 @@ def train_main(argv: list[str] | None = None) -> int:
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     try:
         manager.learn(model)
     except (ValueError, RuntimeError, FloatingPointError) as error:
@@ -272,9 +273,9 @@ def train_main(argv: list[str] | None = None) -> int:
             where = f"the run folder {manager.save_path} is left as it was"
         print(f"error: training stopped at step {model.num_timesteps}: {error}\n{where}", file=sys.stderr)
         return 1
-    train_seconds = time.perf_counter() - start
+    train_seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     manager.save_trained_model(model)
-    stats = {"train_seconds": train_seconds, "n_timesteps": int(model.num_timesteps),
+    stats = {"train_seconds": train_seconds, "cpu_seconds": cpu_seconds, "n_timesteps": int(model.num_timesteps),
              "peak_rss_mib": peak_rss_mib()}
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:

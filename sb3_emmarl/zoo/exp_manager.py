@@ -76,8 +76,8 @@ from sb3_emmarl.zoo.algos import (
 from sb3_emmarl.zoo.cli import ZOO_VEC_ENVS
 from wildlife_reserve import reserve_v0
 
-#: The YAML files of the zoo (``zoo/hyperparams/<algo>.yml`` in a checkout).
-HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "zoo" / "hyperparams"
+#: The YAML files of the zoo (``sb3_emmarl/zoo/hyperparams/<algo>.yml``, package data: a wheel install has them).
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 #: Offset between the training seed and the seed of the evaluation environment.
 EVAL_SEED_OFFSET = 10_000
 
@@ -119,7 +119,7 @@ def write_yaml(path: str | Path, data: Any) -> None:
 class ReserveExperimentManager(ExperimentManager):
     """rl_zoo3's experiment manager on the wildlife reserve (see the module docstring for what differs).
 
-    Takes rl_zoo3's arguments; ``config`` defaults to ``zoo/hyperparams/<algo>.yml``.
+    Takes rl_zoo3's arguments; ``config`` defaults to ``sb3_emmarl/zoo/hyperparams/<algo>.yml``.
     """
 
     def __init__(self, args: Any, algo: str, env_id: str, *posargs: Any, resume_run: str | None = None,
