@@ -445,9 +445,9 @@ def _trajectory_figures(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], fi
             continue
         with np.load(path) as data:
             file = figure_file(spec, "trajectories", f"{condition}_{algorithm}")
-            title = f"{spec.paper}: {algorithm}, {condition} (seed {row['seed']}, one evaluation episode)"
+            title = f"{algorithm}, {condition}, seed {row['seed']}"
             figure_trajectories(data["positions"], figures_dir / file, title, data["terrain"], data["poachers"])
-        lines += ["", f"![{title}](figures/{file})"]
+        lines += ["", f"![{spec.paper}: {title}, one evaluation episode](figures/{file})"]
     return lines
 
 
