@@ -124,22 +124,27 @@ class JointReplayBuffer(ReplayBuffer):
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> JointReplaySamples:
         copies = np.random.randint(0, self.n_copies, size=len(batch_inds))
-        rows = batch_inds[:, None]
         entries = copies[:, None] * self.n_agents + np.arange(self.n_agents)  # (batch, n_agents)
+        return self._team_batch(batch_inds[:, None], entries, batch_inds, copies, env)
+
+    def _team_batch(self, rows: np.ndarray, entries: np.ndarray, state_rows: np.ndarray, state_copies: np.ndarray,
+                    env: VecNormalize | None = None) -> JointReplaySamples:
+        """Team transitions at the fancy indices ``[rows, entries]`` (the agents on the last axis) and the states at
+        ``[state_rows, state_copies]``: what single transitions and stretches of them share."""
         dones = self.dones[rows, entries]
         if self.handle_timeout_termination:
             dones = dones * (1 - self.timeouts[rows, entries])
-        rewards = self._normalize_reward(self.rewards[rows, entries], env).mean(axis=1)
+        rewards = self._normalize_reward(self.rewards[rows, entries], env).mean(axis=-1)
         states = next_states = None
         if self.state_shape is not None:
-            states = self.to_torch(self.states[batch_inds, copies])
-            next_states = self.to_torch(self.next_states[batch_inds, copies])
-        return JointReplaySamples(
-            observations=self.to_torch(self._normalize_obs(self.observations[rows, entries], env)),
-            actions=self.to_torch(self.actions[rows, entries, 0]).long(),
-            next_observations=self.to_torch(self._normalize_obs(self.next_observations[rows, entries], env)),
-            dones=self.to_torch(dones.max(axis=1).astype(np.float32)),
-            rewards=self.to_torch(rewards.astype(np.float32)),
+            states = self.to_torch(self.states[state_rows, state_copies], copy=False)
+            next_states = self.to_torch(self.next_states[state_rows, state_copies], copy=False)
+        return JointReplaySamples(  # the fancy indexing copied every array already
+            observations=self.to_torch(self._normalize_obs(self.observations[rows, entries], env), copy=False),
+            actions=self.to_torch(self.actions[rows, entries, 0], copy=False).long(),
+            next_observations=self.to_torch(self._normalize_obs(self.next_observations[rows, entries], env), copy=False),
+            dones=self.to_torch(dones.max(axis=-1).astype(np.float32), copy=False),
+            rewards=self.to_torch(rewards.astype(np.float32), copy=False),
             states=states,
             next_states=next_states,
         )
@@ -238,22 +243,9 @@ class RecurrentJointReplayBuffer(JointReplayBuffer):
         """The stretches beginning at rows ``first_rows`` ``(batch,)`` of copies ``copies`` ``(batch,)``."""
         rows = ((first_rows[:, None] + np.arange(self.sequence_length)) % self.buffer_size)[:, :, None]  # (batch, L, 1)
         entries = (copies[:, None] * self.n_agents + np.arange(self.n_agents))[:, None, :]  # (batch, 1, n_agents)
-        dones = self.dones[rows, entries]
-        if self.handle_timeout_termination:
-            dones = dones * (1 - self.timeouts[rows, entries])
-        rewards = self._normalize_reward(self.rewards[rows, entries], env).mean(axis=2)
-        states = next_states = None
-        if self.state_shape is not None:
-            states = self.to_torch(self.states[rows[:, :, 0], copies[:, None]])
-            next_states = self.to_torch(self.next_states[rows[:, :, 0], copies[:, None]])
-        return JointSequenceSamples(  # the fancy indexing copied the observations already
-            observations=self.to_torch(self._normalize_obs(self.observations[rows, entries], env), copy=False),
-            actions=self.to_torch(self.actions[rows, entries, 0]).long(),
-            next_observations=self.to_torch(self._normalize_obs(self.next_observations[rows, entries], env), copy=False),
-            dones=self.to_torch(dones.max(axis=2).astype(np.float32)),
-            rewards=self.to_torch(rewards.astype(np.float32)),
-            states=states,
-            next_states=next_states,
+        team = self._team_batch(rows, entries, rows[:, :, 0], copies[:, None], env)
+        return JointSequenceSamples(
+            *team,
             episode_starts=self.to_torch(self.episode_starts[rows, entries].astype(np.float32)),
             hidden=self.to_torch(self.hidden[first_rows[:, None], entries[:, 0]]),
         )
