@@ -66,8 +66,12 @@ class SplitFeaturesExtractor(BaseFeaturesExtractor):
         inner = extractor_class(head_space, **(extractor_kwargs or {}))
         super().__init__(observation_space, inner.features_dim + keep - int(head_dim))
         self.inner, self.head_dim, self.keep = inner, int(head_dim), keep
+        # SB3's FlattenExtractor is the identity on a flat Box: then the features are a view of the observations.
+        self._pass_through = type(inner) is FlattenExtractor
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
+        if self._pass_through:
+            return observations[..., :self.keep]
         features = self.inner(observations[..., :self.head_dim])
         if self.keep == self.head_dim:
             return features

@@ -146,6 +146,11 @@ class SharedPolicyVecEnv(VecEnv):
         """The copies' environments (in this process)."""
         return [copy.par_env for copy in self.venv.vec_envs]
 
+    def _switch_state_on(self) -> None:
+        """Have the copies in this process put the global state in their infos (each :class:`_ReserveCopy`)."""
+        for copy in self.venv.vec_envs:
+            copy.with_state = True
+
     # -------------------------------------------------------------- seeding and reset
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed the next reset: copy ``c`` gets ``seed + c`` (a fresh random ``seed`` if None).
@@ -198,9 +203,7 @@ class SharedPolicyVecEnv(VecEnv):
         if self.multiprocess:
             raise ValueError("the copies live in worker processes: build the environment with "
                              "make_vec_env(..., with_state=True) to have the global state")
-        self.venv.with_state = True  # ConcatVecEnv passes it to no copy: set it on each
-        for copy in getattr(self.venv, "vec_envs", ()):
-            copy.with_state = True
+        self._switch_state_on()
         self.with_state, self.state_space = True, space
 
     # -------------------------------------------------------------- state, for checkpoints
@@ -310,13 +313,14 @@ class _SteppedCopies:
         agents = env.possible_agents
         return np.stack([observations[a] for a in agents]), [infos.get(a, {}) for a in agents]
 
-    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, list[dict]]:
+    def reset(self, options: dict | None = None) -> tuple[np.ndarray, list[dict]]:
+        """Reset every copy; the options' :data:`COPY_SEEDS_KEY` gives each its seed (the rest goes to the reserves)."""
         options = dict(options or {})
         seeds = options.pop(COPY_SEEDS_KEY, None)
         observations = np.empty((len(self.envs) * self.n, self.obs_dim), dtype=np.float32)
         infos: list[dict] = []
         for c, env in enumerate(self.envs):
-            copy_seed = seeds[c] if seeds is not None else (None if seed is None else seed + c)
+            copy_seed = None if seeds is None else seeds[c]
             observations[c * self.n:(c + 1) * self.n], copy_infos = self._reset_copy(env, copy_seed, options or None)
             if self.with_state:
                 state = self._state(env)
@@ -347,10 +351,10 @@ class _SteppedCopies:
             terminations[lo:hi], truncations[lo:hi] = terminated, truncated
             ended = {TERMINAL_STATE_KEY: self._state(env)} if self.with_state else {}
             observations[lo:hi], reset_infos = self._reset_copy(env, None, None)  # an automatic reset, unseeded
+            if self.with_state:
+                ended[STATE_KEY] = self._state(env)  # the new episode's, one array for the copy (as SuperSuit's)
             for k, (senders, reset_info) in enumerate(zip(heard, reset_infos)):
                 new = {key: value for key, value in reset_info.items() if key != LINKS_KEY}
-                if self.with_state:
-                    new[STATE_KEY] = self._state(env)
                 infos.append({**info, "terminal_observation": obs[k], **new, **ended,
                               TERMINAL_LINKS_KEY: senders, LINKS_KEY: ()})
         return observations, rewards, terminations, truncations, infos
@@ -391,6 +395,9 @@ class ReserveVecEnv(SharedPolicyVecEnv):
 
     def _par_envs(self) -> list[ParallelEnv]:
         return list(self.venv.envs)
+
+    def _switch_state_on(self) -> None:
+        self.venv.with_state = True
 
 
 def require_state(venv: VecEnv, who: str) -> Any:

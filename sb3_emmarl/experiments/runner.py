@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_emmarl.experiments.spec import EPISODE_METRICS, ExperimentSpec, load_spec
+from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec
 from sb3_emmarl.experiments.store import ResultStore
 
 #: The backends of :func:`run_experiment`.
@@ -115,6 +115,7 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
                             None if run is None else run / f"{ENV_ID}.zip")
         runs.append(stats)
     seconds = sum(s["train_seconds"] for s in runs)
+    # A run continued with -i counts the first stage's steps again: with a fine-tuning stage, the budget is the count.
     steps = sum(s["n_timesteps"] for s in runs) if cond.fine_tune is None else plan.n_timesteps
     metrics: dict[str, float] = {
         "train_seconds": seconds, "peak_rss_mib": max(s["peak_rss_mib"] for s in runs),
@@ -152,8 +153,6 @@ def run_cell_process(spec_path: str, budget: str, algorithm: str, condition: str
 
 
 def _spec_path(spec: ExperimentSpec, spec_path: str | None) -> str:
-    from sb3_emmarl.experiments.spec import SPECS_DIR
-
     return spec_path or str(SPECS_DIR / f"{spec.name}.yml")
 
 

@@ -25,6 +25,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
@@ -157,7 +158,8 @@ class MAPPOPolicy(ActorCriticPolicy):
     Takes ``ActorCriticPolicy``'s arguments (``net_arch`` as a list shared by both networks or ``dict(pi, vf)``),
     with on-policy's defaults, plus the ones below. A ``features_extractor_class`` (e.g. the message extractors of
     :mod:`sb3_emmarl.common.extractors`) reads the agent's own observation; the critic's copy of it (actor and
-    critic do not share it unless ``share_features_extractor=True``) is followed by the global state and agent id.
+    critic do not share a learned extractor unless ``share_features_extractor=True``) is followed by the global state
+    and agent id.
 
     :param state_layout: the :class:`~sb3_emmarl.mappo.wrappers.StateLayout` fields (set by MAPPO)
     :param layer_norm: LayerNorm on each network's input and after each hidden layer (on-policy's
@@ -184,7 +186,10 @@ class MAPPOPolicy(ActorCriticPolicy):
         if not isinstance(observation_space, spaces.Box) or observation_space.shape != (layout.critic_dim,):
             raise ValueError(f"the observation space must be a Box of shape ({layout.critic_dim},) (observation, state "
                              f"and agent id), got {observation_space}")
-        kwargs.setdefault("share_features_extractor", False)  # on-policy's actor and critic are separate networks
+        # on-policy's actor and critic are separate networks: a learned extractor is not shared (sharing SB3's
+        # parameterless FlattenExtractor changes nothing and saves a pass)
+        kwargs.setdefault("share_features_extractor",
+                          kwargs.get("features_extractor_class", FlattenExtractor) is FlattenExtractor)
         for name, value in (("layer_norm", layer_norm), ("value_norm", value_norm)):
             if not isinstance(value, (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {value!r}")

@@ -140,7 +140,7 @@ class ReserveExperimentManager(ExperimentManager):
         # rl-zoo's --vec-env picks SB3's DummyVecEnv or SubprocVecEnv; here it picks the parameter-sharing path:
         # "batched" (ReserveVecEnv), "supersuit" or rl-zoo's "dummy" (SuperSuit in this process), "subproc"
         # (SuperSuit with worker processes). rl_zoo3 itself only needs to know whether there are workers.
-        self.vec_env_path = kwargs.get("vec_env_type", "dummy")
+        self.vec_env_path = kwargs.get("vec_env_type", "batched")  # the command line's default
         if self.vec_env_path not in ZOO_VEC_ENVS:
             raise ValueError(f"vec_env_type must be one of {list(ZOO_VEC_ENVS)}, got {self.vec_env_path!r}")
         kwargs["vec_env_type"] = "subproc" if self.vec_env_path == "subproc" else "dummy"
