@@ -95,20 +95,27 @@ def zero_cost_like(algo: str) -> VecEnv:
     return VecMonitor(env)
 
 
+#: The training paths: name -> (make_vec_env's vec_env_type, num_cpus); "subproc" is the zoo's name for the batched
+#: path with its copies split over this process and a worker.
+PATHS = {"batched": ("batched", 0), "subproc": ("batched", 2), "supersuit": ("supersuit", 0)}
+
+
 def training(algos: list[str], n: int, rounds: int) -> None:
-    paths = ["batched", "supersuit", "zero-cost"]
+    paths = [*PATHS, "zero-cost"]
     seconds = {(algo, path): [] for algo in algos for path in paths}
     for round_ in range(rounds):
         for algo in algos:
             for path in paths:
                 env = zero_cost_like(algo) if path == "zero-cost" else None
-                model = build(algo, seed=round_, env=env, vec_env_type=None if env is not None else path)
+                vec_env_type, num_cpus = PATHS.get(path, (None, 0))
+                model = build(algo, seed=round_, env=env, vec_env_type=vec_env_type, num_cpus=num_cpus)
                 start = time.perf_counter()
                 model.learn(n)
                 seconds[algo, path].append(time.perf_counter() - start)
                 model.get_env().close()
                 print(f"  round {round_} {algo:<7} {path:<10} {seconds[algo, path][-1]:6.1f} s", flush=True)
-    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings, one torch thread")
+    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings, one torch thread "
+          f"(subproc: the batched path's copies split over this process and one worker)")
     print(f"{'algo':<8}{'path':<11}{'seconds':>9}{'agent-steps/s':>15}{'outside networks':>18}")
     for algo in algos:
         zero = np.median(seconds[algo, "zero-cost"])
@@ -118,10 +125,11 @@ def training(algos: list[str], n: int, rounds: int) -> None:
             print(f"{algo:<8}{path:<11}{t:>9.1f}{n / t:>15,.0f}{share:>18}")
 
 
-def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, trace: bool = False) -> float:
+def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, trace: bool = False,
+               num_cpus: int = 0) -> float:
     if trace:
         tracemalloc.start()
-    venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type)
+    venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type, num_cpus=num_cpus)
     venv.reset()
     rng = np.random.default_rng(0)
     actions = rng.integers(0, venv.action_space.n, (64, venv.num_envs))
@@ -141,15 +149,19 @@ def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, t
 
 def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> None:
     sizes = [(c, 10, {}) for c in copies] + [(1, u, {"n_uavs": u, "grid_size": 200}) for u in large_teams]
-    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3), one process")
-    print(f"{'copies':>7}{'UAVs':>6}{'batched /s':>13}{'supersuit /s':>15}{'ratio':>7}{'batched MiB':>13}"
-          f"{'supersuit MiB':>15}")
+    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3); batched and "
+          "supersuit in one process, subproc: the batched copies split over this process and one worker (two cores; "
+          "memory: this process's allocations only)")
+    print(f"{'copies':>7}{'UAVs':>6}{'batched /s':>13}{'subproc /s':>13}{'supersuit /s':>15}{'ratio':>7}"
+          f"{'batched MiB':>13}{'supersuit MiB':>15}")
     for copies, uavs, kwargs in sizes:
         steps = max(50, agent_steps // (copies * uavs))
         rates = {path: np.median([_step_rate(path, copies, kwargs, steps) for _ in range(3)])
                  for path in ("batched", "supersuit")}
+        split = np.median([_step_rate("batched", copies, kwargs, steps, num_cpus=2) for _ in range(3)]) \
+            if copies > 1 else float("nan")
         memory = {path: _step_rate(path, copies, kwargs, 50, trace=True) for path in ("batched", "supersuit")}
-        print(f"{copies:>7}{uavs:>6}{rates['batched']:>13,.0f}{rates['supersuit']:>15,.0f}"
+        print(f"{copies:>7}{uavs:>6}{rates['batched']:>13,.0f}{split:>13,.0f}{rates['supersuit']:>15,.0f}"
               f"{rates['batched'] / rates['supersuit']:>7.2f}{memory['batched']:>13.1f}{memory['supersuit']:>15.1f}",
               flush=True)
 
@@ -187,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--team-sizes", type=int, nargs="*", default=[10, 50, 200],
                         help="UAVs of the zoo runs (none: skip that part)")
     parser.add_argument("--team-n", type=int, default=204_800, help="agent-steps of each zoo run")
-    parser.add_argument("--vec-env", default="batched", choices=["batched", "supersuit"], help="path of the zoo runs")
+    parser.add_argument("--vec-env", default="batched", choices=["batched", "subproc", "supersuit"],
+                        help="path of the zoo runs")
     parser.add_argument("--skip", nargs="*", default=[], choices=["training", "stepping"], help="parts to skip")
     args = parser.parse_args(argv)
     for name in ("n_timesteps", "rounds", "step_agent_steps", "team_n"):

@@ -120,10 +120,11 @@ def test_get_attr_set_attr_and_env_method_reach_the_copies():
     assert venv.env_is_wrapped(object) == [False] * 6
 
 
-def test_multiprocess_copies_match_in_process_copies():
+@pytest.mark.parametrize("vec_env_type", ["batched", "supersuit"])
+def test_multiprocess_copies_match_in_process_copies(vec_env_type):
     # SuperSuit fault: with num_cpus > 1 the seeds collided across processes.
     in_process = rollout(make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL), steps=30)
-    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2)
+    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2, vec_env_type=vec_env_type)
     try:
         multi = rollout(venv, steps=30)
         assert venv.get_attr("max_cycles") == [25] * 12
@@ -137,12 +138,14 @@ def test_multiprocess_copies_match_in_process_copies():
     assert all(not np.array_equal(copies[i], copies[j]) for i in range(4) for j in range(i + 1, 4))
 
 
-def test_reset_infos_are_one_dict_per_entry_with_worker_processes_too():
+@pytest.mark.parametrize("vec_env_type", ["batched", "supersuit"])
+def test_reset_infos_are_one_dict_per_entry_with_worker_processes_too(vec_env_type):
     # SuperSuit fault: ProcConcatVec.reset returned each worker's compressed (index, info) pairs.
     from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 
     in_process = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, vec_env_wrapper=ModeObservationWrapper)
-    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2, vec_env_wrapper=ModeObservationWrapper)
+    venv = make_vec_env(n_copies=4, seed=3, env_kwargs=SMALL, num_cpus=2, vec_env_wrapper=ModeObservationWrapper,
+                        vec_env_type=vec_env_type)
     try:
         multi, expected = venv.reset(), in_process.reset()
         infos = venv.unwrapped.reset_infos
@@ -182,14 +185,21 @@ def assert_same(a, b, where="") -> None:
         assert type(a) is type(b) and a == b, (where, a, b)
 
 
-def record(vec_env_type, env_kwargs, steps, n_copies=2, with_state=False):
-    venv = make_vec_env(n_copies, seed=11, env_kwargs=env_kwargs, vec_env_type=vec_env_type, with_state=with_state)
+def random_actions(venv, rng):
+    if venv.action_space.shape != ():  # continuous
+        return rng.uniform(-1.2, 1.2, (venv.num_envs, 3))
+    return rng.integers(0, 15, venv.num_envs)
+
+
+def record(vec_env_type, env_kwargs, steps, n_copies=2, with_state=False, num_cpus=0):
+    venv = make_vec_env(n_copies, seed=11, env_kwargs=env_kwargs, vec_env_type=vec_env_type, with_state=with_state,
+                        num_cpus=num_cpus)
     rng = np.random.default_rng(5)
-    out = [venv.reset(), venv.unwrapped.reset_infos]
-    continuous = venv.action_space.shape != ()
-    for _ in range(steps):
-        actions = rng.uniform(-1.2, 1.2, (venv.num_envs, 3)) if continuous else rng.integers(0, 15, venv.num_envs)
-        out.append(venv.step(actions))
+    try:
+        out = [venv.reset(), venv.unwrapped.reset_infos]
+        out.extend(venv.step(random_actions(venv, rng)) for _ in range(steps))
+    finally:
+        venv.close()
     return out
 
 
@@ -211,18 +221,83 @@ def test_batched_and_supersuit_paths_give_identical_data(env_kwargs, with_state)
     assert_same(batched, reference)
 
 
-def test_batched_path_is_the_default_for_the_reserve_and_refuses_worker_processes():
+def test_batched_path_is_the_default_for_the_reserve():
     assert isinstance(make_vec_env(env_kwargs=SMALL).unwrapped, ReserveVecEnv)
     assert type(make_vec_env(env_kwargs=SMALL, vec_env_type="supersuit").unwrapped) is SharedPolicyVecEnv
-    assert type(make_vec_env(2, env_kwargs=SMALL, num_cpus=2).unwrapped) is SharedPolicyVecEnv
+    split = make_vec_env(2, env_kwargs=SMALL, num_cpus=2)
+    try:
+        assert isinstance(split.unwrapped, ReserveVecEnv) and len(split.unwrapped.venv.processes) == 1
+    finally:
+        split.close()
     with pytest.raises(ValueError, match="vec_env_type must be one of \\['batched', 'supersuit'\\] or None, got 'fast'"):
         make_vec_env(env_kwargs=SMALL, vec_env_type="fast")
-    with pytest.raises(ValueError, match="num_cpus must be 0 or 1, got 2"):
-        make_vec_env(2, env_kwargs=SMALL, num_cpus=2, vec_env_type="batched")
     venv = make_vec_env(env_kwargs=SMALL)
     venv.reset()
     with pytest.raises(ValueError, match="discrete actions must be 3 ints in \\[0, 14\\]"):
         venv.step(np.array([0, 1, 15]))
+
+
+@pytest.mark.parametrize("env_kwargs,with_state,num_cpus", [
+    ({"max_cycles": 60}, True, 2),
+    ({"continuous_actions": True, "adversarial": True, "max_cycles": 50}, False, 3),
+], ids=["default-state-2-processes", "continuous-adversarial-3-processes"])
+def test_batched_copies_split_over_processes_give_the_same_data(env_kwargs, with_state, num_cpus):
+    """The copies stepped by this process and worker processes at once: the same data as all in this process,
+    across automatic resets (each copy draws from its own generators, wherever it lives)."""
+    split = record("batched", env_kwargs, 150, n_copies=3, with_state=with_state, num_cpus=num_cpus)
+    assert sum(int(step[2].any()) for step in split[2:]) >= 2
+    assert_same(split, record("batched", env_kwargs, 150, n_copies=3, with_state=with_state))
+
+
+def test_a_checkpoint_of_split_copies_restores_into_any_number_of_processes():
+    def play(venv, steps, seed):  # the unwrapped environment: VecMonitor's running returns are not its state
+        rng = np.random.default_rng(seed)
+        return [venv.unwrapped.step(random_actions(venv, rng)) for _ in range(steps)]
+
+    kwargs = {"n_copies": 3, "seed": 4, "env_kwargs": {**SMALL, "max_cycles": 20}}
+    venvs = [make_vec_env(**kwargs, num_cpus=2), make_vec_env(**kwargs), make_vec_env(**kwargs, num_cpus=3)]
+    try:
+        source = venvs[0]
+        source.reset()
+        play(source, 30, seed=0)
+        state = source.unwrapped.get_state()
+        for venv in venvs[1:]:
+            venv.reset()
+            venv.unwrapped.set_state(state)
+        expected = play(source, 30, seed=1)
+        for venv in venvs[1:]:
+            assert_same(play(venv, 30, seed=1), expected)
+        restored = make_vec_env(**{**kwargs, "n_copies": 2}, num_cpus=2)
+        try:
+            with pytest.raises(ValueError, match="the checkpoint holds 3 reserve copies, this environment 2"):
+                restored.unwrapped.set_state(state)
+        finally:
+            restored.close()
+    finally:
+        for venv in venvs:
+            venv.close()
+
+
+def test_a_worker_failure_or_death_is_raised_in_the_main_process_and_close_stops_the_workers():
+    venv = make_vec_env(3, seed=0, env_kwargs=SMALL, num_cpus=2)
+    processes = list(venv.unwrapped.venv.processes)
+    venv.reset()
+    actions = np.zeros(9, dtype=np.int64)
+    actions[-1] = 15  # out of range, for a copy of the worker
+    with pytest.raises(RuntimeError, match=r"(?s)worker process of reserve copies 2-2 failed.*discrete actions must be"):
+        venv.step(actions)
+    venv.close()
+    assert not any(process.is_alive() for process in processes)
+
+    venv = make_vec_env(3, seed=0, env_kwargs=SMALL, num_cpus=2)
+    try:
+        venv.reset()
+        venv.unwrapped.venv.processes[0].kill()
+        venv.unwrapped.venv.processes[0].join(5)
+        with pytest.raises(RuntimeError, match="worker process of reserve copies 2-2 died"):
+            venv.step(np.zeros(9, dtype=np.int64))
+    finally:
+        venv.close()
 
 
 def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):

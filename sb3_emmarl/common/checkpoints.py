@@ -66,9 +66,12 @@ class _ViewPickler(pickle.Pickler):
     environment writing through one view and reading through another behaves differently once unpickled)."""
 
     def reducer_override(self, obj: Any) -> Any:
-        if type(obj) is np.ndarray and isinstance(obj.base, np.ndarray) and type(obj.base) is np.ndarray \
-                and obj.base.flags.c_contiguous and obj.base.base is None and obj.dtype.hasobject is False:
-            base = obj.base
+        if type(obj) is not np.ndarray or not isinstance(obj.base, np.ndarray) or obj.dtype.hasobject:
+            return NotImplemented
+        base = obj.base
+        while isinstance(base.base, np.ndarray):  # the outermost array (an unpickled one owns a bytes buffer)
+            base = base.base
+        if type(base) is np.ndarray and base.flags.c_contiguous and not base.dtype.hasobject:
             offset = obj.__array_interface__["data"][0] - base.__array_interface__["data"][0]
             return _view, (base, offset, obj.shape, obj.strides, obj.dtype, bool(obj.flags.writeable))
         return NotImplemented

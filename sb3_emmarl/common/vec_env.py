@@ -21,22 +21,25 @@ The adapter replaces SuperSuit's ``SB3VecEnvWrapper`` and mends its faults:
 
 :class:`ReserveVecEnv` is the same adapter over the reserve's array API (``ReserveParallelEnv.step_arrays``)
 instead of SuperSuit: the same data, step for step and seed for seed, without the per-agent dictionaries. It is
-``make_vec_env``'s default for the reserve; ``vec_env_type="supersuit"`` keeps the SuperSuit path (the reference,
-and the one with worker processes).
+``make_vec_env``'s default for the reserve, in this process or split over worker processes (``num_cpus``);
+``vec_env_type="supersuit"`` keeps the SuperSuit path (the reference, and the path of other PettingZoo environments).
 """
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import pickle
+import traceback
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
 import numpy as np
+from gymnasium.vector.utils import CloudpickleWrapper
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env import VecCheckNan, VecEnv, VecEnvWrapper, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
-from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv
+from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv, ProcConcatVec
 
 from wildlife_reserve import reserve_v0
 
@@ -129,8 +132,7 @@ class SharedPolicyVecEnv(VecEnv):
         self.with_state = bool(with_state)
         self.state_space = self._state_space() if self.with_state else None
         if self.multiprocess:
-            builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
-            self.venv = MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
+            self.venv = self._worker_copies(env_fn, min(num_cpus, self.n_copies), observation_space, action_space)
         else:
             self.venv = self._local_copies(env_fn, observation_space, action_space)
         super().__init__(self.n_copies * self.agents_per_copy, observation_space, action_space)
@@ -142,12 +144,21 @@ class SharedPolicyVecEnv(VecEnv):
         builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
         return ConcatVecEnv(builders, observation_space, action_space)
 
+    def _worker_copies(self, env_fn: Callable[[], ParallelEnv], num_cpus: int, observation_space: Any,
+                       action_space: Any) -> Any:
+        """The copies in ``num_cpus`` worker processes: SuperSuit's ``ProcConcatVec``."""
+        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
+        return MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
+
     def _par_envs(self) -> list[ParallelEnv]:
         """The copies' environments (in this process)."""
         return [copy.par_env for copy in self.venv.vec_envs]
 
     def _switch_state_on(self) -> None:
-        """Have the copies in this process put the global state in their infos (each :class:`_ReserveCopy`)."""
+        """Have the copies put the global state in their infos (each :class:`_ReserveCopy`, in this process)."""
+        if self.multiprocess:
+            raise ValueError("the copies live in SuperSuit's worker processes: build the environment with "
+                             "make_vec_env(..., with_state=True) to have the global state")
         for copy in self.venv.vec_envs:
             copy.with_state = True
 
@@ -169,7 +180,7 @@ class SharedPolicyVecEnv(VecEnv):
         if self._copy_seeds is not None:
             options[COPY_SEEDS_KEY] = self._copy_seeds
         observations, infos = self.venv.reset(options=options or None)
-        self.reset_infos = self._decompress_infos(infos) if self.multiprocess else list(infos)
+        self.reset_infos = self._decompress_infos(infos) if isinstance(self.venv, ProcConcatVec) else list(infos)
         self._copy_seeds = None
         self._never_reset = False
         self._reset_options()
@@ -194,15 +205,12 @@ class SharedPolicyVecEnv(VecEnv):
     def enable_state(self) -> None:
         """Put the global state in the infos from the next reset on (as ``with_state=True`` does at construction).
 
-        :raise ValueError: if the environment has no ``state()``, or its copies live in worker processes (then build
-            it with ``make_vec_env(..., with_state=True)``)
+        :raise ValueError: if the environment has no ``state()``, or its copies live in SuperSuit's worker processes
+            (then build it with ``make_vec_env(..., with_state=True)``)
         """
         if self.with_state:
             return
         space = self._state_space()
-        if self.multiprocess:
-            raise ValueError("the copies live in worker processes: build the environment with "
-                             "make_vec_env(..., with_state=True) to have the global state")
         self._switch_state_on()
         self.with_state, self.state_space = True, space
 
@@ -211,24 +219,33 @@ class SharedPolicyVecEnv(VecEnv):
         """The copies mid-episode (their reserves and random generators), pickled, for checkpoints that resume
         exactly where a run stopped.
 
-        :raise ValueError: with worker processes (``num_cpus > 1``), whose copies this process cannot read
+        :raise ValueError: with SuperSuit's worker processes (``num_cpus > 1``), whose copies this process cannot read
         """
-        if self.multiprocess:
-            raise ValueError("the reserve copies live in worker processes (num_cpus > 1) and cannot be checkpointed; "
-                             "train with copies in this process (the zoo's --vec-env dummy) to resume runs exactly")
         from sb3_emmarl.common.checkpoints import dumps  # keeps the reserves' numpy views views
 
-        return dumps({"venv": self.venv, "copy_seeds": self._copy_seeds, "never_reset": self._never_reset,
-                             "reset_infos": self.reset_infos})
+        return dumps({"venv": self._portable_copies(), "copy_seeds": self._copy_seeds,
+                      "never_reset": self._never_reset, "reset_infos": self.reset_infos})
 
     def set_state(self, state: bytes) -> None:
         """Restore :meth:`get_state` (the copies then continue their episodes)."""
-        if self.multiprocess:
-            raise ValueError("cannot restore reserve copies into worker processes (num_cpus > 1)")
         saved = pickle.loads(state)
-        self.venv.close()
-        self.venv, self._copy_seeds = saved["venv"], saved["copy_seeds"]
+        self._adopt_copies(saved["venv"])
+        self._copy_seeds = saved["copy_seeds"]
         self._never_reset, self.reset_infos = saved["never_reset"], saved["reset_infos"]
+
+    def _portable_copies(self) -> Any:
+        """The copies as one picklable object (for :meth:`get_state`)."""
+        if self.multiprocess:
+            raise ValueError("the reserve copies live in SuperSuit's worker processes and cannot be checkpointed; "
+                             "use the batched path (the zoo's --vec-env batched or subproc) to resume runs exactly")
+        return self.venv
+
+    def _adopt_copies(self, copies: Any) -> None:
+        """Carry on with the copies of a checkpoint (from :meth:`_portable_copies`)."""
+        if self.multiprocess:
+            raise ValueError("cannot restore reserve copies into SuperSuit's worker processes (num_cpus > 1)")
+        self.venv.close()
+        self.venv = copies
 
     # -------------------------------------------------------------- stepping
     def step_async(self, actions: np.ndarray) -> None:
@@ -285,11 +302,6 @@ class SharedPolicyVecEnv(VecEnv):
         return self.venv.render()
 
 
-def _workers(num_cpus: Any) -> bool:
-    """Whether ``num_cpus`` asks for worker processes (more than one)."""
-    return isinstance(num_cpus, (int, np.integer)) and not isinstance(num_cpus, bool) and num_cpus > 1
-
-
 class _SteppedCopies:
     """The reserve copies stepped in turn through :meth:`ReserveParallelEnv.step_arrays`, giving what SuperSuit's
     ``ConcatVecEnv`` of :class:`_ReserveCopy` gives (observations, rewards, terminations, truncations, infos,
@@ -331,12 +343,19 @@ class _SteppedCopies:
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions).astype(self.action_dtype, copy=False)
 
-    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+    def step_wait(self, out: tuple[np.ndarray, ...] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """Step every copy (see :meth:`step_async`).
+
+        :param out: arrays to fill instead of new ones: observations, rewards, terminations, truncations
+        """
         actions, n = self._actions, self.n
         total = len(self.envs) * n
-        observations = np.empty((total, self.obs_dim), dtype=np.float32)
-        rewards = np.empty(total, dtype=np.float32)
-        terminations, truncations = np.zeros(total, dtype=bool), np.zeros(total, dtype=bool)
+        if out is None:
+            out = (np.empty((total, self.obs_dim), dtype=np.float32), np.empty(total, dtype=np.float32),
+                   np.empty(total, dtype=bool), np.empty(total, dtype=bool))
+        observations, rewards, terminations, truncations = out
+        terminations[:], truncations[:] = False, False
         infos: list[dict] = []
         for c, env in enumerate(self.envs):
             lo, hi = c * n, (c + 1) * n
@@ -366,38 +385,288 @@ class _SteppedCopies:
         for env in self.envs:
             env.close()
 
+    def portable(self) -> _SteppedCopies:
+        """Itself: the copies, picklable (see :meth:`_SplitCopies.portable`)."""
+        return self
+
+
+def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, buffers: tuple,
+                   shape: tuple[int, int], start: int) -> None:
+    """A worker process of :class:`_SplitCopies`: ``n_copies`` reserves stepped through :class:`_SteppedCopies`,
+    their observations, rewards and dones written to the shared ``buffers`` from entry ``start`` on, their infos
+    (or the error that stopped them) sent back through ``pipe``."""
+    try:
+        copies = _SteppedCopies([env_fn() for _ in range(n_copies)], action_space, with_state)
+        entries = slice(start, start + n_copies * copies.n)
+        out = tuple(view[entries] for view in _shared_views(buffers, shape))
+        pipe.send(("ok", None))
+        while True:
+            command, data = pipe.recv()
+            reply: Any = None
+            if command == "step":
+                copies.step_async(data)
+                reply = copies.step_wait(out)[4]
+            elif command == "reset":
+                out[0][:], reply = copies.reset(data)
+            elif command == "state_on":
+                copies.with_state = True
+            elif command == "get_envs":
+                from sb3_emmarl.common.checkpoints import dumps
+
+                reply = dumps(copies.envs)
+            elif command == "set_envs":
+                copies.close()
+                copies.envs, copies.with_state = pickle.loads(data)
+            elif command == "render":
+                reply = copies.render()
+            elif command == "close":
+                copies.close()
+                pipe.send(("ok", None))
+                return
+            pipe.send(("ok", reply))
+    except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the main process reports it
+        return
+    except BaseException:  # anything that stops the worker goes back to the main process
+        try:
+            pipe.send(("error", traceback.format_exc()))
+        except (BrokenPipeError, EOFError, OSError):
+            pass
+
+
+def _shared_views(buffers: tuple, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """Numpy views of :class:`_SplitCopies`' shared buffers: observations ``shape``, rewards, terminations and
+    truncations (one per vector entry)."""
+    observations, rewards, terminations, truncations = buffers
+    return (np.frombuffer(observations, dtype=np.float32).reshape(shape), np.frombuffer(rewards, dtype=np.float32),
+            np.frombuffer(terminations, dtype=bool), np.frombuffer(truncations, dtype=bool))
+
+
+class _SplitCopies:
+    """The reserve copies in ``n_groups`` groups stepped at the same time: the first in this process, each other by a
+    worker process (a :class:`_SteppedCopies` there) that writes its observations, rewards and dones into shared
+    memory and sends its infos through a pipe. The data are those of one :class:`_SteppedCopies` over every copy
+    (each copy draws from its own generators). Hand-written because SuperSuit's ``ProcConcatVec`` writes the
+    observations entry by entry and deep-copies every info dict (together more than the stepping itself at 10
+    UAVs) and cannot hand its copies to a checkpoint.
+
+    :param env_fn: builds one reserve (picklable with cloudpickle: the workers are started as SB3's
+        ``SubprocVecEnv`` starts them, with ``forkserver`` or ``spawn``, so scripts need ``if __name__ == "__main__":``)
+    :param n_copies: number of copies
+    :param n_groups: number of groups (this process and ``n_groups - 1`` workers), at most ``n_copies``
+    :param action_space: one agent's action space
+    :param with_state: the global state in the infos
+    """
+
+    def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int, n_groups: int, action_space: Any,
+                 with_state: bool) -> None:
+        sizes = [len(group) for group in np.array_split(np.arange(n_copies), n_groups)]
+        self.bounds = np.cumsum([0, *sizes]).tolist()  # copies [bounds[g], bounds[g + 1]) form group g
+        self.local = _SteppedCopies([env_fn() for _ in range(sizes[0])], action_space, with_state)
+        self.n, self.obs_dim, self.action_dtype = self.local.n, self.local.obs_dim, self.local.action_dtype
+        self.action_space = action_space
+        total = n_copies * self.n
+        # As SB3's SubprocVecEnv: no fork of a process that holds torch's threads (scripts need the main guard)
+        if "forkserver" in mp.get_all_start_methods():
+            context = mp.get_context("forkserver")
+            context.set_forkserver_preload([__name__])  # workers then start in milliseconds, not seconds of imports
+        else:
+            context = mp.get_context("spawn")
+        buffers = (context.RawArray("b", total * self.obs_dim * 4), context.RawArray("b", total * 4),
+                   context.RawArray("b", total), context.RawArray("b", total))
+        self._shared = _shared_views(buffers, (total, self.obs_dim))
+        self.pipes: list[Any] = []
+        self.processes: list[Any] = []
+        for g in range(1, n_groups):
+            parent, child = context.Pipe()
+            process = context.Process(
+                target=_copies_worker, daemon=True, name=f"reserve-copies-{self.bounds[g]}-{self.bounds[g + 1] - 1}",
+                args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space, with_state, buffers,
+                      (total, self.obs_dim), self.bounds[g] * self.n))
+            process.start()
+            child.close()
+            self.pipes.append(parent)
+            self.processes.append(process)
+        try:
+            for g in self._groups():
+                self._receive(g)
+        except BaseException:
+            self.close()
+            raise
+        self._actions: np.ndarray | None = None
+
+    @property
+    def envs(self) -> list[Any]:
+        """The copies in this process (the first group)."""
+        return self.local.envs
+
+    @property
+    def with_state(self) -> bool:
+        return self.local.with_state
+
+    @with_state.setter
+    def with_state(self, value: bool) -> None:
+        if value:
+            self._broadcast("state_on")
+        self.local.with_state = value
+
+    def _died(self, g: int) -> RuntimeError:
+        process = self.processes[g - 1]
+        process.join(1.0)
+        return RuntimeError(f"the worker process of reserve copies {self.bounds[g]}-{self.bounds[g + 1] - 1} died "
+                            f"(exit code {process.exitcode})")
+
+    def _send(self, g: int, command: str, data: Any = None) -> None:
+        """Send a command to group ``g``'s worker; a :class:`RuntimeError` naming its copies if it died."""
+        try:
+            self.pipes[g - 1].send((command, data))
+        except OSError as error:  # BrokenPipeError among them
+            raise self._died(g) from error
+
+    def _receive(self, g: int) -> Any:
+        """The reply of group ``g``'s worker; a :class:`RuntimeError` naming its copies if it failed or died."""
+        try:
+            status, reply = self.pipes[g - 1].recv()
+        except (EOFError, OSError) as error:
+            raise self._died(g) from error
+        if status == "error":
+            raise RuntimeError(f"the worker process of reserve copies {self.bounds[g]}-{self.bounds[g + 1] - 1} "
+                               f"failed:\n{reply}")
+        return reply
+
+    def _groups(self) -> range:
+        """The groups stepped by workers."""
+        return range(1, len(self.bounds) - 1)
+
+    def _broadcast(self, command: str, data: Any = None) -> list[Any]:
+        for g in self._groups():
+            self._send(g, command, data)
+        return [self._receive(g) for g in self._groups()]
+
+    def reset(self, options: dict | None = None) -> tuple[np.ndarray, list[dict]]:
+        """Reset every copy (each group gets its copies' seeds)."""
+        options = dict(options or {})
+        seeds = options.pop(COPY_SEEDS_KEY, None)
+        for g in self._groups():
+            group = dict(options)
+            if seeds is not None:
+                group[COPY_SEEDS_KEY] = seeds[self.bounds[g]:self.bounds[g + 1]]
+            self._send(g, "reset", group)
+        if seeds is not None:
+            options[COPY_SEEDS_KEY] = seeds[:self.bounds[1]]
+        local_observations, infos = self.local.reset(options)
+        for g in self._groups():
+            infos.extend(self._receive(g))
+        observations = self._shared[0].copy()
+        observations[:len(local_observations)] = local_observations
+        return observations, infos
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions = np.asarray(actions).astype(self.action_dtype, copy=False)
+        for g in self._groups():
+            self._send(g, "step", actions[self.bounds[g] * self.n:self.bounds[g + 1] * self.n])
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """This process steps its copies while the workers step theirs."""
+        local = self.bounds[1] * self.n
+        out = tuple(np.empty_like(view) for view in self._shared)
+        self.local.step_async(self._actions[:local])
+        infos = self.local.step_wait(tuple(array[:local] for array in out))[4]
+        for g in self._groups():
+            infos.extend(self._receive(g))
+        for array, view in zip(out, self._shared):
+            array[local:] = view[local:]
+        return (*out, infos)
+
+    def all_envs(self) -> list[Any]:
+        """Every copy, those of the workers as pickled copies."""
+        return self.local.envs + [env for reply in self._broadcast("get_envs") for env in pickle.loads(reply)]
+
+    def portable(self) -> _SteppedCopies:
+        """Every copy in one :class:`_SteppedCopies` (a checkpoint then restores into any number of processes)."""
+        return _SteppedCopies(self.all_envs(), self.action_space, self.with_state)
+
+    def adopt(self, copies: _SteppedCopies) -> None:
+        """Carry on with ``copies`` (every copy, e.g. from a checkpoint), spread over the groups as before."""
+        from sb3_emmarl.common.checkpoints import dumps
+
+        envs = copies.envs
+        if len(envs) != self.bounds[-1]:
+            raise ValueError(f"the checkpoint holds {len(envs)} reserve copies, this environment {self.bounds[-1]}")
+        for g in self._groups():
+            self._send(g, "set_envs", dumps((envs[self.bounds[g]:self.bounds[g + 1]], copies.with_state)))
+        self.local.close()
+        self.local.envs, self.local.with_state = envs[:self.bounds[1]], copies.with_state
+        for g in self._groups():
+            self._receive(g)
+
+    def render(self) -> Any:
+        return self.local.render()
+
+    def close(self) -> None:
+        """Close the copies and stop the workers (killed if they do not stop within 10 s)."""
+        for pipe, process in zip(self.pipes, self.processes):
+            try:
+                if process.is_alive():
+                    pipe.send(("close", None))
+                    if pipe.poll(10.0):
+                        pipe.recv()
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+            process.join(1.0)
+            if process.is_alive():
+                process.kill()
+            pipe.close()
+        self.pipes, self.processes = [], []
+        self.local.close()
+
 
 class ReserveVecEnv(SharedPolicyVecEnv):
     """The fast parameter-sharing vector environment of the reserve: :class:`SharedPolicyVecEnv` (same entry order,
     seeds, observations, rewards, dones, infos, terminal observations and automatic resets, tested equal step for
     step) whose copies are stepped through the reserve's array API (``step_arrays``) instead of SuperSuit's
-    per-agent dictionaries. All copies live in this process.
+    per-agent dictionaries. With ``num_cpus > 1`` the copies are split into ``num_cpus`` groups stepped at the same
+    time, one in this process and the others in worker processes; the data do not depend on the split, and
+    checkpoints (:meth:`get_state`) hold every copy, so they restore into any number of processes.
 
     :param env_fn: builds one reserve (``reserve_v0.parallel_env`` with its arguments)
     :param n_copies: number of independent copies
     :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`)
-    :param num_cpus: 0 or 1 (every copy is stepped in this process)
+    :param num_cpus: processes stepping the copies (0 or 1: this one alone; at most one per copy)
     """
 
     def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, with_state: bool = False,
                  num_cpus: int = 0) -> None:
-        if _workers(num_cpus):
-            raise ValueError(f"the batched vector environment steps every copy in this process: num_cpus must be 0 "
-                             f"or 1, got {num_cpus} (use vec_env_type='supersuit' for worker processes)")
         super().__init__(env_fn, n_copies=n_copies, num_cpus=num_cpus, with_state=with_state)
 
-    def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
-        envs = [env_fn() for _ in range(self.n_copies)]
-        if not callable(getattr(envs[0], "step_arrays", None)):
+    def _check_batchable(self) -> None:
+        if not callable(getattr(self.prototype, "step_arrays", None)):
             raise ValueError(f"the batched vector environment needs the reserve's step_arrays(); "
-                             f"{type(envs[0]).__name__} has none: use vec_env_type='supersuit'")
-        return _SteppedCopies(envs, action_space, self.with_state)
+                             f"{type(self.prototype).__name__} has none: use vec_env_type='supersuit'")
+
+    def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
+        self._check_batchable()
+        return _SteppedCopies([env_fn() for _ in range(self.n_copies)], action_space, self.with_state)
+
+    def _worker_copies(self, env_fn: Callable[[], ParallelEnv], num_cpus: int, observation_space: Any,
+                       action_space: Any) -> Any:
+        self._check_batchable()
+        return _SplitCopies(env_fn, self.n_copies, num_cpus, action_space, self.with_state)
 
     def _par_envs(self) -> list[ParallelEnv]:
         return list(self.venv.envs)
 
     def _switch_state_on(self) -> None:
         self.venv.with_state = True
+
+    def _portable_copies(self) -> Any:
+        return self.venv.portable()
+
+    def _adopt_copies(self, copies: Any) -> None:
+        if isinstance(self.venv, _SplitCopies):
+            self.venv.adopt(copies)
+        else:
+            self.venv.close()
+            self.venv = copies
 
 
 def require_state(venv: VecEnv, who: str) -> Any:
@@ -467,15 +736,15 @@ def make_vec_env(
     :param n_copies: independent reserve copies (rl-zoo's ``n_envs``)
     :param seed: seeds the first reset (copy ``c`` gets ``seed + c``); None draws a fresh seed
     :param env_kwargs: keyword arguments of the environment (validated here, before anything runs)
-    :param num_cpus: worker processes for the copies (0 or 1: in this process)
+    :param num_cpus: processes stepping the copies (0 or 1: this one alone; batched: this one and ``num_cpus - 1``
+        workers; supersuit: ``num_cpus`` workers)
     :param monitor_dir: folder for ``VecMonitor``'s ``monitor.csv`` (one row per agent-episode); None: no file
     :param vec_env_wrapper: optional wrapper applied last (e.g. the EM history wrapper)
     :param env_fn: environment constructor taking ``env_kwargs`` (default: the reserve)
     :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`; MAPPO and QMIX need it)
-    :param vec_env_type: ``"batched"`` (:class:`ReserveVecEnv`: the reserve's array API, in this process) or
-        ``"supersuit"`` (:class:`SharedPolicyVecEnv`: SuperSuit's conversion, any PettingZoo environment, worker
-        processes with ``num_cpus > 1``); both give the same data. None: ``"batched"`` for the reserve
-        (``env_fn`` left at its default) with ``num_cpus <= 1``, else ``"supersuit"``
+    :param vec_env_type: ``"batched"`` (:class:`ReserveVecEnv`: the reserve's array API) or ``"supersuit"``
+        (:class:`SharedPolicyVecEnv`: SuperSuit's conversion, any PettingZoo environment); both give the same data.
+        None: ``"batched"`` for the reserve (``env_fn`` left at its default), else ``"supersuit"``
     :return: ``VecMonitor(ReserveVecEnv or SharedPolicyVecEnv)``, wrapped by ``vec_env_wrapper`` if given
     """
     if vec_env_type not in (*VEC_ENV_TYPES, None):
@@ -483,7 +752,7 @@ def make_vec_env(
     env_kwargs = dict(env_kwargs or {})
     build = partial(env_fn, **env_kwargs)
     if vec_env_type is None:
-        vec_env_type = "batched" if env_fn is reserve_v0.parallel_env and not _workers(num_cpus) else "supersuit"
+        vec_env_type = "batched" if env_fn is reserve_v0.parallel_env else "supersuit"
     if vec_env_type == "batched":
         venv: VecEnv = ReserveVecEnv(build, n_copies=n_copies, with_state=with_state, num_cpus=num_cpus)
     else:

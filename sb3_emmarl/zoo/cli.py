@@ -40,7 +40,7 @@ from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from wildlife_reserve import reserve_v0
 
 #: The --vec-env choices: the two parameter-sharing paths of make_vec_env, rl-zoo's "dummy" (SuperSuit in this
-#: process, the name rl-zoo gives its in-process choice) and "subproc" (SuperSuit with worker processes).
+#: process, the name rl-zoo gives its in-process choice) and "subproc" (the batched path over worker processes).
 ZOO_VEC_ENVS = (*VEC_ENV_TYPES, "dummy", "subproc")
 
 #: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
@@ -120,9 +120,9 @@ def train_parser() -> argparse.ArgumentParser:
                         help="YAML file instead of sb3_emmarl/zoo/hyperparams/<algo>.yml")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--vec-env", default="batched", choices=list(ZOO_VEC_ENVS),
-                        help="batched: the reserve's array API in this process (fastest); supersuit (or rl-zoo's "
-                             "dummy): SuperSuit's conversion in this process; subproc: SuperSuit with reserve copies "
-                             "in worker processes (checkpoints then resume with new episodes)")
+                        help="batched: the reserve's array API in this process; subproc: the same with the reserve "
+                             "copies split over this process and worker processes, one per core (fastest on an idle "
+                             "machine); supersuit (or rl-zoo's dummy): SuperSuit's conversion in this process")
     parser.add_argument("--num-threads", type=int_flag(1, 1024, extra=(-1,)), default=1,
                         help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
     parser.add_argument("--log-interval", type=int_flag(-2, 10**6), default=-1,

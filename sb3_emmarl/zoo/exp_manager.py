@@ -138,8 +138,9 @@ class ReserveExperimentManager(ExperimentManager):
             raise ValueError(f"the hyperparameter file must be YAML (.yml or .yaml), got {kwargs['config']!r}")
         self.num_cpus = 0
         # rl-zoo's --vec-env picks SB3's DummyVecEnv or SubprocVecEnv; here it picks the parameter-sharing path:
-        # "batched" (ReserveVecEnv), "supersuit" or rl-zoo's "dummy" (SuperSuit in this process), "subproc"
-        # (SuperSuit with worker processes). rl_zoo3 itself only needs to know whether there are workers.
+        # "batched" (ReserveVecEnv in this process), "supersuit" or rl-zoo's "dummy" (SuperSuit in this process),
+        # "subproc" (ReserveVecEnv with its copies split over this process and workers, one per core). rl_zoo3
+        # itself only needs to know whether there are workers.
         self.vec_env_path = kwargs.get("vec_env_type", "batched")  # the command line's default
         if self.vec_env_path not in ZOO_VEC_ENVS:
             raise ValueError(f"vec_env_type must be one of {list(ZOO_VEC_ENVS)}, got {self.vec_env_path!r}")
@@ -263,7 +264,7 @@ class ReserveExperimentManager(ExperimentManager):
                 monitor_dir=monitor,
                 vec_env_wrapper=self.vec_env_wrapper,
                 with_state=self.algo in STATE_ALGOS and not eval_env,  # evaluations act on the plain observations
-                vec_env_type="batched" if self.vec_env_path == "batched" else "supersuit",
+                vec_env_type="supersuit" if self.vec_env_path in ("supersuit", "dummy") else "batched",
             )
             env = self._maybe_normalize(env, eval_env)
             if ZOO_ALGOS[self.algo] is OraclePPO:

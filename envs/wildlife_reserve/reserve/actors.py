@@ -110,8 +110,7 @@ def step_poachers(
     :param cover: ``(H, W)`` bool, forest or mountain (where hiding works)
     :return: new cells and a ``(P,)`` bool of who moved
     """
-    n = len(pos)
-    draw, wander_draw, pick, evade_draw = rng.random(n), rng.random(n), rng.random(n), rng.random(n)
+    draw, wander_draw, pick, evade_draw = rng.random((4, len(pos)))  # one call: the same stream as four
     return kernels.move_poachers(pos, mobile, target, uav_cells, notice_radius, strategy.move_prob, strategy.wander_prob,
                                  strategy.evasion_prob, strategy.hide_in_cover, cover, STEPS, draw, wander_draw, pick,
                                  evade_draw)
@@ -128,7 +127,6 @@ def step_leopards(
     :param home_range: Chebyshev distance from the den beyond which a leopard heads home
     :param shape: ``(height, width)``
     """
-    n = len(pos)
-    move_draw, step_draw, pick = rng.random(n), rng.random(n), rng.random(n)
+    move_draw, step_draw, pick = rng.random((3, len(pos)))  # one call: the same stream as three
     return kernels.move_leopards(pos, home, home_range, shape[0], shape[1], LEOPARD_MOVE_PROB, STEPS, move_draw, step_draw,
                                  pick)

@@ -167,8 +167,8 @@ class TeamKnowledge:
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
-        heard: list[list[int]] = [[] for _ in range(self.n)]
-        if self.comm_links.any():
-            for receiver, sender in zip(*np.nonzero(self.comm_links.T)):
-                heard[receiver].append(int(sender))
-        return [tuple(senders) for senders in heard]
+        receiver, sender = np.nonzero(self.comm_links.T)  # grouped by receiver, senders ascending within each
+        if not len(receiver):
+            return [()] * self.n
+        senders, ends = sender.tolist(), np.cumsum(np.bincount(receiver, minlength=self.n)).tolist()
+        return [tuple(senders[start:end]) for start, end in zip([0, *ends], ends)]

@@ -132,8 +132,7 @@ def false_readings(
     :param shape: ``(height, width)`` of the map
     :return: the reading UAVs ``(k,)``, their offsets ``(k, 2)`` and the cells read ``(k, 2)``
     """
-    n = len(airborne)
-    alarm_draw, spot_draw = rng.random(n), rng.random(n)
+    alarm_draw, spot_draw = rng.random((2, len(airborne)))  # one call: the same stream as two
     return kernels.false_reading_cells(alarm_draw, spot_draw, false_alarm_probability(noise), airborne, reach_offsets,
                                        cells, shape[0], shape[1])
 

@@ -32,6 +32,9 @@ import torch.nn.functional as F
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, sum_by_group
 
 FIELDS = ("features", "actions", "next_features", "episodes")
+#: Transitions per chunk when the responsibilities read every kept transition: the per-feature densities of all of
+#: them at once (transitions x K x features floats) would briefly hold hundreds of MB at the zoo's E-step window.
+LIKELIHOOD_CHUNK = 8192
 
 
 @dataclass
@@ -162,7 +165,10 @@ class EStep:
         """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
         episode's summed tempered log-likelihoods ``(S, K)`` (no gradient)."""
         with th.no_grad():
-            log_lik = self.model.transition_log_likelihood(data.features, data.actions, data.next_features)
+            log_lik = th.cat([self.model.transition_log_likelihood(data.features[i:i + LIKELIHOOD_CHUNK],
+                                                                   data.actions[i:i + LIKELIHOOD_CHUNK],
+                                                                   data.next_features[i:i + LIKELIHOOD_CHUNK])
+                              for i in range(0, len(data), LIKELIHOOD_CHUNK)])
             evidence, index = sum_by_group(self.likelihood_temperature * log_lik, data.episodes)
             return self.model.posterior_from(evidence), index, evidence
 
