@@ -31,9 +31,9 @@ from sb3_emmarl.zoo.algos import ZOO_ALGOS
 TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 50}
 
 
-def build(algo, seed=3, **kwargs):
+def build(algo, seed=3, num_cpus=0, **kwargs):
     set_random_seed(seed)
-    env = make_vec_env(2, seed=seed, env_kwargs=TINY)
+    env = make_vec_env(2, seed=seed, env_kwargs=TINY, num_cpus=num_cpus)
     return algo("MlpPolicy", env, n_steps=32, batch_size=64, seed=seed, **kwargs)
 
 
@@ -97,16 +97,19 @@ def test_pickled_views_stay_views():
         assert copy["base"][0, 1, 2] == 5.0 + round_trip and copy["base"][0, 0, 0] == 7.0 + round_trip
 
 
-@pytest.mark.parametrize("algo", [PPO, EMPPO, MessagePPO])
-def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo):
+@pytest.mark.parametrize("algo,num_cpus", [(PPO, 0), (EMPPO, 0), (MessagePPO, 0), (PPO, 2)],
+                         ids=["PPO", "EMPPO", "MessagePPO", "PPO-worker-process"])
+def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, num_cpus):
     """Checkpoints hold the model, the random generators and the reserves mid-episode: continuing from one gives
     exactly the parameters of the run that never stopped (EM-PPO: with its E-step's optimizer, counters and data;
-    MessagePPO: with the links its message wrapper keeps)."""
+    MessagePPO: with the links its message wrapper keeps; a run whose reserves were split over a worker process
+    resumes in one process)."""
     th.set_num_threads(1)
     kwargs = {"e_step_interval": 1} if algo is EMPPO else {}
     total = 32 * 4 * 5
-    model = build(algo, **kwargs)
+    model = build(algo, num_cpus=num_cpus, **kwargs)
     model.learn(total, callback=ResumableCheckpointCallback(32, str(tmp_path / "a")))
+    model.get_env().close()
     reference = {k: v.clone() for k, v in model.policy.state_dict().items()}
     steps, path = list_checkpoints(tmp_path / "a")[1]
     assert steps == 256 and companion(path, TRAINING_STATE).is_file()

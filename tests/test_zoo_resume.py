@@ -54,6 +54,22 @@ def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
     assert exit_info.value.code == 2 and "has no checkpoint" in capsys.readouterr().err
 
 
+def test_a_run_with_its_reserves_in_worker_processes_resumes_to_the_same_model(tmp_path):
+    """--vec-env subproc: the checkpoints hold the reserves of the worker processes too."""
+    th.set_num_threads(1)
+    assert train(tmp_path / "a", "--algo", "ppo", "-n", "2500", "--save-freq", "400", "--vec-env", "subproc") == 0
+    run = tmp_path / "a" / "ppo" / f"{ENV}_1"
+    assert [steps for steps, _ in list_checkpoints(run)] == [1024, 2048]
+    assert all(companion(path, TRAINING_STATE).is_file() for _, path in list_checkpoints(run))
+    shutil.copytree(run, tmp_path / "b" / "ppo" / f"{ENV}_1")
+    killed = tmp_path / "b" / "ppo" / f"{ENV}_1"
+    for name in (f"{ENV}.zip", "rl_model_2048_steps.zip", "rl_model_training_state_2048_steps.pkl", "run_stats.json"):
+        (killed / name).unlink()
+    assert train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
+    reference, resumed = parameters(run / f"{ENV}.zip"), parameters(killed / f"{ENV}.zip")
+    assert all(th.equal(reference[k], resumed[k]) for k in reference)
+
+
 def test_trained_agent_continues_from_a_checkpoint_with_its_replay_buffer(tmp_path, capsys):
     params = ["-params", "learning_starts:100", "buffer_size:5000", "train_freq:4"]
     assert train(tmp_path, "--algo", "dqn", "-n", "1000", "--save-freq", "400", "--save-replay-buffer", *params) == 0

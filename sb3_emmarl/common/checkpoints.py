@@ -225,14 +225,14 @@ def _layers(venv: VecEnv | None) -> list[Any]:
 
 
 def supports_training_state(venv: VecEnv | None) -> bool:
-    """Whether :func:`vec_env_state` can read ``venv``: its innermost environment lives in this process and is
-    SB3's ``DummyVecEnv`` or gives its state (the reserve's parameter-sharing vector environment without workers)."""
+    """Whether :func:`vec_env_state` can read ``venv``: its innermost environment is SB3's ``DummyVecEnv`` or gives
+    its state (the reserve's parameter-sharing vector environments, except SuperSuit's with worker processes)."""
     if venv is None:
         return False
     inner = _layers(venv)[-1]
     if isinstance(inner, DummyVecEnv):
         return True
-    return hasattr(inner, "get_state") and not getattr(inner, "multiprocess", False)
+    return hasattr(inner, "get_state") and getattr(inner, "checkpointable", True)
 
 
 def vec_env_state(venv: VecEnv) -> list[Any]:

@@ -233,6 +233,11 @@ class SharedPolicyVecEnv(VecEnv):
         self._copy_seeds = saved["copy_seeds"]
         self._never_reset, self.reset_infos = saved["never_reset"], saved["reset_infos"]
 
+    @property
+    def checkpointable(self) -> bool:
+        """Whether :meth:`get_state` can read the copies (not in SuperSuit's worker processes)."""
+        return not self.multiprocess
+
     def _portable_copies(self) -> Any:
         """The copies as one picklable object (for :meth:`get_state`)."""
         if self.multiprocess:
@@ -657,6 +662,11 @@ class ReserveVecEnv(SharedPolicyVecEnv):
 
     def _switch_state_on(self) -> None:
         self.venv.with_state = True
+
+    @property
+    def checkpointable(self) -> bool:
+        """Always: worker processes hand their copies over."""
+        return True
 
     def _portable_copies(self) -> Any:
         return self.venv.portable()
