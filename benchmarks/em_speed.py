@@ -36,13 +36,14 @@ def zoo_settings(algo: str) -> dict:
     return settings
 
 
-def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_cpus: int = 0):
-    """The algorithm with its zoo YAML's settings on ``n_envs`` default reserves (through ``vec_env_type``, in
-    ``num_cpus`` processes), or on ``env``."""
+def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_cpus: int = 0,
+          n_copies: int | None = None):
+    """The algorithm with its zoo YAML's settings on ``n_envs`` (or ``n_copies``) default reserves (through
+    ``vec_env_type``, in ``num_cpus`` processes), or on ``env``."""
     settings = zoo_settings(algo)
     if env is None:
-        env = make_vec_env(n_copies=int(settings["n_envs"]), seed=seed, env_kwargs=settings.get("env_kwargs") or {},
-                           vec_env_type=vec_env_type, num_cpus=num_cpus)
+        env = make_vec_env(n_copies=int(n_copies or settings["n_envs"]), seed=seed,
+                           env_kwargs=settings.get("env_kwargs") or {}, vec_env_type=vec_env_type, num_cpus=num_cpus)
     kwargs = {k: v for k, v in settings.items() if k not in ZOO_ONLY}
     if isinstance(kwargs.get("policy_kwargs"), str):
         kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"dict": dict})  # rl-zoo's format: "dict(...)"

@@ -85,11 +85,11 @@ class ZeroCostVecEnv(VecEnv):
         return [False] * self.num_envs
 
 
-def zero_cost_like(algo: str) -> VecEnv:
+def zero_cost_like(algo: str, n_copies: int | None = None) -> VecEnv:
     settings = zoo_settings(algo)
     reserve = make_vec_env(1, seed=0, env_kwargs=settings.get("env_kwargs") or {})
     inner = reserve.unwrapped
-    env = ZeroCostVecEnv(reserve.observation_space, reserve.action_space, int(settings["n_envs"]),
+    env = ZeroCostVecEnv(reserve.observation_space, reserve.action_space, int(n_copies or settings["n_envs"]),
                          inner.agents_per_copy, inner.prototype.max_cycles)
     reserve.close()
     return VecMonitor(env)
@@ -100,22 +100,24 @@ def zero_cost_like(algo: str) -> VecEnv:
 PATHS = {"batched": ("batched", 0), "subproc": ("batched", 2), "supersuit": ("supersuit", 0)}
 
 
-def training(algos: list[str], n: int, rounds: int) -> None:
+def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None) -> None:
     paths = [*PATHS, "zero-cost"]
     seconds = {(algo, path): [] for algo in algos for path in paths}
     for round_ in range(rounds):
         for algo in algos:
             for path in paths:
-                env = zero_cost_like(algo) if path == "zero-cost" else None
+                env = zero_cost_like(algo, n_copies) if path == "zero-cost" else None
                 vec_env_type, num_cpus = PATHS.get(path, (None, 0))
-                model = build(algo, seed=round_, env=env, vec_env_type=vec_env_type, num_cpus=num_cpus)
+                model = build(algo, seed=round_, env=env, vec_env_type=vec_env_type, num_cpus=num_cpus,
+                              n_copies=n_copies)
                 start = time.perf_counter()
                 model.learn(n)
                 seconds[algo, path].append(time.perf_counter() - start)
                 model.get_env().close()
                 print(f"  round {round_} {algo:<7} {path:<10} {seconds[algo, path][-1]:6.1f} s", flush=True)
-    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings, one torch thread "
-          f"(subproc: the batched path's copies split over this process and one worker)")
+    copies = f", {n_copies} copies" if n_copies else ""
+    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings{copies}, one torch "
+          f"thread (subproc: the batched path's copies split over this process and one worker)")
     print(f"{'algo':<8}{'path':<11}{'seconds':>9}{'agent-steps/s':>15}{'outside networks':>18}")
     for algo in algos:
         zero = np.median(seconds[algo, "zero-cost"])
@@ -192,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-n", "--n-timesteps", type=int, default=100_000, help="agent-steps per training turn")
     parser.add_argument("--rounds", type=int, default=3, help="turns of each training configuration")
     parser.add_argument("--algos", nargs="+", default=["ppo", "em_ppo"], choices=["ppo", "em_ppo"])
+    parser.add_argument("--n-copies", type=int, default=None,
+                        help="reserve copies of the training part (default: the zoo YAML's n_envs, 4)")
     parser.add_argument("--step-agent-steps", type=int, default=100_000, help="agent-steps per raw stepping measure")
     parser.add_argument("--copies", type=int, nargs="*", default=[1, 4, 16, 64], help="copies of 10 UAVs stepped raw")
     parser.add_argument("--large-teams", type=int, nargs="*", default=[50, 200],
@@ -209,9 +213,11 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("copies", "large_teams", "team_sizes"):
         if any(value < 1 for value in getattr(args, name)):
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.n_copies is not None and args.n_copies < 1:
+        parser.error(f"--n-copies must be >= 1, got {args.n_copies}")
     th.set_num_threads(1)
     if "training" not in args.skip:
-        training(args.algos, args.n_timesteps, args.rounds)
+        training(args.algos, args.n_timesteps, args.rounds, args.n_copies)
     if "stepping" not in args.skip:
         stepping(args.step_agent_steps, args.copies, args.large_teams)
     if args.team_sizes:

@@ -249,6 +249,23 @@ def test_batched_copies_split_over_processes_give_the_same_data(env_kwargs, with
     assert_same(split, record("batched", env_kwargs, 150, n_copies=3, with_state=with_state))
 
 
+def test_the_state_switched_on_reaches_the_worker_processes():
+    from sb3_emmarl.common.vec_env import STATE_KEY, require_state
+
+    venv = make_vec_env(3, seed=2, env_kwargs=SMALL, num_cpus=2)
+    reference = make_vec_env(3, seed=2, env_kwargs=SMALL, with_state=True)
+    try:
+        assert require_state(venv, "MAPPO") == reference.unwrapped.state_space
+        venv.reset(), reference.reset()
+        assert_same(venv.unwrapped.reset_infos, reference.unwrapped.reset_infos)
+        actions = np.arange(9) % 15
+        infos, expected = venv.step(actions)[3], reference.step(actions)[3]
+        assert all(STATE_KEY in info for info in infos)
+        assert_same(infos, expected)
+    finally:
+        venv.close()
+
+
 def test_a_checkpoint_of_split_copies_restores_into_any_number_of_processes():
     def play(venv, steps, seed):  # the unwrapped environment: VecMonitor's running returns are not its state
         rng = np.random.default_rng(seed)
@@ -307,7 +324,7 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
     assert train_speed.main(["-n", "256", "--rounds", "1", "--algos", "ppo", "--step-agent-steps", "100",
                              "--copies", "1", "3", "--large-teams", "20", "--team-sizes", "2", "--team-n", "512"]) == 0
     out = capsys.readouterr().out
-    assert "outside networks" in out and "zero-cost" in out and "batched" in out
+    assert "outside networks" in out and "zero-cost" in out and "batched" in out and "subproc" in out
     rows = [line.split() for line in out.splitlines()]
     assert [row[:2] for row in rows if row[:2] in (["1", "10"], ["3", "10"], ["1", "20"])] == \
         [["1", "10"], ["3", "10"], ["1", "20"]]

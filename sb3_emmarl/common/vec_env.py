@@ -473,7 +473,12 @@ class _SplitCopies:
         # As SB3's SubprocVecEnv: no fork of a process that holds torch's threads (scripts need the main guard)
         if "forkserver" in mp.get_all_start_methods():
             context = mp.get_context("forkserver")
-            context.set_forkserver_preload([__name__])  # workers then start in milliseconds, not seconds of imports
+            # Workers then start in milliseconds, not seconds of imports; added to whatever the program preloads.
+            from multiprocessing import forkserver
+
+            preload = list(getattr(forkserver._forkserver, "_preload_modules", None) or [])
+            if __name__ not in preload:
+                context.set_forkserver_preload([*preload, __name__])
         else:
             context = mp.get_context("spawn")
         buffers = (context.RawArray("b", total * self.obs_dim * 4), context.RawArray("b", total * 4),
