@@ -25,18 +25,24 @@ def parameters(path):
     return params["policy"]
 
 
-def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
+def killed_after_first_checkpoint(tmp_path, algo, *args):
+    """Train ``algo`` to two checkpoints (1024 and 2048 steps) in ``tmp_path/a``, and leave in ``tmp_path/b`` a copy
+    of the run as a kill after its first checkpoint leaves it; returns both run folders."""
     th.set_num_threads(1)
-    assert train(tmp_path / "a", "--algo", "em_ppo", "-n", "3000", "--save-freq", "500") == 0
-    run = tmp_path / "a" / "em_ppo" / f"{ENV}_1"
+    assert train(tmp_path / "a", "--algo", algo, "--save-freq", "500", *args) == 0
+    run = tmp_path / "a" / algo / f"{ENV}_1"
     assert [steps for steps, _ in list_checkpoints(run)] == [1024, 2048]
     assert all(companion(path, TRAINING_STATE).is_file() for _, path in list_checkpoints(run))
-    # The state a kill after the first checkpoint leaves (plus a file being written at that moment).
-    shutil.copytree(run, tmp_path / "b" / "em_ppo" / f"{ENV}_1")
-    killed = tmp_path / "b" / "em_ppo" / f"{ENV}_1"
+    killed = tmp_path / "b" / algo / f"{ENV}_1"
+    shutil.copytree(run, killed)
     for name in (f"{ENV}.zip", "rl_model_2048_steps.zip", "rl_model_training_state_2048_steps.pkl", "run_stats.json"):
         (killed / name).unlink()
-    (killed / ".rl_model_2048_steps.zip.123.tmp").write_bytes(b"half a zip")
+    return run, killed
+
+
+def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
+    run, killed = killed_after_first_checkpoint(tmp_path, "em_ppo", "-n", "3000")
+    (killed / ".rl_model_2048_steps.zip.123.tmp").write_bytes(b"half a zip")  # a file being written at the kill
     capsys.readouterr()
     assert train_main(["--algo", "em_ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
     assert "Resuming" in capsys.readouterr().out
@@ -56,15 +62,7 @@ def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
 
 def test_a_run_with_its_reserves_in_worker_processes_resumes_to_the_same_model(tmp_path):
     """--vec-env subproc: the checkpoints hold the reserves of the worker processes too."""
-    th.set_num_threads(1)
-    assert train(tmp_path / "a", "--algo", "ppo", "-n", "2500", "--save-freq", "400", "--vec-env", "subproc") == 0
-    run = tmp_path / "a" / "ppo" / f"{ENV}_1"
-    assert [steps for steps, _ in list_checkpoints(run)] == [1024, 2048]
-    assert all(companion(path, TRAINING_STATE).is_file() for _, path in list_checkpoints(run))
-    shutil.copytree(run, tmp_path / "b" / "ppo" / f"{ENV}_1")
-    killed = tmp_path / "b" / "ppo" / f"{ENV}_1"
-    for name in (f"{ENV}.zip", "rl_model_2048_steps.zip", "rl_model_training_state_2048_steps.pkl", "run_stats.json"):
-        (killed / name).unlink()
+    run, killed = killed_after_first_checkpoint(tmp_path, "ppo", "-n", "2500", "--vec-env", "subproc")
     assert train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
     reference, resumed = parameters(run / f"{ENV}.zip"), parameters(killed / f"{ENV}.zip")
     assert all(th.equal(reference[k], resumed[k]) for k in reference)
