@@ -1,15 +1,14 @@
 """Ground actors: leopards on a random walk around their dens, and scripted poachers.
 
-Poachers enter over the episode as their strategy (the hidden mode) dictates, walk toward their
-target with stochastic mobility, and evade the UAVs they notice by fleeing or by hiding in cover.
-Everything is vectorised over actors.
+Poachers enter over the episode as their strategy (the hidden mode) dictates (planned here, at reset),
+walk toward their target with stochastic mobility, and evade the UAVs they notice by fleeing or by
+hiding in cover. The step of both is compiled: ``kernels.move_ground_actors`` with the constants below.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from wildlife_reserve.reserve import kernels
 from wildlife_reserve.reserve.modes import PoacherStrategy
 from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
@@ -86,47 +85,3 @@ def plan_poachers(
         d = np.abs(entry[:, None, :] - dens[None, :, :]).sum(-1)
         target = dens[d.argmin(axis=1)]
     return times.astype(np.int64), entry, np.asarray(target, dtype=np.int64)
-
-
-def step_poachers(
-    rng: np.random.Generator,
-    pos: np.ndarray,
-    mobile: np.ndarray,
-    target: np.ndarray,
-    uav_cells: np.ndarray,
-    notice_radius: float,
-    strategy: PoacherStrategy,
-    cover: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Move the poachers one step.
-
-    :param rng: random generator
-    :param pos: ``(P, 2)`` cells
-    :param mobile: ``(P,)`` which poachers may move (active and not busy poaching)
-    :param target: ``(P, 2)`` where each heads
-    :param uav_cells: ``(n, 2)`` cells of the airborne UAVs
-    :param notice_radius: Chebyshev radius within which a poacher notices a UAV
-    :param strategy: the episode's poacher strategy
-    :param cover: ``(H, W)`` bool, forest or mountain (where hiding works)
-    :return: new cells and a ``(P,)`` bool of who moved
-    """
-    draw, wander_draw, pick, evade_draw = rng.random((4, len(pos)))  # one call: the same stream as four
-    return kernels.move_poachers(pos, mobile, target, uav_cells, notice_radius, strategy.move_prob, strategy.wander_prob,
-                                 strategy.evasion_prob, strategy.hide_in_cover, cover, STEPS, draw, wander_draw, pick,
-                                 evade_draw)
-
-
-def step_leopards(
-    rng: np.random.Generator, pos: np.ndarray, home: np.ndarray, home_range: float, shape: tuple[int, int]
-) -> np.ndarray:
-    """Random walk that turns back toward the den beyond ``home_range``.
-
-    :param rng: random generator
-    :param pos: ``(L, 2)`` cells
-    :param home: ``(L, 2)`` den cells
-    :param home_range: Chebyshev distance from the den beyond which a leopard heads home
-    :param shape: ``(height, width)``
-    """
-    move_draw, step_draw, pick = rng.random((3, len(pos)))  # one call: the same stream as three
-    return kernels.move_leopards(pos, home, home_range, shape[0], shape[1], LEOPARD_MOVE_PROB, STEPS, move_draw, step_draw,
-                                 pick)

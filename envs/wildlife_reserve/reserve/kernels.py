@@ -96,7 +96,13 @@ def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_c
                   move_prob: float, wander_prob: float, evasion_prob: float, hide_in_cover: bool, cover: np.ndarray,
                   steps: np.ndarray, draw: np.ndarray, wander_draw: np.ndarray, pick: np.ndarray,
                   evade_draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """The arithmetic of :func:`~wildlife_reserve.reserve.actors.step_poachers`, given its uniform draws."""
+    """Move the poachers one step: toward their target with ``move_prob``, a random step with ``wander_prob``, else
+    wait; one that notices a UAV within ``notice_radius`` (Chebyshev) evades it with ``evasion_prob`` (hides when
+    ``hide_in_cover`` and on cover, else flees); those not ``mobile`` stay.
+
+    :param draw, wander_draw, pick, evade_draw: ``(P,)`` uniform draws each
+    :return: new cells ``(P, 2)`` and who moved ``(P,)``
+    """
     n = len(pos)
     new = pos.copy()
     moved = np.zeros(n, dtype=np.bool_)
@@ -135,7 +141,11 @@ def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_c
 def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: int, width: int, move_prob: float,
                   steps: np.ndarray, move_draw: np.ndarray, step_draw: np.ndarray,
                   pick: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """The arithmetic of :func:`~wildlife_reserve.reserve.actors.step_leopards`, given its uniform draws."""
+    """Move the leopards one step: with ``move_prob``, a random step, or toward the den beyond ``home_range``
+    (Chebyshev) of it.
+
+    :param move_draw, step_draw, pick: ``(L,)`` uniform draws each
+    """
     new = pos.copy()
     for i in range(len(pos)):
         step = steps[1 + np.int64(step_draw[i] * 4)]
@@ -147,6 +157,38 @@ def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: 
         new[i, 0] = min(max(pos[i, 0] + d_row, 0), height - 1)
         new[i, 1] = min(max(pos[i, 1] + d_col, 0), width - 1)
     return new
+
+
+@njit(cache=True)
+def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, home: np.ndarray, home_range: float,
+                       leopard_move_prob: float, poachers: np.ndarray, active: np.ndarray, busy: np.ndarray,
+                       alive: np.ndarray, planned: np.ndarray, sight: float, uav_cells: np.ndarray,
+                       notice_radius: float, move_prob: float, wander_prob: float, evasion_prob: float,
+                       hide_in_cover: bool, cover: np.ndarray, steps: np.ndarray, track_prob: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """One step of the leopards and, if any poacher is active, of the poachers, in one call: :func:`move_leopards`,
+    :func:`poacher_targets`, :func:`move_poachers` and the track draw, in that order.
+
+    :param draws: the uniform draws those calls make, in their order: ``3 L`` for the leopards, then ``5 P`` (four
+        rows for the poachers' moves, one for their tracks) when any poacher is active (one numpy call draws the
+        same stream as their several)
+    :param active: ``(P,)`` poachers in play; ``busy``: ``(P,)`` poaching (they do not move)
+    :return: leopard cells, which leopards moved, poacher cells, which poachers moved and which left tracks
+    """
+    height, width = cover.shape
+    n_leopards, n = len(leopards), len(poachers)
+    walk = draws[:3 * n_leopards].reshape(3, n_leopards)
+    new_leopards = move_leopards(leopards, home, home_range, height, width, leopard_move_prob, steps, walk[0], walk[1],
+                                 walk[2])
+    leopard_moved = (new_leopards[:, 0] != leopards[:, 0]) | (new_leopards[:, 1] != leopards[:, 1])
+    if len(draws) == 3 * n_leopards:  # no poacher active
+        return new_leopards, leopard_moved, poachers, np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    target = poacher_targets(poachers, new_leopards, alive, planned, sight)
+    moves = draws[3 * n_leopards:].reshape(5, n)
+    new_poachers, moved = move_poachers(poachers, active & ~busy, target, uav_cells, notice_radius, move_prob,
+                                        wander_prob, evasion_prob, hide_in_cover, cover, steps, moves[0], moves[1],
+                                        moves[2], moves[3])
+    return new_leopards, leopard_moved, new_poachers, moved, moved & (moves[4] < track_prob)
 
 
 @njit(cache=True)

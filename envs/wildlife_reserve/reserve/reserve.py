@@ -408,13 +408,9 @@ class ReserveParallelEnv(ParallelEnv):
         return kernels.collisions(cells, airborne)
 
     def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
-        """Leopards walk, poachers enter and move (leaving tracks), the jammer follows them."""
+        """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them."""
         cfg = self.config
-        old_leopards = self.leopard_pos
-        self.leopard_pos = actors.step_leopards(self.rng, self.leopard_pos, self.leopard_home, cfg.leopard_range,
-                                                (self.height, self.width))
-        self.leopard_moved = (self.leopard_pos != old_leopards).any(-1)
-        if self.t >= self._next_entry:  # the earliest entry time of the poachers still waiting
+        if self.t >= self._next_entry:  # the earliest entry time of the poachers still waiting (no random draws)
             entering = (self.poacher_status == POACHER_WAITING) & (self.poacher_entry_time <= self.t)
             self.poacher_status[entering] = POACHER_ACTIVE
             if entering.any():
@@ -424,18 +420,18 @@ class ReserveParallelEnv(ParallelEnv):
             waiting = self.poacher_status == POACHER_WAITING
             self._next_entry = int(self.poacher_entry_time[waiting].min()) if waiting.any() else np.inf
         active = self.poacher_status == POACHER_ACTIVE
-        if active.any():
-            self.poacher_pos, self.poacher_moved = actors.step_poachers(
-                self.rng, self.poacher_pos, active & (self.poaching_timer == 0),
-                kernels.poacher_targets(self.poacher_pos, self.leopard_pos, self.leopard_alive, self.poacher_target,
-                                        actors.POACHER_SIGHT), uav_cells,
-                actors.NOTICE_RADIUS * self.weather.notice_factor, self.strategy, self.cover)
-            tracks = self.poacher_moved & (self.rng.random(len(self.poacher_pos)) < signs_lib.TRACK_PROB)
-            if tracks.any():
-                self.signs.add(self.poacher_pos[tracks], self.t, signs_lib.TRACK, self.t)
-        else:
-            self.poacher_moved[:] = False
-        self.jammer_on = self.jammer_pos is not None and bool(active.any())  # the jammer works while poachers are in
+        any_active = bool(active.any())
+        draws = self.rng.random(3 * len(self.leopard_pos) + 5 * len(self.poacher_pos) * any_active)
+        strategy = self.strategy
+        self.leopard_pos, self.leopard_moved, self.poacher_pos, self.poacher_moved, tracks = kernels.move_ground_actors(
+            draws, self.leopard_pos, self.leopard_home, float(cfg.leopard_range), actors.LEOPARD_MOVE_PROB,
+            self.poacher_pos, active, self.poaching_timer != 0, self.leopard_alive, self.poacher_target,
+            float(actors.POACHER_SIGHT), uav_cells, actors.NOTICE_RADIUS * self.weather.notice_factor,
+            strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
+            actors.STEPS, signs_lib.TRACK_PROB)
+        if tracks.any():
+            self.signs.add(self.poacher_pos[tracks], self.t, signs_lib.TRACK, self.t)
+        self.jammer_on = self.jammer_pos is not None and any_active  # the jammer works while poachers are in
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
 
