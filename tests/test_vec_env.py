@@ -128,8 +128,9 @@ def test_multiprocess_copies_match_in_process_copies(vec_env_type):
     try:
         multi = rollout(venv, steps=30)
         assert venv.get_attr("max_cycles") == [25] * 12
-        with pytest.raises(NotImplementedError, match="num_cpus <= 1"):
-            venv.env_method("state")
+        if vec_env_type == "supersuit":
+            with pytest.raises(NotImplementedError, match="num_cpus <= 1"):
+                venv.env_method("state")
     finally:
         venv.close()
     for a, b in zip(in_process, multi):
@@ -264,6 +265,27 @@ def test_the_state_switched_on_reaches_the_worker_processes():
         assert_same(infos, expected)
     finally:
         venv.close()
+
+
+def test_get_attr_set_attr_and_env_method_reach_the_copies_in_worker_processes():
+    split = make_vec_env(3, seed=5, env_kwargs=SMALL, num_cpus=2)
+    local = make_vec_env(3, seed=5, env_kwargs=SMALL)
+    try:
+        for venv in (split, local):
+            venv.reset()
+            venv.step(np.arange(9) % 15)
+        indices = [8, 0, 4, 7]  # copies 2 (a worker's), 0, 1 (this process's) and 2 again, in the order asked
+        assert_same(split.get_attr("uav_pos", indices), local.get_attr("uav_pos", indices))
+        assert_same(split.env_method("state", indices=indices), local.env_method("state", indices=indices))
+        split.set_attr("max_cycles", 7, indices=[6])
+        assert split.get_attr("max_cycles") == [25] * 6 + [7] * 3
+        with pytest.raises(AttributeError, match="n_drones"):
+            split.get_attr("n_drones", indices=[0, 8])
+        with pytest.raises(AttributeError, match="n_drones"):
+            split.get_attr("n_drones", indices=[8])  # raised in the worker, which carries on
+        split.step(np.zeros(9, dtype=np.int64))
+    finally:
+        split.close()
 
 
 def test_a_checkpoint_of_split_copies_restores_into_any_number_of_processes():

@@ -272,29 +272,30 @@ class SharedPolicyVecEnv(VecEnv):
         self.prototype.close()
 
     # -------------------------------------------------------------- access to the copies
-    def _copies(self, indices: VecEnvIndices) -> list[ParallelEnv]:
+    def _on_copies(self, indices: VecEnvIndices, kind: str, name: str, payload: tuple = ()) -> list[Any]:
+        """:func:`_apply` ``kind`` (get, set or call) on the reserve copy behind each index, once per index; with
+        SuperSuit's worker processes ``get`` reads the local prototype and the others are refused."""
+        copies = [i // self.agents_per_copy for i in self._get_indices(indices)]
         if self.multiprocess:
-            raise NotImplementedError(
-                "the environments live in worker processes (num_cpus > 1); get_attr reads the local prototype, "
-                "set_attr and env_method need num_cpus <= 1"
-            )
+            if kind == "get":
+                return [getattr(self.prototype, name) for _ in copies]
+            raise NotImplementedError("the environments live in SuperSuit's worker processes (num_cpus > 1); get_attr "
+                                      "reads the local prototype, set_attr and env_method need num_cpus <= 1 or the "
+                                      "batched path")
         envs = self._par_envs()
-        return [envs[i // self.agents_per_copy] for i in self._get_indices(indices)]
+        return [_apply(envs[c], kind, name, payload) for c in copies]
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        """Attribute of the reserve copy behind each index (of the local prototype when ``num_cpus > 1``)."""
-        if self.multiprocess:
-            return [getattr(self.prototype, attr_name) for _ in self._get_indices(indices)]
-        return [getattr(env, attr_name) for env in self._copies(indices)]
+        """Attribute of the reserve copy behind each index (of the local prototype with SuperSuit's workers)."""
+        return self._on_copies(indices, "get", attr_name)
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set an attribute on the reserve copy behind each index."""
-        for env in self._copies(indices):
-            setattr(env, attr_name, value)
+        self._on_copies(indices, "set", attr_name, (value,))
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
         """Call a method of the reserve copy behind each index (once per index)."""
-        return [getattr(env, method_name)(*method_args, **method_kwargs) for env in self._copies(indices)]
+        return self._on_copies(indices, "call", method_name, (method_args, method_kwargs))
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
@@ -305,6 +306,17 @@ class SharedPolicyVecEnv(VecEnv):
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """Render reserve copy 0 (its ``render_mode`` is set when the environment is built)."""
         return self.venv.render()
+
+
+def _apply(env: Any, kind: str, name: str, payload: tuple) -> Any:
+    """``getattr(env, name)`` (kind ``"get"``), ``setattr(env, name, *payload)`` (``"set"``) or
+    ``getattr(env, name)(*args, **kwargs)`` with ``payload = (args, kwargs)`` (``"call"``)."""
+    if kind == "get":
+        return getattr(env, name)
+    if kind == "set":
+        return setattr(env, name, *payload)
+    args, kwargs = payload
+    return getattr(env, name)(*args, **kwargs)
 
 
 class _SteppedCopies:
@@ -422,6 +434,13 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
             elif command == "set_envs":
                 copies.close()
                 copies.envs, copies.with_state = pickle.loads(data)
+            elif command == "apply":  # get_attr, set_attr, env_method on some of the copies
+                kind, name, payload, indices = data
+                try:
+                    reply = [_apply(copies.envs[i], kind, name, payload) for i in indices]
+                except Exception as error:  # the caller's to handle (an AttributeError, say); the copies carry on
+                    pipe.send(("raise", error))
+                    continue
             elif command == "render":
                 reply = copies.render()
             elif command == "close":
@@ -541,6 +560,8 @@ class _SplitCopies:
         if status == "error":
             raise RuntimeError(f"the worker process of reserve copies {self.bounds[g]}-{self.bounds[g + 1] - 1} "
                                f"failed:\n{reply}")
+        if status == "raise":
+            raise reply
         return reply
 
     def _groups(self) -> range:
@@ -586,6 +607,31 @@ class _SplitCopies:
         for array, view in zip(out, self._shared):
             array[local:] = view[local:]
         return (*out, infos)
+
+    def apply(self, copies: list[int], kind: str, name: str, payload: tuple) -> list[Any]:
+        """:func:`_apply` on each of ``copies`` (indices over every copy), wherever it lives, in that order."""
+        results: list[Any] = [None] * len(copies)
+        remote: dict[int, list[tuple[int, int]]] = {}
+        for position, c in enumerate(copies):
+            g = int(np.searchsorted(self.bounds, c, side="right")) - 1
+            if g == 0:
+                results[position] = _apply(self.local.envs[c], kind, name, payload)
+            else:
+                remote.setdefault(g, []).append((position, c - self.bounds[g]))
+        for g, items in remote.items():
+            self._send(g, "apply", (kind, name, payload, [index for _, index in items]))
+        raised: BaseException | None = None
+        for g, items in remote.items():  # every reply is read, so that none is left in a pipe
+            try:
+                values = self._receive(g)
+            except Exception as error:
+                raised = raised or error
+                continue
+            for (position, _), value in zip(items, values):
+                results[position] = value
+        if raised is not None:
+            raise raised
+        return results
 
     def all_envs(self) -> list[Any]:
         """Every copy, those of the workers as pickled copies."""
@@ -635,8 +681,9 @@ class ReserveVecEnv(SharedPolicyVecEnv):
     seeds, observations, rewards, dones, infos, terminal observations and automatic resets, tested equal step for
     step) whose copies are stepped through the reserve's array API (``step_arrays``) instead of SuperSuit's
     per-agent dictionaries. With ``num_cpus > 1`` the copies are split into ``num_cpus`` groups stepped at the same
-    time, one in this process and the others in worker processes; the data do not depend on the split, and
-    checkpoints (:meth:`get_state`) hold every copy, so they restore into any number of processes.
+    time, one in this process and the others in worker processes; the data do not depend on the split, checkpoints
+    (:meth:`get_state`) hold every copy, so they restore into any number of processes, and ``get_attr``,
+    ``set_attr`` and ``env_method`` reach every copy wherever it lives.
 
     :param env_fn: builds one reserve (``reserve_v0.parallel_env`` with its arguments)
     :param n_copies: number of independent copies
@@ -664,6 +711,12 @@ class ReserveVecEnv(SharedPolicyVecEnv):
 
     def _par_envs(self) -> list[ParallelEnv]:
         return list(self.venv.envs)
+
+    def _on_copies(self, indices: VecEnvIndices, kind: str, name: str, payload: tuple = ()) -> list[Any]:
+        if isinstance(self.venv, _SplitCopies):  # the workers answer for their copies
+            return self.venv.apply([i // self.agents_per_copy for i in self._get_indices(indices)], kind, name,
+                                   payload)
+        return super()._on_copies(indices, kind, name, payload)
 
     def _switch_state_on(self) -> None:
         self.venv.with_state = True
