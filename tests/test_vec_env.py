@@ -288,6 +288,22 @@ def test_get_attr_set_attr_and_env_method_reach_the_copies_in_worker_processes()
         split.close()
 
 
+def test_a_copy_that_cannot_be_built_in_a_worker_is_reported_and_no_worker_is_left():
+    import multiprocessing
+    import os
+
+    parent = os.getpid()
+
+    def build():
+        if os.getpid() != parent:
+            raise ValueError("no reserve in this process")
+        return reserve_v0.parallel_env(**SMALL)
+
+    with pytest.raises(RuntimeError, match=r"(?s)reserve copies 1-1 failed.*no reserve in this process"):
+        ReserveVecEnv(build, n_copies=2, num_cpus=2)
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("reserve-copies")]
+
+
 def test_a_checkpoint_of_split_copies_restores_into_any_number_of_processes():
     def play(venv, steps, seed):  # the unwrapped environment: VecMonitor's running returns are not its state
         rng = np.random.default_rng(seed)

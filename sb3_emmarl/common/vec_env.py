@@ -505,17 +505,18 @@ class _SplitCopies:
         self._shared = _shared_views(buffers, (total, self.obs_dim))
         self.pipes: list[Any] = []
         self.processes: list[Any] = []
-        for g in range(1, n_groups):
-            parent, child = context.Pipe()
-            process = context.Process(
-                target=_copies_worker, daemon=True, name=f"reserve-copies-{self.bounds[g]}-{self.bounds[g + 1] - 1}",
-                args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space, with_state, buffers,
-                      (total, self.obs_dim), self.bounds[g] * self.n))
-            process.start()
-            child.close()
-            self.pipes.append(parent)
-            self.processes.append(process)
         try:
+            for g in range(1, n_groups):
+                parent, child = context.Pipe()
+                process = context.Process(
+                    target=_copies_worker, daemon=True, args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space,
+                                                              with_state, buffers, (total, self.obs_dim),
+                                                              self.bounds[g] * self.n),
+                    name=f"reserve-copies-{self.bounds[g]}-{self.bounds[g + 1] - 1}")
+                self.pipes.append(parent)
+                self.processes.append(process)
+                process.start()
+                child.close()
             for g in self._groups():
                 self._receive(g)
         except BaseException:
@@ -668,9 +669,10 @@ class _SplitCopies:
                         pipe.recv()
             except (BrokenPipeError, EOFError, OSError):
                 pass
-            process.join(1.0)
-            if process.is_alive():
-                process.kill()
+            if process.pid is not None:  # started
+                process.join(1.0)
+                if process.is_alive():
+                    process.kill()
             pipe.close()
         self.pipes, self.processes = [], []
         self.local.close()
