@@ -121,8 +121,8 @@ def train_parser() -> argparse.ArgumentParser:
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--vec-env", default="batched", choices=list(ZOO_VEC_ENVS),
                         help="batched: the reserve's array API in this process; subproc: the same with the reserve "
-                             "copies split over this process and worker processes, one per core (fastest on an idle "
-                             "machine); supersuit (or rl-zoo's dummy): SuperSuit's conversion in this process")
+                             "copies split over this process and worker processes, one per core (pays from about 16 "
+                             "copies); supersuit (or rl-zoo's dummy): SuperSuit's conversion in this process")
     parser.add_argument("--num-threads", type=int_flag(1, 1024, extra=(-1,)), default=1,
                         help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
     parser.add_argument("--log-interval", type=int_flag(-2, 10**6), default=-1,
