@@ -32,10 +32,10 @@ TRAIN = str(Path(__file__).resolve().parents[1] / "zoo" / "train.py")
 ENV_KWARGS = ["n_uavs:2", "grid_size:20", "max_cycles:50"]
 
 
-def command(algo: str, folder: Path, n_timesteps: int, save_freq: int, seed: int) -> list[str]:
+def command(algo: str, folder: Path, n_timesteps: int, save_freq: int, seed: int, vec_env: str = "batched") -> list[str]:
     return [sys.executable, TRAIN, "--algo", algo, "-n", str(n_timesteps), "--seed", str(seed), "--save-freq",
             str(save_freq), "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "-f", str(folder),
-            "--env-kwargs", *ENV_KWARGS]
+            "--vec-env", vec_env, "--env-kwargs", *ENV_KWARGS]
 
 
 def run(cmd: list[str], timeout: float = 600) -> float:
@@ -68,7 +68,7 @@ def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: flo
 
     folder = root / "trial"
     shutil.rmtree(folder, ignore_errors=True)
-    cmd = command(algo, folder, args.n_timesteps, args.save_freq, args.seed)
+    cmd = command(algo, folder, args.n_timesteps, args.save_freq, args.seed, args.vec_env)
     delay = float(rng.uniform(0.0, duration))
     process = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -114,6 +114,8 @@ def main() -> int:
     parser.add_argument("--save-freq", type=int, default=1024)
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--draw-seed", type=int, default=0, help="seed of the kill moments")
+    parser.add_argument("--vec-env", default="batched", choices=["batched", "subproc", "supersuit"],
+                        help="the zoo's --vec-env of every run (subproc: reserves in worker processes too)")
     args = parser.parse_args()
     rng = np.random.default_rng(args.draw_seed)
     failures = 0
@@ -122,10 +124,11 @@ def main() -> int:
         for algo in args.algos:
             ref_folder = root / "reference"
             shutil.rmtree(ref_folder, ignore_errors=True)
-            duration = run(command(algo, ref_folder, args.n_timesteps, args.save_freq, args.seed))
+            duration = run(command(algo, ref_folder, args.n_timesteps, args.save_freq, args.seed, args.vec_env))
             reference = parameters(sorted((ref_folder / algo).glob("WildlifeReserve-v0_*"))[-1] / "WildlifeReserve-v0.zip")
-            print(f"\n{algo}: reference run {duration:.1f} s, {args.n_timesteps} steps, a checkpoint every "
-                  f"{args.save_freq} steps; {args.kills} runs killed at uniform random moments in [0, {duration:.1f}] s")
+            print(f"\n{algo} (--vec-env {args.vec_env}): reference run {duration:.1f} s, {args.n_timesteps} steps, "
+                  f"a checkpoint every {args.save_freq} steps; {args.kills} runs killed at uniform random moments in "
+                  f"[0, {duration:.1f}] s")
             print(f"{'kill':>4} {'at s':>6} {'newest ckpt':>11} {'loads':>5} {'.tmp':>4} {'then':>9} {'max |diff|':>10}")
             counts = {"loads": 0, "with_checkpoint": 0, "restarted": 0, "finished": 0, "identical": 0, "tmp": 0}
             for k in range(args.kills):
