@@ -141,14 +141,16 @@ class SharedPolicyVecEnv(VecEnv):
 
     def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
         """The copies in this process: SuperSuit's ``ConcatVecEnv`` of ``MarkovVectorEnv`` s."""
-        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
-        return ConcatVecEnv(builders, observation_space, action_space)
+        return ConcatVecEnv(self._copy_builders(env_fn), observation_space, action_space)
 
     def _worker_copies(self, env_fn: Callable[[], ParallelEnv], num_cpus: int, observation_space: Any,
                        action_space: Any) -> Any:
         """The copies in ``num_cpus`` worker processes: SuperSuit's ``ProcConcatVec``."""
-        builders = [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
-        return MakeCPUAsyncConstructor(num_cpus)(builders, observation_space, action_space)
+        return MakeCPUAsyncConstructor(num_cpus)(self._copy_builders(env_fn), observation_space, action_space)
+
+    def _copy_builders(self, env_fn: Callable[[], ParallelEnv]) -> list[Callable[[], _ReserveCopy]]:
+        """One builder of a :class:`_ReserveCopy` per copy (SuperSuit's vector environments call them)."""
+        return [partial(_build_copy, env_fn, c, self.with_state) for c in range(self.n_copies)]
 
     def _par_envs(self) -> list[ParallelEnv]:
         """The copies' environments (in this process)."""
@@ -523,11 +525,6 @@ class _SplitCopies:
             self.close()
             raise
         self._actions: np.ndarray | None = None
-
-    @property
-    def envs(self) -> list[Any]:
-        """The copies in this process (the first group)."""
-        return self.local.envs
 
     @property
     def with_state(self) -> bool:

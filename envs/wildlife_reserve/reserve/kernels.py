@@ -429,28 +429,6 @@ def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, airborne: np.ndarra
 
 
 @njit(cache=True)
-def decode_discrete(choices: np.ndarray, steps: np.ndarray, n_moves: int, n_actions: int
-                    ) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover - compiled
-    """``steps[choices % n_moves]`` as floats and ``choices // n_moves``, and whether every choice lies in
-    ``[0, n_actions)`` (the outputs are meaningless when not).
-
-    :param choices: ``(n,)`` int64 discrete actions
-    :param steps: ``(n_moves, 2)`` unit displacement of each move
-    """
-    n = len(choices)
-    move, comm = np.empty((n, 2)), np.empty(n, dtype=np.int64)
-    valid = True
-    for u in range(n):
-        c = choices[u]
-        if c < 0 or c >= n_actions:
-            valid = False
-            c = 0
-        comm[u], m = divmod(c, n_moves)
-        move[u, 0], move[u, 1] = steps[m, 0], steps[m, 1]
-    return move, comm, valid
-
-
-@njit(cache=True)
 def collisions(cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """``(n,)`` other airborne UAVs in each airborne UAV's cell."""
     n = len(cells)

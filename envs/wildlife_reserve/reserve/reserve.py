@@ -90,6 +90,9 @@ from wildlife_reserve.reserve.observation import (
     state_size,
 )
 
+#: Unit displacement (row, col) of each discrete move.
+_MOVES = actors.STEPS.astype(np.float64)
+
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
     """The AEC form of the reserve, with PettingZoo's standard wrappers.
@@ -587,17 +590,11 @@ class ReserveParallelEnv(ParallelEnv):
             comm = np.select([act[:, 2] > 1 / 3, act[:, 2] < -1 / 3], [COMM_BROADCAST, COMM_QUERY], COMM_NONE)
             return act[:, :2], comm
         choices = np.asarray(actions).reshape(-1)
-        if choices.dtype.kind not in "iu":
-            if choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)):
-                choices = choices.astype(np.int64)
-            else:
-                raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
-        if choices.size == self.n:
-            move, comm, valid = kernels.decode_discrete(choices.astype(np.int64, copy=False), actors.STEPS, N_MOVES,
-                                                        N_MOVES * N_COMMS)
-            if valid:
-                return move, comm
-        raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
+        whole = choices.dtype.kind in "iu" or (choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)))
+        if not whole or choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
+            raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
+        comm, move = np.divmod(choices.astype(np.int64, copy=False), N_MOVES)
+        return _MOVES[move], comm
 
     def _uav_cells(self) -> np.ndarray:
         return np.floor(self.uav_pos).astype(np.int64)
