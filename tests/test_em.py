@@ -14,7 +14,7 @@ from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.metrics import align_components
-from sb3_emmarl.common.latent.model import LatentModel
+from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve import reserve_v0
 
@@ -79,6 +79,37 @@ def test_the_belief_is_the_exact_filtering_posterior_updated_one_step_at_a_time(
     np.testing.assert_allclose(tracker.log_beliefs()[0], model.log_prior.numpy(), atol=1e-6)
     with pytest.raises(ValueError, match="belief state must have shape"):
         clone.set_state(np.zeros((2, 3)))
+
+
+def test_the_beliefs_numpy_decoder_follows_the_model_through_every_change():
+    th.manual_seed(0)
+    layout = LatentLayout(obs_dim=9, feature_dim=5, action_dim=3, n_components=4, decoder_hidden=(16, 8))
+    model = LatentModel(layout)
+    fast = StepLikelihood(model)
+    x, a, y = th.randn(40, 5), th.randn(40, 3), th.randn(40, 5)
+
+    def check():
+        with th.no_grad():
+            expected = model.transition_log_likelihood(x, a, y).double().numpy()
+        np.testing.assert_allclose(fast.log_likelihood(x.numpy(), a.numpy(), y.numpy()), expected, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(fast.prior(), model.log_prior.double().numpy(), atol=1e-7)
+
+    check()
+    optimizer = th.optim.Adam(model.parameters(), lr=0.1)
+    loss = -model.transition_log_likelihood(x, a, y).mean()
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()  # in-place writes
+    check()
+    model.set_prior(th.tensor([[0.7, 0.1, 0.1, 0.1]]))
+    model.split_component(3, 0, generator=th.Generator().manual_seed(1))
+    check()
+    other = LatentModel(layout)
+    model.load_state_dict(other.state_dict())
+    check()
+    with th.no_grad():
+        model.decoder_log_std.data = th.full((5,), 0.5)  # a tensor replaced, not written in place
+    check()
 
 
 def test_fusion_adds_the_own_evidence_last_heard_from_each_teammate_once():

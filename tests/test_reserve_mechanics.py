@@ -261,3 +261,33 @@ def test_out_of_range_discrete_actions_are_rejected():
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"discrete actions must be 1 ints in \[0, 14\]"):
         env.step({"uav_0": 15})
+
+
+def _subnormal(values: np.ndarray) -> np.ndarray:
+    return (values != 0) & (np.abs(values) < np.finfo(np.float32).tiny)
+
+
+@pytest.mark.parametrize("region", ["mixed", "forest"])
+def test_observations_hold_no_float32_subnormals(region):
+    # The hotspots' Gaussian tails once reached 1e-39..1e-45 in the risk channel, which slows every network
+    # reading the window (matrix products over subnormal inputs) by about half.
+    env = reserve_v0.parallel_env(region=region)
+    rng = np.random.default_rng(0)
+    observations, _ = env.reset(seed=3)
+    assert not _subnormal(env.unwrapped.risk).any()
+    for _ in range(120):
+        assert not any(_subnormal(obs).any() for obs in observations.values())
+        observations, *_ = env.step({agent: int(rng.integers(15)) for agent in env.agents})
+
+
+def test_a_custom_risk_map_keeps_no_value_below_the_floor():
+    from wildlife_reserve.reserve.terrain import RISK_FLOOR
+
+    risk = np.full((15, 15), 1e-40)
+    risk[0, :5] = [0.0, 0.5 * RISK_FLOOR, RISK_FLOOR, 0.3, 1.0]
+    env = make(risk=risk)
+    env.reset(seed=0)
+    kept = env.unwrapped.risk
+    assert kept.dtype == np.float32 and not _subnormal(kept).any()
+    np.testing.assert_array_equal(kept[0, :5], np.float32([0.0, 0.0, RISK_FLOOR, 0.3, 1.0]))
+    assert (kept[1:] == 0).all()

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from wildlife_reserve.reserve.modes import N_MODES
-from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES
+from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES, as_risk
 
 #: Default weights of the team reward terms (see the environment card).
 DEFAULT_REWARD_WEIGHTS: dict[str, float] = {
@@ -187,7 +187,7 @@ class ReserveConfig:
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
     :param risk: int or float array ``(height, width)`` with finite values in [0, 1]; overrides the generated
-        risk map
+        risk map (kept as float32, values below ``terrain.RISK_FLOOR`` = 1e-6 as 0)
     :param terrain_seed: seed of the region's map (terrain and hotspots), fixed across episodes, int in
         [0, 2**63 - 1]; ``None`` draws a new map every episode from the reset seed
     :param mode: ``None`` draws the hidden mode from ``mode_prior`` each episode; an int in
@@ -296,7 +296,7 @@ class ReserveConfig:
             if not np.all(np.isfinite(risk)) or risk.min() < 0 or risk.max() > 1:
                 bad = risk[~(np.isfinite(risk) & (risk >= 0) & (risk <= 1))][0]
                 raise ValueError(f"risk values must be finite and in [0, 1], got {show(bad)}")
-            self.risk = risk.astype(np.float32)
+            self.risk = as_risk(risk)
         self.max_cycles = check_int("max_cycles", self.max_cycles, 1, MAX_CYCLES)
         self.n_leopards = check_int("n_leopards", self.n_leopards, 0, MAX_ACTORS)
         self.n_poachers = check_int("n_poachers", self.n_poachers, 0, MAX_ACTORS)

@@ -22,14 +22,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import torch as th
 from gymnasium import spaces
-from scipy.special import log_softmax
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 from sb3_emmarl.common.latent.features import default_features, encode_actions
-from sb3_emmarl.common.latent.model import LatentModel
+from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.vec_env import LINKS_KEY
 
 
@@ -50,11 +48,22 @@ class BeliefTracker:
     def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, agents_per_copy: int = 1,
                  model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
         self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
-        self.model, self.likelihood_temperature, self.fusion = model, float(likelihood_temperature), bool(fusion)
+        self.likelihood_temperature, self.fusion = float(likelihood_temperature), bool(fusion)
+        self.model = model
         self.evidence = np.zeros((n_entries, n_components))
         self.heard = np.zeros((n_entries, self.agents_per_copy, n_components))
         self.features = np.zeros((n_entries, feature_dim), dtype=np.float32)
         self.actions = np.zeros((n_entries, action_dim), dtype=np.float32)
+
+    @property
+    def model(self) -> LatentModel | None:
+        """The latent model the beliefs come from (None: uniform beliefs)."""
+        return self._model
+
+    @model.setter
+    def model(self, model: LatentModel | None) -> None:
+        self._model = model
+        self._likelihood = None if model is None else StepLikelihood(model)
 
     # ------------------------------------------------------------------ updates
     def start(self, indices: np.ndarray, features: np.ndarray) -> None:
@@ -72,13 +81,9 @@ class BeliefTracker:
         """Add the evidence of the transitions ``(x_t, a_t) -> x_{t+1}`` of ``indices``."""
         if len(indices) == 0:
             return
-        if self.model is not None:
-            param = next(self.model.parameters())
-            as_tensor = lambda a: th.as_tensor(a, dtype=th.float32, device=param.device)  # noqa: E731
-            with th.no_grad():
-                log_lik = self.model.transition_log_likelihood(as_tensor(self.features[indices]),
-                                                               as_tensor(self.actions[indices]), as_tensor(next_features))
-            self.evidence[indices] += self.likelihood_temperature * log_lik.cpu().double().numpy()
+        if self._likelihood is not None:
+            log_lik = self._likelihood.log_likelihood(self.features[indices], self.actions[indices], next_features)
+            self.evidence[indices] += self.likelihood_temperature * log_lik
         self.features[indices] = next_features
 
     def fuse(self, infos: Sequence[dict[str, Any]]) -> None:
@@ -96,9 +101,10 @@ class BeliefTracker:
     def log_beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
         """``log q(z)`` of ``indices`` ``(n, K)``: prior, own evidence and the evidence last heard from teammates."""
         evidence = self.evidence[indices] + self.heard[indices].sum(axis=1)
-        if self.model is not None:
-            evidence = evidence + self.model.log_prior.detach().cpu().double().numpy()
-        return log_softmax(evidence, axis=1)
+        if self._likelihood is not None:
+            evidence = evidence + self._likelihood.prior()
+        evidence -= evidence.max(axis=1, keepdims=True)
+        return evidence - np.log(np.exp(evidence).sum(axis=1, keepdims=True))
 
     def beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
         """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities."""

@@ -37,29 +37,35 @@ def reserve_features(layout: dict) -> FeatureFn:
     maps = [layout[name] for name in ("belief", "signs") if name in layout]
     channels, width = window_shape[0], window_shape[1]
     r = width // 2
-    ring = np.maximum(*np.abs(np.indices((width, width)) - r)) == r
+    ring = (np.maximum(*np.abs(np.indices((width, width)) - r)) == r).ravel()
     read = [c for c in (CH_POACHER, CH_LEOPARD, CH_SIGN) if c < channels]
+    # Every count is a sum of readings (> 0.5) over some window cells: one product with a 0/1 matrix over the
+    # window gives them all (columns: each read channel's count, the animals' count on the outer ring, the UAVs).
+    cells = width * width
+    counting = np.zeros((channels * cells, len(read) + 2), dtype=np.float32)
+    for column, channel in enumerate(read):
+        counting[channel * cells:(channel + 1) * cells, column] = 1.0
+    for channel in read[:2]:  # poachers and leopards
+        counting[channel * cells:(channel + 1) * cells, len(read)] = ring
+    if CH_UAV < channels:
+        counting[CH_UAV * cells:(CH_UAV + 1) * cells, len(read) + 1] = 1.0
 
     def pool(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         n, (h, w) = len(values), shape
-        ph, pw = (h + 1) // 2, (w + 1) // 2
-        if (h, w) == (2 * ph, 2 * pw):  # even sides: no padding needed
-            return values.reshape(n, ph, 2, pw, 2).max(axis=(2, 4)).reshape(n, -1)
-        padded = np.zeros((n, 2 * ph, 2 * pw), dtype=np.float32)
-        padded[:, :h, :w] = values.reshape(n, h, w)
-        return padded.reshape(n, ph, 2, pw, 2).max(axis=(2, 4)).reshape(n, -1)
+        grid = values.reshape(n, h, w)
+        if h % 2 or w % 2:
+            grid = np.pad(grid, ((0, 0), (0, h % 2), (0, w % 2)))
+        pooled = np.maximum(np.maximum(grid[:, 0::2, 0::2], grid[:, 0::2, 1::2]),
+                            np.maximum(grid[:, 1::2, 0::2], grid[:, 1::2, 1::2]))
+        return pooled.reshape(n, -1)
 
     def features(obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        window = obs[:, window_part].reshape(n, channels, width, width)
-        readings = window[:, read] > 0.5
-        counts = readings.sum(axis=(2, 3)).astype(np.float32)
-        animals = readings[:, :2]  # poachers and leopards
-        outer = animals[:, :, ring].sum(axis=(1, 2)) / np.maximum(counts[:, :2].sum(axis=1), 1.0)
-        uavs = (window[:, CH_UAV] > 0.5).sum(axis=(1, 2)) if CH_UAV < channels else np.zeros(n)
-        return np.concatenate([np.minimum(counts, 5.0) / 5.0, outer[:, None],
-                               np.minimum(uavs, 5.0)[:, None] / 5.0,
-                               *[pool(obs[:, part], shape) for part, shape in maps]], axis=1).astype(np.float32)
+        counts = (obs[:, window_part] > 0.5).astype(np.float32) @ counting
+        animals = counts[:, :min(len(read), 2)].sum(axis=1)
+        outer = counts[:, len(read)] / np.maximum(animals, 1.0)
+        return np.concatenate([np.minimum(counts[:, :len(read)], 5.0) / 5.0, outer[:, None],
+                               np.minimum(counts[:, -1:], 5.0) / 5.0,
+                               *[pool(obs[:, part], shape) for part, shape in maps]], axis=1, dtype=np.float32)
 
     return features
 
