@@ -47,7 +47,8 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 
 ### Version History
 * v0: initial release (sb3-emmarl 0.1.0); signs of poacher activity, the `heard_from` links and the
-  `sign` reward term added in sb3-emmarl 0.2.0 (observations grew from 440 to 553 floats by default)
+  `sign` reward term added in sb3-emmarl 0.2.0 (observations grew from 440 to 553 floats by default);
+  risk below 1e-6 is 0 since sb3-emmarl 0.6.1 (it was a float32 subnormal in the risk channel)
 """
 
 from __future__ import annotations
