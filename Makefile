@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
+	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
 	experiments-quick experiments-full experiments-report
 
 install:
@@ -79,6 +79,10 @@ benchmark-latent-tasks: install
 # Does the hidden mode show in what a team observes? A supervised probe by patrol, source and time (about 10 minutes).
 benchmark-mode-evidence: install
 	$(PYTHON) benchmarks/mode_evidence.py
+
+# How well EM-PPO's latent model tells the mode, fitted by EM and fitted told the mode (its ceiling) (about 8 minutes).
+benchmark-mixture-ceiling: install
+	$(PYTHON) benchmarks/mixture_ceiling.py
 
 # How much knowing the hidden mode pays: PPO told the mode against plain PPO, 5 seeds x 500k agent-steps (about 25 minutes).
 benchmark-mode-value: install

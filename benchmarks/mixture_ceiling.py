@@ -1,0 +1,199 @@
+"""How well can EM-PPO's latent model tell the reserve's hidden mode? Fitted by EM, and fitted told the mode.
+
+EM-PPO's belief is the exact posterior of ``z`` under its mixture of transition models
+``p(x_{t+1} | x_t, a_t, z)`` (see docs/em.md), so it can tell the mode only as well as that model, fitted by
+the E-step, separates the modes. This script separates the two questions, on the default reserve with
+uniformly random actions (no policy, so nothing but the model is measured):
+
+- **em**: the latent model and E-step of ``EMPPO`` built from the zoo's ``em_ppo.yml`` (its ``K``, ``beta``,
+  decoder, E-step epochs, batch and transitions per pass; team pooling), fitted unsupervised by
+  ``--e-steps`` E-steps over all the training episodes, as EM-PPO fits it over its recent rollouts;
+- **told**: the same model and E-step with each training episode's responsibilities fixed to its true mode
+  (component ``k`` is mode ``k``): what this model family and these features can do at best, whatever EM
+  finds. It is the ceiling of the first row.
+
+Each is scored on held-out episodes (other seeds) by the aligned accuracy of the posterior's argmax over the
+8 modes (components matched to modes by the Hungarian method, as ``evaluate_team`` does) and of the
+poacher strategy read off the aligned mode, at 25 %, 50 % and 100 % of the episode, from **one UAV**'s own
+evidence and from **the team**'s (the sum of all its UAVs' evidence: what fusion would give if every UAV
+heard every other every step, fusion's upper bound). The supervised probe of ``mode_evidence.py`` is the
+ceiling of any method on the same question.
+
+Example: ``python benchmarks/mixture_ceiling.py`` (or ``make benchmark-mixture-ceiling``; about 5 minutes)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from em_speed import build
+
+from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.em import EStep, Transitions
+from sb3_emmarl.common.latent.metrics import align_components
+from sb3_emmarl.common.vec_env import make_vec_env
+from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
+
+#: Points of the episode, as fractions of its length.
+POINTS = (0.25, 0.5, 1.0)
+#: Offset of the held-out episodes' seed.
+TEST_SEED_OFFSET = 1_000_000
+
+
+@dataclass
+class Episodes:
+    """Transitions of whole episodes: one row per agent-step, with the UAV's and the team's episode ids, the
+    step within the episode and the episode's true mode."""
+
+    features: np.ndarray
+    actions: np.ndarray
+    next_features: np.ndarray
+    uav_episode: np.ndarray
+    team_episode: np.ndarray
+    step: np.ndarray
+    mode: np.ndarray
+
+    def transitions(self, team: bool) -> Transitions:
+        """As E-step data; with ``team``, the agents of one reserve share their episode (EM-PPO's team pooling)."""
+        return Transitions.from_numpy(self.features, self.actions, self.next_features,
+                                      self.team_episode if team else self.uav_episode)
+
+
+def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
+    """Play ``n_episodes`` (rounded up to whole rounds of ``n_copies``) of the default reserve with uniformly random
+    actions; features and encoded actions as ``model``'s belief reads them."""
+    venv = make_vec_env(n_copies=n_copies, seed=seed)
+    wrapper = find_belief_wrapper(model.get_env())
+    n, per_copy = venv.num_envs, venv.num_envs // n_copies
+    rng = np.random.default_rng(seed)
+    observations = venv.reset()
+    modes = np.array([info["mode"] for info in venv.unwrapped.reset_infos])
+    team = np.arange(n) // per_copy
+    step = np.zeros(n, dtype=np.int64)
+    rows: list[tuple[np.ndarray, ...]] = []
+    finished, next_team = 0, n_copies
+    while finished < n_episodes:
+        actions = rng.integers(venv.action_space.n, size=n)
+        following, _, dones, infos = venv.step(actions)
+        after = following.copy()
+        for i in np.flatnonzero(dones):
+            after[i] = infos[i]["terminal_observation"]
+        rows.append((wrapper.feature_fn(observations), wrapper.encode_action(actions), wrapper.feature_fn(after),
+                     team * per_copy + np.arange(n) % per_copy, team.copy(), step.copy(), modes.copy()))
+        step += 1
+        for copy in np.unique(np.flatnonzero(dones) // per_copy):
+            entries = slice(copy * per_copy, (copy + 1) * per_copy)
+            team[entries], step[entries], next_team, finished = next_team, 0, next_team + 1, finished + 1
+        modes = np.array([info["mode"] for info in infos])
+        observations = following
+    venv.close()
+    return Episodes(*(np.concatenate(column) for column in zip(*rows)))
+
+
+class ToldEStep(EStep):
+    """An :class:`EStep` whose responsibilities are each episode's true mode (component ``k`` is mode ``k``; no
+    component is ever re-seeded).
+
+    :param modes: ``{episode id: true mode}`` of every episode it will see
+    :param kwargs: :class:`EStep`'s arguments
+    """
+
+    def __init__(self, modes: dict[int, int], **kwargs) -> None:
+        super().__init__(**{**kwargs, "starved_share": 0.0})
+        self.modes = modes
+
+    def responsibilities(self, data: Transitions) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        _, index, evidence = super().responsibilities(data)
+        # Row g of the evidence is the g-th episode id in sorted order (``sum_by_group``'s grouping).
+        told = th.tensor([self.modes[int(e)] for e in th.unique(data.episodes)])
+        return th.log_softmax(-30.0 * (th.arange(evidence.shape[1])[None] != told[:, None]).float(), -1), index, evidence
+
+
+def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> th.nn.Module:
+    """EM-PPO's latent model (``em_ppo.yml``), fitted by ``e_steps`` of its E-step on all of ``train``."""
+    model = build("em_ppo", seed=seed, n_copies=1)
+    latent = model.policy.latent_model
+    if told and latent.n_components < N_MODES:
+        raise ValueError(f"told needs n_components >= {N_MODES}, em_ppo.yml has {latent.n_components}")
+    kwargs = {**model.e_step_kwargs, "window": 1, "likelihood_temperature": model.likelihood_temperature,
+              "estimator": model.estimator, "seed": seed}
+    if told:
+        modes = dict(zip(train.team_episode.tolist(), train.mode.tolist()))
+        e_step = ToldEStep(modes, latent_model=latent, **kwargs)
+    else:
+        e_step = EStep(latent, **kwargs)
+    e_step.add(train.transitions(team=model.team_pooling))
+    for _ in range(e_steps):
+        e_step.step()
+    return model
+
+
+def accuracies(model, test: Episodes) -> dict[str, float]:
+    """Aligned mode and strategy accuracy from one UAV's and from the team's evidence, at each of :data:`POINTS`."""
+    latent, beta = model.policy.latent_model, model.likelihood_temperature
+    with th.no_grad():
+        log_lik = latent.transition_log_likelihood(*(th.as_tensor(x) for x in (test.features, test.actions,
+                                                                                test.next_features))).double().numpy()
+    log_prior = latent.log_prior.double().numpy()
+    length = int(test.step.max()) + 1
+    scores = {}
+    for point in POINTS:
+        seen = test.step < max(1, round(point * length))
+        for source, ids in (("one UAV", test.uav_episode), ("team", test.team_episode)):
+            keys, index = np.unique(ids[seen], return_inverse=True)
+            evidence = np.zeros((len(keys), len(log_prior)))
+            np.add.at(evidence, index, beta * log_lik[seen])
+            modes = np.zeros(len(keys), dtype=np.int64)
+            modes[index] = test.mode[seen]
+            posterior = np.exp(evidence + log_prior - (evidence + log_prior).max(axis=1, keepdims=True))
+            posterior /= posterior.sum(axis=1, keepdims=True)
+            guess = align_components(posterior, modes, N_MODES)[posterior.argmax(axis=1)]
+            scores[f"{source} mode {point:.0%}"] = float((guess == modes).mean())
+            scores[f"{source} strategy {point:.0%}"] = float((guess // len(WEATHERS) == modes // len(WEATHERS)).mean())
+    return scores
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--train-episodes", type=int, default=200, help="training episodes (random actions)")
+    parser.add_argument("--test-episodes", type=int, default=200, help="held-out episodes")
+    parser.add_argument("--e-steps", type=int, default=20, help="E-steps over all the training episodes")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of the model and its E-step")
+    parser.add_argument("--n-copies", type=int, default=8, help="reserves played at once")
+    args = parser.parse_args(argv)
+    for name in ("train_episodes", "test_episodes", "e_steps", "n_copies"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    th.set_num_threads(1)
+    start = time.perf_counter()
+    reader = build("em_ppo", seed=0, n_copies=1)
+    train = collect(reader, args.train_episodes, args.n_copies, seed=0)
+    test = collect(reader, args.test_episodes, args.n_copies, seed=TEST_SEED_OFFSET)
+    rows = {}
+    for fitting in ("em", "told"):
+        runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
+        rows[fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
+    modes = np.unique(test.team_episode, return_index=True)[1]
+    commonest = np.bincount(test.mode[modes], minlength=N_MODES).max() / len(modes)
+    strategies = np.bincount(test.mode[modes] // len(WEATHERS)).max() / len(modes)
+    print(f"em_ppo.yml's latent model on the default reserve, uniformly random actions: "
+          f"{len(np.unique(train.team_episode))} training and {len(modes)} held-out episodes, {args.e_steps} E-steps, "
+          f"seeds {args.seeds}; aligned accuracy, mean +- std over seeds; commonest mode {commonest:.3f}, "
+          f"commonest strategy {strategies:.3f}")
+    print(f"{'fitting':<8}{'source':<9}{'what':<10}" + "".join(f"{f'{p:.0%}':>15}" for p in POINTS))
+    for fitting, scores in rows.items():
+        for source in ("one UAV", "team"):
+            for what in ("mode", "strategy"):
+                cells = [scores[f"{source} {what} {p:.0%}"] for p in POINTS]
+                print(f"{fitting:<8}{source:<9}{what:<10}" + "".join(f"{c.mean():>8.3f} +- {c.std():.3f}" for c in cells))
+    print(f"wall time {time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
