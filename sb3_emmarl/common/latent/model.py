@@ -25,6 +25,7 @@ import torch as th
 import torch.nn.functional as F
 from torch import nn
 
+from sb3_emmarl.common.latent.features import product
 from sb3_emmarl.common.latent.layout import LatentLayout
 
 #: Bounds of the decoder's log standard deviations: a feature that never changes would otherwise drive its
@@ -136,13 +137,15 @@ class LatentModel(nn.Module):
 
 
 class StepLikelihood:
-    """``log p(x_{t+1} | x_t, a_t, z = k)`` and ``log pi`` of a :class:`LatentModel` in numpy, for the belief's one
+    """``log p(x_{t+1} | x_t, a_t, z = k)`` and ``log pi`` of a :class:`LatentModel`, lean, for the belief's one
     transition per step.
 
     The beliefs run the decoder on a few dozen rows per environment step; at that size torch's fixed cost per
-    operation (about 10 us, some 15 operations) outweighs the arithmetic, and numpy on a copy of the weights takes
-    a fraction of the time. The copy is refreshed whenever the model's :meth:`LatentModel.version` changes, so it
-    always computes what :meth:`LatentModel.transition_log_likelihood` computes (float32, to rounding).
+    operation (about 10 us, some 15 operations with autograd's bookkeeping) outweighs the arithmetic. Here the
+    three matrix products run through torch on a copy of the weights (the shared and per-component read-outs
+    folded into one; see :func:`~sb3_emmarl.common.latent.features.product`) and the rest in numpy. The copy is
+    refreshed whenever the model's :meth:`LatentModel.version` changes, so it always computes what
+    :meth:`LatentModel.transition_log_likelihood` computes (float32, to rounding).
 
     :param model: the latent model
     """
@@ -156,15 +159,15 @@ class StepLikelihood:
         if version == self._version:
             return
         with th.no_grad():
-            as_numpy = lambda t: t.detach().cpu().numpy().astype(np.float32)  # noqa: E731
-            self.trunk = [(as_numpy(layer.weight).T.copy(), as_numpy(layer.bias))
+            copy = lambda t: t.detach().to("cpu", th.float32).clone()  # noqa: E731
+            self.trunk = [(copy(layer.weight).T.contiguous(), copy(layer.bias))
                           for layer in model.decoder_trunk if isinstance(layer, nn.Linear)]
             k, hidden, d_x = model.decoder_weight.shape
             # The shared read-out and every component's own, as one (hidden, K * d_x) product.
-            weight = as_numpy(model.decoder_weight) + as_numpy(model.decoder_shared.weight).T[None]
-            self.readout = weight.transpose(1, 0, 2).reshape(hidden, k * d_x).copy()
-            self.bias = (as_numpy(model.decoder_bias) + as_numpy(model.decoder_shared.bias)[None]).reshape(-1)
-            log_std = as_numpy(model.log_std())
+            weight = copy(model.decoder_weight) + copy(model.decoder_shared.weight).T[None]
+            self.readout = weight.permute(1, 0, 2).reshape(hidden, k * d_x).contiguous()
+            self.bias = (copy(model.decoder_bias) + copy(model.decoder_shared.bias)[None]).reshape(-1)
+            log_std = model.log_std().detach().cpu().numpy().astype(np.float32)
             self.inv_std = np.exp(-log_std)
             self.constant = float(-(log_std.astype(np.float64).sum() + 0.5 * math.log(2 * math.pi) * d_x))
             self.log_prior = model.log_prior.detach().cpu().double().numpy().copy()
@@ -176,9 +179,9 @@ class StepLikelihood:
         self._refresh()
         hidden = np.concatenate([features, actions], axis=1, dtype=np.float32)
         for weight, bias in self.trunk:
-            hidden = np.tanh(hidden @ weight + bias)
+            hidden = np.tanh(product(hidden, weight, bias))
         k, d_x = self.shape
-        means = (hidden @ self.readout + self.bias).reshape(-1, k, d_x) + features[:, None, :]
+        means = product(hidden, self.readout, self.bias).reshape(-1, k, d_x) + features[:, None, :]
         z = (next_features[:, None, :] - means) * self.inv_std
         return self.constant - 0.5 * np.einsum("bkd,bkd->bk", z, z).astype(np.float64)
 
