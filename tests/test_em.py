@@ -81,7 +81,7 @@ def test_the_belief_is_the_exact_filtering_posterior_updated_one_step_at_a_time(
         clone.set_state(np.zeros((2, 3)))
 
 
-def test_the_beliefs_numpy_decoder_follows_the_model_through_every_change():
+def test_the_beliefs_lean_decoder_follows_the_model_through_every_change():
     th.manual_seed(0)
     layout = LatentLayout(obs_dim=9, feature_dim=5, action_dim=3, n_components=4, decoder_hidden=(16, 8))
     model = LatentModel(layout)
