@@ -32,9 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch as th
 from em_speed import build
+from scipy.special import softmax
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_emmarl.common.latent.belief import find_belief_wrapper
-from sb3_emmarl.common.latent.em import EStep, Transitions
+from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
@@ -71,7 +73,7 @@ def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
     wrapper = find_belief_wrapper(model.get_env())
     n, per_copy = venv.num_envs, venv.num_envs // n_copies
     rng = np.random.default_rng(seed)
-    observations = venv.reset()
+    features = wrapper.feature_fn(venv.reset())
     modes = np.array([info["mode"] for info in venv.unwrapped.reset_infos])
     team = np.arange(n) // per_copy
     step = np.zeros(n, dtype=np.int64)
@@ -79,18 +81,19 @@ def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
     finished, next_team = 0, n_copies
     while finished < n_episodes:
         actions = rng.integers(venv.action_space.n, size=n)
-        following, _, dones, infos = venv.step(actions)
-        after = following.copy()
+        observations, _, dones, infos = venv.step(actions)
+        following = wrapper.feature_fn(observations)
+        after = following.copy()  # the episode's last transition leads to its terminal observation
         for i in np.flatnonzero(dones):
-            after[i] = infos[i]["terminal_observation"]
-        rows.append((wrapper.feature_fn(observations), wrapper.encode_action(actions), wrapper.feature_fn(after),
-                     team * per_copy + np.arange(n) % per_copy, team.copy(), step.copy(), modes.copy()))
+            after[i] = wrapper.feature_fn(infos[i]["terminal_observation"][None])[0]
+        rows.append((features, wrapper.encode_action(actions), after, team * per_copy + np.arange(n) % per_copy,
+                     team.copy(), step.copy(), modes.copy()))
+        features = following
         step += 1
         for copy in np.unique(np.flatnonzero(dones) // per_copy):
             entries = slice(copy * per_copy, (copy + 1) * per_copy)
             team[entries], step[entries], next_team, finished = next_team, 0, next_team + 1, finished + 1
         modes = np.array([info["mode"] for info in infos])
-        observations = following
     venv.close()
     return Episodes(*(np.concatenate(column) for column in zip(*rows)))
 
@@ -114,7 +117,7 @@ class ToldEStep(EStep):
         return th.log_softmax(-30.0 * (th.arange(evidence.shape[1])[None] != told[:, None]).float(), -1), index, evidence
 
 
-def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> th.nn.Module:
+def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> BaseAlgorithm:
     """EM-PPO's latent model (``em_ppo.yml``), fitted by ``e_steps`` of its E-step on all of ``train``."""
     model = build("em_ppo", seed=seed, n_copies=1)
     latent = model.policy.latent_model
@@ -136,9 +139,7 @@ def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> th.nn.Module:
 def accuracies(model, test: Episodes) -> dict[str, float]:
     """Aligned mode and strategy accuracy from one UAV's and from the team's evidence, at each of :data:`POINTS`."""
     latent, beta = model.policy.latent_model, model.likelihood_temperature
-    with th.no_grad():
-        log_lik = latent.transition_log_likelihood(*(th.as_tensor(x) for x in (test.features, test.actions,
-                                                                                test.next_features))).double().numpy()
+    log_lik = transition_log_likelihoods(latent, test.transitions(team=False)).double().numpy()
     log_prior = latent.log_prior.double().numpy()
     length = int(test.step.max()) + 1
     scores = {}
@@ -150,8 +151,7 @@ def accuracies(model, test: Episodes) -> dict[str, float]:
             np.add.at(evidence, index, beta * log_lik[seen])
             modes = np.zeros(len(keys), dtype=np.int64)
             modes[index] = test.mode[seen]
-            posterior = np.exp(evidence + log_prior - (evidence + log_prior).max(axis=1, keepdims=True))
-            posterior /= posterior.sum(axis=1, keepdims=True)
+            posterior = softmax(evidence + log_prior, axis=1)
             guess = align_components(posterior, modes, N_MODES)[posterior.argmax(axis=1)]
             scores[f"{source} mode {point:.0%}"] = float((guess == modes).mean())
             scores[f"{source} strategy {point:.0%}"] = float((guess // len(WEATHERS) == modes // len(WEATHERS)).mean())

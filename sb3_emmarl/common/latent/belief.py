@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
+from scipy.special import log_softmax
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
@@ -103,8 +104,7 @@ class BeliefTracker:
         evidence = self.evidence[indices] + self.heard[indices].sum(axis=1)
         if self._likelihood is not None:
             evidence = evidence + self._likelihood.prior()
-        evidence -= evidence.max(axis=1, keepdims=True)
-        return evidence - np.log(np.exp(evidence).sum(axis=1, keepdims=True))
+        return log_softmax(evidence, axis=1)
 
     def beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
         """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities."""

@@ -65,6 +65,16 @@ class Transitions:
                            th.as_tensor(np.asarray(episodes), dtype=th.long, device=device))
 
 
+def transition_log_likelihoods(model: LatentModel, data: Transitions) -> th.Tensor:
+    """``log p(x_{t+1} | x_t, a_t, z = k)`` of every transition of ``data`` ``(N, K)``, without gradient, in chunks of
+    :data:`LIKELIHOOD_CHUNK` transitions."""
+    with th.no_grad():
+        return th.cat([model.transition_log_likelihood(data.features[i:i + LIKELIHOOD_CHUNK],
+                                                       data.actions[i:i + LIKELIHOOD_CHUNK],
+                                                       data.next_features[i:i + LIKELIHOOD_CHUNK])
+                       for i in range(0, len(data), LIKELIHOOD_CHUNK)])
+
+
 def episode_ids(counters: np.ndarray, new_episode: np.ndarray, agents_per_copy: int = 1,
                 team_pooling: bool = False) -> np.ndarray:
     """Episode ids of ``(T, n)`` steps of ``n`` vector entries, continuing the entries' ``counters`` (updated in place).
@@ -165,10 +175,7 @@ class EStep:
         """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
         episode's summed tempered log-likelihoods ``(S, K)`` (no gradient)."""
         with th.no_grad():
-            log_lik = th.cat([self.model.transition_log_likelihood(data.features[i:i + LIKELIHOOD_CHUNK],
-                                                                   data.actions[i:i + LIKELIHOOD_CHUNK],
-                                                                   data.next_features[i:i + LIKELIHOOD_CHUNK])
-                              for i in range(0, len(data), LIKELIHOOD_CHUNK)])
+            log_lik = transition_log_likelihoods(self.model, data)
             evidence, index = sum_by_group(self.likelihood_temperature * log_lik, data.episodes)
             return self.model.posterior_from(evidence), index, evidence
 
