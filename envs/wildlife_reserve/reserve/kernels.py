@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import NEVER
+from wildlife_reserve.reserve.constants import N_CHANNELS, NEVER
 
 
 @njit(cache=True)
@@ -21,13 +21,14 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
                scale: np.float32) -> np.ndarray:  # pragma: no cover - compiled
     """Age in [0, 1] of the newest visit each receiver knows of, at its own cells.
 
-    ``ages[r, c] = min((t - max_s seen[s, r, c]) * scale, 1)`` with ``seen = last[s, cells[r, c]]`` if that
-    is ``<= knowledge[r, s]``, else ``first[s, cells[r, c]]`` if that is, else ``NEVER``.
+    ``ages[r, c] = min((t - max_s seen[s, r, c]) * scale, 1)`` with ``seen = last[cells[r, c], s]`` if that
+    is ``<= knowledge[r, s]``, else ``first[cells[r, c], s]`` if that is, else ``NEVER``.
 
-    :param last: ``(n, m)`` float32 last-visit time of each source at each cell
-    :param first: ``(n, m)`` float32 first-visit times
+    :param last: ``(m, n)`` float32 last-visit time at each cell of each source (cell-major: the sources' stamps of a
+        cell share a cache line)
+    :param first: ``(m, n)`` float32 first-visit times
     :param knowledge: ``(n, n)`` float32, ``knowledge[r, s]``
-    :param cells: ``(n, c)`` cell indices (into the second axis of ``last``) per receiver
+    :param cells: ``(n, c)`` cell indices (into the first axis of ``last``) per receiver
     """
     n, c = cells.shape
     ages = np.empty((n, c), dtype=np.float32)
@@ -38,9 +39,9 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
             best = NEVER
             for s in range(n):
                 known = knowledge[r, s]
-                value = last[s, cell]
+                value = last[cell, s]
                 if value > known:
-                    value = first[s, cell]
+                    value = first[cell, s]
                     if value > known:
                         value = NEVER
                 if value > best:
@@ -269,8 +270,9 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
          last: np.ndarray, first: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
          t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
-    one's own visit history of cells and blocks (``last = t``, ``first = min(first, t)``), set its knowledge of
-    itself to ``t``, and mark the team's coverage ``visited``.
+    one's own visit history of cells and blocks (``last[cell, u] = t``, ``first[cell, u] = min(first, t)``; stamps
+    are cell-major, see :func:`known_ages`), set its knowledge of itself to ``t``, and mark the team's coverage
+    ``visited``.
 
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
         once count for both), and the number of high-risk cells the team sees for the first time
@@ -291,12 +293,12 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
                 visited[cell] = True
                 if high_risk[cell]:
                     new += 1
-            last[u, cell] = t
-            if t < first[u, cell]:
-                first[u, cell] = t
-        block_last[u, blocks[a]] = t
-        if t < block_first[u, blocks[a]]:
-            block_first[u, blocks[a]] = t
+            last[cell, u] = t
+            if t < first[cell, u]:
+                first[cell, u] = t
+        block_last[blocks[a], u] = t
+        if t < block_first[blocks[a], u]:
+            block_first[blocks[a], u] = t
         knowledge[u, u] = t
     return fresh, new
 
@@ -345,64 +347,114 @@ def deliver(links: np.ndarray, comm: np.ndarray, dist: np.ndarray, draws: np.nda
 
 
 @njit(cache=True)
-def fill_window(win: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, window: np.ndarray, staleness: np.ndarray,
-                signals: np.ndarray, cells: np.ndarray, grounded: np.ndarray, radius: int) -> None:  # pragma: no cover
-    """The observation window ``win`` ``(n, 7, w, w)``: occlusion, risk, staleness, the three signal channels, and
-    the other airborne UAVs inside the window (channel 5); a grounded UAV's channels 3-6 are 0.
+def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, all_blocks: np.ndarray, cell_blocks: np.ndarray,
+                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray, first: np.ndarray,
+                  block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray, pos: np.ndarray, ok: np.ndarray,
+                  radius: float, comm: np.ndarray, beacon_draws: np.ndarray, message_draws: np.ndarray, loss: float,
+                  known: np.ndarray, counts: np.ndarray, sign_blocks: np.ndarray) -> tuple:  # pragma: no cover
+    """One step of the team's knowledge in one call (each part is the kernel named, in this order): the staleness
+    of every window cell and block as each UAV knew it before this step (``known_ages``), the airborne UAVs' look
+    (``look``), the links in range (``links_in_range``), the beacons heard (``beacon_draws >= loss``), the messages
+    delivered (``deliver``) and what they carry (``merge_messages``; the signs learned are marked in ``known`` and
+    counted in ``counts`` by ``sign_blocks``). ``knowledge``, the stamps, ``visited``, ``known`` and ``counts`` are
+    updated in place, except that the merged knowledge is returned.
 
-    :param occlusion: flat padded visual occlusion
-    :param risk: flat padded risk
-    :param window: ``(n, w, w)`` padded flat cells of each UAV's window
-    :param staleness: ``(n, w, w)``
-    :param signals: ``(n, 3, w, w)`` poacher, leopard and sign readings
+    :param window: ``(n, c)`` padded flat cells of each UAV's window; ``all_blocks`` ``(n, blocks)`` every block
+    :param cell_blocks: ``(n,)`` the block under each UAV
+    :param ok: ``(n,)`` UAVs that can talk (airborne, unjammed)
+    :return: window staleness ``(n, c)``, block staleness ``(n, blocks)``, high-risk cells each UAV saw first
+        ``(n,)``, the team's new ones, distances ``(n, n)``, beacons ``(n, n)``, messages delivered ``(n, n)`` and the
+        merged knowledge ``(n, n)``
     """
-    n, _, w, _ = win.shape
-    for u in range(n):
-        for a in range(w):
-            for b in range(w):
-                cell = window[u, a, b]
-                win[u, 0, a, b] = occlusion[cell]
-                win[u, 1, a, b] = risk[cell]
-                win[u, 2, a, b] = staleness[u, a, b]
-                win[u, 3, a, b] = signals[u, 0, a, b]
-                win[u, 4, a, b] = signals[u, 1, a, b]
-                win[u, 5, a, b] = 0.0
-                win[u, 6, a, b] = signals[u, 2, a, b]
-        for v in range(n):
-            d_row, d_col = cells[v, 0] - cells[u, 0], cells[v, 1] - cells[u, 1]
-            if v != u and not grounded[v] and abs(d_row) <= radius and abs(d_col) <= radius:
-                win[u, 5, d_row + radius, d_col + radius] = 1.0
-        if grounded[u]:
-            win[u, 3:] = 0.0
+    stale_cells = known_ages(last, first, knowledge, window, t, scale)
+    stale_blocks = known_ages(block_last, block_first, knowledge, all_blocks, t, scale)
+    uavs = np.flatnonzero(airborne)
+    fresh = np.zeros(len(window), dtype=np.int64)
+    fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, last, first, block_last,
+                            block_first, knowledge, t)
+    dist, links = links_in_range(pos, ok, radius)
+    beacons = links & (beacon_draws >= loss)
+    delivered = deliver(links, comm, dist, message_draws, loss)
+    merged, learned = merge_messages(delivered, knowledge, known)
+    for r in range(learned.shape[0]):
+        for i in range(learned.shape[1]):
+            if learned[r, i]:
+                known[r, i] = True
+                counts[r, sign_blocks[i]] += 1.0
+    return stale_cells, stale_blocks, fresh, new, dist, beacons, delivered, merged
 
 
 @njit(cache=True)
-def fill_neighbours(neighbours: np.ndarray, pos: np.ndarray, heard: np.ndarray, dist: np.ndarray,
-                    scale: float) -> None:  # pragma: no cover - compiled
-    """Up to ``k`` UAVs each UAV heard (``heard[s, r]``), nearest first (the lower index among equals):
-    ``neighbours[r, slot] = (clip((pos_s - pos_r) * scale, -1, 1), 1)``; unused slots are 0.
+def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, window: np.ndarray,
+                      staleness: np.ndarray, signals: np.ndarray, cells: np.ndarray, grounded: np.ndarray, radius: int,
+                      pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
+                      progress: float, heard: np.ndarray, dist: np.ndarray, neighbour_scale: float, max_neighbours: int,
+                      block_staleness: np.ndarray, belief: np.ndarray,
+                      sign_map: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Every UAV's flat observation ``obs`` ``(n, obs_dim)``, in the order of ``observation_layout``:
 
-    :param neighbours: ``(n, k, 3)``
+    - ``window`` ``(7, w, w)``: occlusion, risk, staleness, the poacher, leopard and sign readings ``signals``
+      ``(n, 3, w, w)`` in channels 3, 4 and 6, and the other airborne UAVs inside the window in channel 5; a grounded
+      UAV's channels 3-6 are 0;
+    - ``own`` (6): position scaled to [0, 1] (capped at 1), velocity, battery, episode progress;
+    - ``neighbours`` ``(max_neighbours, 3)``: the UAVs it heard (``heard[s, r]``), nearest first (the lower index among
+      equals), as ``(clip((pos_s - pos_r) * neighbour_scale, -1, 1), 1)``; unused slots are 0;
+    - the coarse maps ``block_staleness``, ``belief`` and ``sign_map`` ``(n, blocks)``.
+
+    :param occlusion: flat padded visual occlusion; ``risk`` likewise
+    :param window: ``(n, w, w)`` padded flat cells of each UAV's window; ``staleness`` ``(n, w, w)``
     """
-    n, k, _ = neighbours.shape
-    neighbours[:] = 0.0
+    n = len(obs)
+    w = 2 * radius + 1
+    c = w * w
+    own = N_CHANNELS * c  # then N_OWN = 6 own features (observation.py)
+    neighbours = own + 6
+    maps = neighbours + 3 * max_neighbours
+    blocks = block_staleness.shape[1]
     order = np.empty(n, dtype=np.int64)
-    for r in range(n):
+    for u in range(n):
+        row = obs[u]
+        blind = grounded[u]
+        for a in range(w):
+            for b in range(w):
+                j, cell = a * w + b, window[u, a, b]
+                row[j] = occlusion[cell]
+                row[c + j] = risk[cell]
+                row[2 * c + j] = staleness[u, a, b]
+                row[3 * c + j] = 0.0 if blind else signals[u, 0, a, b]
+                row[4 * c + j] = 0.0 if blind else signals[u, 1, a, b]
+                row[5 * c + j] = 0.0
+                row[6 * c + j] = 0.0 if blind else signals[u, 2, a, b]
+        if not blind:
+            for v in range(n):
+                d_row, d_col = cells[v, 0] - cells[u, 0], cells[v, 1] - cells[u, 1]
+                if v != u and not grounded[v] and abs(d_row) <= radius and abs(d_col) <= radius:
+                    row[5 * c + (d_row + radius) * w + d_col + radius] = 1.0
+        row[own] = min(pos[u, 0] * inv_scale[0], 1.0)
+        row[own + 1] = min(pos[u, 1] * inv_scale[1], 1.0)
+        row[own + 2], row[own + 3] = velocity[u, 0], velocity[u, 1]
+        row[own + 4] = battery[u]
+        row[own + 5] = progress
+        row[neighbours:maps] = 0.0
         m = 0
         for s in range(n):  # insertion sort of the heard UAVs by (distance, index)
-            if heard[s, r]:
+            if heard[s, u]:
                 j = m
-                while j > 0 and dist[r, order[j - 1]] > dist[r, s]:
+                while j > 0 and dist[u, order[j - 1]] > dist[u, s]:
                     order[j] = order[j - 1]
                     j -= 1
                 order[j] = s
                 m += 1
-        for slot in range(min(m, k)):
+        for slot in range(min(m, max_neighbours)):
             s = order[slot]
             for axis in range(2):
-                value = (pos[s, axis] - pos[r, axis]) * scale
-                neighbours[r, slot, axis] = min(max(value, -1.0), 1.0)
-            neighbours[r, slot, 2] = 1.0
+                value = (pos[s, axis] - pos[u, axis]) * neighbour_scale
+                row[neighbours + 3 * slot + axis] = min(max(value, -1.0), 1.0)
+            row[neighbours + 3 * slot + 2] = 1.0
+        for i in range(blocks):
+            row[maps + i] = block_staleness[u, i]
+            row[maps + blocks + i] = belief[u, i]
+            row[maps + 2 * blocks + i] = sign_map[u, i]
 
 
 @njit(cache=True)
@@ -544,19 +596,21 @@ def record_readings(hit: np.ndarray, poachers: np.ndarray, leopards: np.ndarray,
 
 
 @njit(cache=True)
-def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarray, channel: np.ndarray,
+def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarray, signals: np.ndarray,
               known: np.ndarray, counts: np.ndarray, blocks: np.ndarray, kind: np.ndarray, real: np.ndarray,
               found: np.ndarray) -> int:  # pragma: no cover - compiled
-    """The candidate sightings that ``hit``: mark ``channel[uav, cell]``, the UAV learns of the sign (counted once
-    per UAV in ``counts`` by block), and the team finds it (``found``) if its kind is ``real``.
+    """The candidate sightings that ``hit``: mark the sign channel ``signals[uav, 2]`` at window cell ``cell``
+    (flat), the UAV learns of the sign (counted once per UAV in ``counts`` by block), and the team finds it
+    (``found``) if its kind is ``real``.
 
     :return: how many real signs the team found for the first time
     """
+    w = signals.shape[-1]
     fresh = 0
     for a in range(len(hit)):
         if hit[a]:
             u, i = uav[a], sign[a]
-            channel[u, cell[a]] = 1.0
+            signals[u, 2, cell[a] // w, cell[a] % w] = 1.0
             if not known[u, i]:
                 known[u, i] = True
                 counts[u, blocks[i]] += 1.0
@@ -564,6 +618,78 @@ def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarr
                 found[i] = True
                 fresh += 1
     return fresh
+
+
+@njit(cache=True)
+def decoy_reading_cells(draws: np.ndarray, table: np.ndarray, decoys: np.ndarray, cells: np.ndarray,
+                        airborne: np.ndarray, height: int,
+                        width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Decoys read as poachers: UAV ``u`` reads decoy ``i`` if airborne and ``draws[u, i] < table[min(chebyshev
+    distance, len(table) - 1)]``; readings off the map are dropped.
+
+    :return: reading UAVs ``(k,)``, offsets from them ``(k, 2)`` and cells ``(k, 2)``, in (UAV, decoy) order
+    """
+    n, d = draws.shape
+    far = len(table) - 1
+    uav = np.empty(n * d, dtype=np.int64)
+    offsets = np.empty((n * d, 2), dtype=np.int64)
+    where = np.empty((n * d, 2), dtype=np.int64)
+    k = 0
+    for u in range(n):
+        for i in range(d):
+            d_row, d_col = decoys[i, 0] - cells[u, 0], decoys[i, 1] - cells[u, 1]
+            if draws[u, i] < table[min(max(abs(d_row), abs(d_col)), far)] and airborne[u]:
+                row, col = cells[u, 0] + d_row, cells[u, 1] + d_col
+                if 0 <= row < height and 0 <= col < width:
+                    uav[k], offsets[k, 0], offsets[k, 1], where[k, 0], where[k, 1] = u, d_row, d_col, row, col
+                    k += 1
+    return uav[:k], offsets[:k], where[:k]
+
+
+@njit(cache=True)
+def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_moved: np.ndarray,
+          leopards: np.ndarray, alive: np.ndarray, leopard_moved: np.ndarray, cells: np.ndarray, airborne: np.ndarray,
+          table: np.ndarray, terrain: np.ndarray, radius: int, alarm_probability: float, reach_offsets: np.ndarray,
+          height: int, width: int, decoys: np.ndarray, decoy_table: np.ndarray, candidate_uav: np.ndarray,
+          candidate_cell: np.ndarray, candidate_sign: np.ndarray, candidate_p: np.ndarray, known: np.ndarray,
+          counts: np.ndarray, sign_blocks: np.ndarray, sign_kinds: np.ndarray, real: np.ndarray, found: np.ndarray,
+          signals: np.ndarray) -> tuple:  # pragma: no cover - compiled
+    """One step of sensing in one call, from the step's uniform ``draws`` taken in this order: detection of every
+    poacher and leopard by every UAV ``(n, P + L)`` (``detection_probabilities``), spurious poacher readings
+    ``(2, n)`` (``false_reading_cells``), decoys ``(n, D)`` (``decoy_reading_cells``), the sign sightings ``(k,)``
+    (the ``candidate_*`` of ``sign_candidates``; ``see_signs``), false sign readings ``(2, n)``. Marks ``signals``
+    ``(n, 3, w, w)``; updates ``known``, ``counts`` and ``found`` in place.
+
+    :return: who detected which poacher ``(n, P)``, the poacher readings ``(k, 3)`` (``record_readings``), the number
+        of false poacher readings (decoys included), the real signs the team found for the first time, and the false
+        sign readings' UAVs ``(f,)`` and cells ``(f, 2)``
+    """
+    n, m = len(cells), len(poachers) + len(leopards)
+    p = detection_probabilities(np.concatenate((poachers, leopards)), cells, table, terrain,
+                                np.concatenate((poacher_moved, leopard_moved)).astype(np.int64),
+                                np.concatenate((active, alive)), airborne, radius)
+    hit = draws[:n * m].reshape((n, m)) < p
+    start = n * m
+    uav, offsets, where = false_reading_cells(draws[start:start + n], draws[start + n:start + 2 * n], alarm_probability,
+                                              airborne, reach_offsets, cells, height, width)
+    start += 2 * n
+    if len(decoys):
+        d_uav, d_offsets, d_where = decoy_reading_cells(draws[start:start + n * len(decoys)].reshape((n, len(decoys))),
+                                                        decoy_table, decoys, cells, airborne, height, width)
+        start += n * len(decoys)
+        uav, offsets, where = (np.concatenate((uav, d_uav)), np.concatenate((offsets, d_offsets)),
+                               np.concatenate((where, d_where)))
+    seen, readings = record_readings(hit, poachers, leopards, cells, radius, uav, offsets, where, signals)
+    k = len(candidate_p)
+    sighted = draws[start:start + k] < candidate_p
+    start += k
+    fresh = see_signs(sighted, candidate_uav, candidate_cell, candidate_sign, signals, known, counts, sign_blocks,
+                      sign_kinds, real, found)
+    f_uav, f_offsets, f_where = false_reading_cells(draws[start:start + n], draws[start + n:start + 2 * n],
+                                                    alarm_probability, airborne, reach_offsets, cells, height, width)
+    for a in range(len(f_uav)):
+        signals[f_uav[a], 2, f_offsets[a, 0] + radius, f_offsets[a, 1] + radius] = 1.0
+    return seen, readings, len(uav), fresh, f_uav, f_where
 
 
 @njit(cache=True)
@@ -598,15 +724,3 @@ def poaching_timers(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarr
                     any_near = True
         timer[i] = timer[i] + 1 if any_near else 0
     return near, timer
-
-
-@njit(cache=True)
-def fill_own(own: np.ndarray, pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
-             progress: float) -> None:  # pragma: no cover - compiled
-    """Own features ``(n, 6)``: position scaled to [0, 1] (capped at 1), velocity, battery, episode progress."""
-    for u in range(len(own)):
-        own[u, 0] = min(pos[u, 0] * inv_scale[0], 1.0)
-        own[u, 1] = min(pos[u, 1] * inv_scale[1], 1.0)
-        own[u, 2], own[u, 3] = velocity[u, 0], velocity[u, 1]
-        own[u, 4] = battery[u]
-        own[u, 5] = progress

@@ -12,15 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import NEVER
-from wildlife_reserve.reserve.kernels import (
-    beliefs,
-    deliver,
-    known_ages,
-    learn_signs,
-    links_in_range,
-    look,
-    merge_messages,
-)
+from wildlife_reserve.reserve.kernels import beliefs, learn_signs, look_and_talk
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -55,15 +47,15 @@ class TeamKnowledge:
         self.comm_loss = comm_loss
         # Readings older than this carry less than 1e-3 of their weight and are dropped.
         self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
-        self._stamps = np.empty((2, n, *padded_shape), dtype=np.float32)
-        self._block_stamps = np.empty((2, n, n_blocks), dtype=np.float32)
-        self._all_blocks = np.broadcast_to(np.arange(n_blocks), (n, n_blocks))
+        # Cell-major, (cell, UAV): the staleness reads every UAV's stamps of a few cells.
+        self._stamps = np.empty((2, self.cells_padded, n), dtype=np.float32)
+        self._block_stamps = np.empty((2, n_blocks, n), dtype=np.float32)
+        self._all_blocks = np.ascontiguousarray(np.broadcast_to(np.arange(n_blocks), (n, n_blocks)))
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
         n = self.n
         self._stamps[0], self._stamps[1] = NEVER, -NEVER
-        self.own_last, self.own_first = self._stamps
         self._block_stamps[0], self._block_stamps[1] = NEVER, -NEVER
         self.knowledge = np.full((n, n), NEVER, dtype=np.float32)
         self.beacons = np.zeros((n, n), dtype=bool)
@@ -74,17 +66,57 @@ class TeamKnowledge:
         self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
         self._sign_map, self._sign_map_total = np.zeros((n, self.n_blocks)), 0.0
 
-    # ------------------------------------------------------------------ own looks
-    def record_visits(self, t: int, uavs: np.ndarray, cells: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray,
-                      visited: np.ndarray) -> tuple[np.ndarray, int]:
-        """The airborne ``uavs`` looked at padded flat ``cells`` ``(k, w * w)`` and flew over ``blocks`` ``(k,)`` at ``t``;
-        the team's coverage ``visited`` (flat padded bool, updated in place) counts ``high_risk`` cells.
+    @property
+    def own_last(self) -> np.ndarray:
+        """``(n, *padded)`` each UAV's last look at each cell (a view)."""
+        return self._stamps[0].T.reshape(self.n, *self.padded_shape)
 
-        :return: high-risk cells each of ``uavs`` saw that nobody had seen before ``(k,)``, and the team's new ones
+    @property
+    def own_first(self) -> np.ndarray:
+        """``(n, *padded)`` each UAV's first look at each cell (a view)."""
+        return self._stamps[1].T.reshape(self.n, *self.padded_shape)
+
+    # ------------------------------------------------------------------ one step: look, then talk
+    def look_and_talk(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
+                      airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
+                      ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                                                  np.ndarray, int]:
+        """What the team knows after this step, in one compiled call (``kernels.look_and_talk``):
+
+        1. **Staleness** (as each UAV knew it before this look): time since each window cell and coarse block was
+           seen. UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's
+           first visit if that one is, else nothing; ages are ``min((t - newest known visit) / max_cycles, 1)``.
+        2. **Looks**: the ``airborne`` UAVs stamp their visit histories of the cells in their windows and of the
+           block below them, and mark the team's coverage ``visited`` (flat padded bool, updated in place) of the
+           ``high_risk`` cells.
+        3. **Links**: UAVs both ``ok`` (airborne, unjammed) within ``R_c`` of each other; the position beacons heard
+           over them (each lost with ``comm_loss``).
+        4. **Messages** (skipped when ``comm`` is None, as at reset): broadcasts push and queries pull each UAV's
+           knowledge (one hop), each message lost with ``comm_loss``; what the receivers learn (knowledge stamps,
+           signs, counted by ``sign_blocks``, the block of every sign record).
+
+        The random draws are the beacons' ``(n, n)``, then the messages' ``(n, n)``.
+
+        :param window: ``(n, w, w)`` padded flat indices of each UAV's window
+        :param cell_blocks: ``(n,)`` the block under each UAV
+        :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query), or None
+        :return: ``(n, w, w)`` and ``(n, blocks)`` staleness in [0, 1], the high-risk cells each UAV saw that nobody
+            had seen before ``(n,)``, and the team's new ones
         """
-        last, first = self._stamps.reshape(2, self.n, -1)
-        return look(uavs, cells, blocks, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1],
-                    self.knowledge, np.float32(t))
+        n, w = self.n, window.shape[-1]
+        if comm is None:
+            draws = rng.random((1, n, n))
+            comm = np.zeros(n, dtype=np.int64)
+        else:
+            draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
+        last, first = self._stamps
+        known = self.known_signs[:, :len(sign_blocks)]
+        cells, blocks, fresh, new, self.dist, self.beacons, self.comm_links, self.knowledge = look_and_talk(
+            np.float32(t), np.float32(1.0 / self.max_cycles), window.reshape(n, -1), self._all_blocks, cell_blocks,
+            airborne, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1], self.knowledge,
+            uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss, known, self.sign_counts,
+            sign_blocks)
+        return cells.reshape(n, w, w), blocks, fresh, new
 
     def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
         """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""
@@ -108,49 +140,7 @@ class TeamKnowledge:
             grown[:, :self.known_signs.shape[1]] = self.known_signs
             self.known_signs = grown
 
-    # ------------------------------------------------------------------ links and messages
-    def in_range(self, uav_pos: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        """``(n, n)`` bool: s and r (s != r) both ``ok`` (airborne, unjammed) and within ``R_c`` of each other."""
-        self.dist, links = links_in_range(uav_pos, ok, self.comm_radius)
-        return links
-
-    def update_beacons(self, rng: np.random.Generator, links: np.ndarray) -> None:
-        """Position beacons heard this step, each lost with probability ``comm_loss``."""
-        self.beacons = links & (rng.random(links.shape) >= self.comm_loss)
-
-    def communicate(self, rng: np.random.Generator, comm: np.ndarray, links: np.ndarray, sign_blocks: np.ndarray) -> None:
-        """Broadcasts push and queries pull each UAV's knowledge; each message is lost with ``comm_loss``.
-
-        :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query)
-        :param links: ``(n, n)`` links in range this step (see :meth:`in_range`)
-        :param sign_blocks: block of every sign record (for the sign counts)
-        """
-        delivered = deliver(links, comm, self.dist, rng.random(links.shape), self.comm_loss)
-        self.comm_links = delivered
-        if not delivered.any():
-            return
-        self.knowledge, learned = merge_messages(delivered, self.knowledge, self.known_signs[:, :len(sign_blocks)])
-        who, sign = np.nonzero(learned)
-        if len(who):
-            self.learn_signs(who, sign, sign_blocks[sign])
-
     # ------------------------------------------------------------------ maps
-    def staleness(self, t: int, window: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Time since each window cell and each coarse block was seen, as far as each UAV knows.
-
-        UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's
-        first visit if that one is, else nothing. Ages are ``min((t - newest known visit) / max_cycles, 1)``.
-
-        :param window: ``(n, w, w)`` padded flat indices of each UAV's window
-        :return: ``(n, w, w)`` and ``(n, blocks)`` ages in [0, 1]
-        """
-        n, w = self.n, window.shape[-1]
-        t32, scale = np.float32(t), np.float32(1.0 / self.max_cycles)
-        last, first = self._stamps.reshape(2, n, -1)
-        cells = known_ages(last, first, self.knowledge, window.reshape(n, -1), t32, scale)
-        blocks = known_ages(self._block_stamps[0], self._block_stamps[1], self.knowledge, self._all_blocks, t32, scale)
-        return cells.reshape(n, w, w), blocks
-
     def belief(self, t: int) -> np.ndarray:
         """``(n, blocks)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
         if not len(self.events):

@@ -8,7 +8,7 @@ import numpy as np
 
 from wildlife_reserve.reserve.config import ReserveConfig
 from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
-from wildlife_reserve.reserve.kernels import fill_neighbours, fill_own, fill_window
+from wildlife_reserve.reserve.kernels import fill_observations
 from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE
 
 if TYPE_CHECKING:
@@ -55,20 +55,12 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarr
     :param env: the reserve, after this step's sensing and communication
     :param signals: ``(n, 3, w, w)`` this step's poacher, leopard and sign readings, as the sensors report them
     """
-    cfg, n, r, team = env.config, env.n, env.r, env.team
-    layout = env.observation_layout
-    obs = np.empty((n, env.obs_dim), dtype=np.float32)
-    win = obs[:, layout["window"][0]].reshape(n, N_CHANNELS, env.window, env.window)
-    fill_window(win, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells, env.grounded, r)
-
-    progress = min(env.t / env.max_cycles, 1.0)
-    fill_own(obs[:, layout["own"][0]], env.uav_pos, env._inv_scale, env.velocity, env.battery, progress)
-    # Neighbours heard through beacons, nearest first.
-    neighbours = obs[:, layout["neighbours"][0]].reshape(n, cfg.max_neighbors, 3)
-    fill_neighbours(neighbours, env.uav_pos, team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0))
-    obs[:, layout["block_staleness"][0]] = env._stale_blocks
-    obs[:, layout["belief"][0]] = team.belief(env.t)
-    obs[:, layout["signs"][0]] = team.sign_map()
+    cfg, team = env.config, env.team
+    obs = np.empty((env.n, env.obs_dim), dtype=np.float32)
+    fill_observations(obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
+                      env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
+                      min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),
+                      cfg.max_neighbors, env._stale_blocks, team.belief(env.t), team.sign_map())
     return obs
 
 

@@ -268,6 +268,7 @@ class ReserveParallelEnv(ParallelEnv):
         # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
         self._reach_offsets = np.argwhere(self._ring <= self.reach) - self.r
         self._detect_table = sensing.detection_table(self.r, self.weather, cfg.sensor_noise)
+        self._decoy_table = sensing.decoy_table(self.r, self.reach, cfg.sensor_noise)
         # Chance of seeing a sign in each window cell, by terrain: (w * w, terrain types).
         self._sign_table = sensing.sign_detection_table(self.r, self.weather, cfg.sensor_noise)[self._ring.ravel()]
 
@@ -328,9 +329,8 @@ class ReserveParallelEnv(ParallelEnv):
         self.first_detection_time: int | None = None
         self.detections = np.zeros((0, 3), dtype=np.int64)  # this step's poacher readings: (uav, row, col)
         self._set_window(self._uav_cells())
-        self._stale_window, self._stale_blocks = self.team.staleness(self.t, self._window)
-        self._mark_visits(np.ones(self.n, dtype=bool))
-        self.team.update_beacons(self.rng, self.team.in_range(self.uav_pos, np.ones(self.n, dtype=bool)))
+        everyone = np.ones(self.n, dtype=bool)
+        self._look_and_talk(everyone, everyone, None)
         signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
         obs = build_observations(self, signals)
         infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
@@ -448,59 +448,36 @@ class ReserveParallelEnv(ParallelEnv):
             ``(n, n_poachers)`` who detected which poacher, this step's poacher readings ``(k, 3)``
             ``(uav, row, col)``, and the number of signs the team found for the first time
         """
-        cfg, r = self.config, self.r
-        signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
-        targets = np.concatenate([self.poacher_pos, self.leopard_pos])
-        present = np.concatenate([self.poacher_status == POACHER_ACTIVE, self.leopard_alive])
-        moved = np.concatenate([self.poacher_moved, self.leopard_moved]).astype(np.int64)
-        p = kernels.detection_probabilities(targets, cells, self._detect_table, self.terrain, moved, present, airborne, r)
-        hit = sensing.detect(self.rng, p) if len(targets) else np.zeros((self.n, 0), dtype=bool)
-        # Spurious poacher readings: sensor noise everywhere, decoys in the adversarial condition.
-        shape = (self.height, self.width)
-        uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, cfg.sensor_noise, cells, shape)
-        if len(self.decoy_pos):
-            d_uav, d_offsets = sensing.decoy_readings(self.rng, self.decoy_pos[None, :, :] - cells[:, None, :], airborne,
-                                                      r, self.reach, cfg.sensor_noise)
-            d_where = cells[d_uav] + d_offsets
-            keep = (d_where >= 0).all(-1) & (d_where < shape).all(-1)  # no readings off the map
-            uav = np.concatenate([uav, d_uav[keep]])
-            offsets, where = np.concatenate([offsets, d_offsets[keep]]), np.concatenate([where, d_where[keep]])
-        self.metrics["false_alarms"] += len(uav)
-        seen, readings = kernels.record_readings(hit, self.poacher_pos, self.leopard_pos, cells, r, uav, offsets, where,
-                                                 signals)
+        cfg, signs, n = self.config, self.signs, self.n
+        signals = np.zeros((n, 3, self.window, self.window), dtype=np.float32)
+        # The live signs in the windows; then room for what the UAVs may learn and the team may find.
+        candidates = kernels.sign_candidates(signs.grid.reshape(-1), signs.born, signs.expires, self._window.reshape(n, -1),
+                                             self.t, airborne, self._sign_table, self._terrain_pad)
+        self.team.fit_signs(signs.count)
+        if len(self._found) < signs.capacity:
+            self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
+        # The step's uniform draws, in the order kernels.sense reads them.
+        targets, decoys = len(self.poacher_pos) + len(self.leopard_pos), len(self.decoy_pos)
+        draws = self.rng.random(n * (targets + 2 + decoys + 2) + len(candidates[0]))
+        seen, readings, false_alarms, found, f_uav, f_where = kernels.sense(
+            draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
+            self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain, self.r,
+            sensing.false_alarm_probability(cfg.sensor_noise), self._reach_offsets, self.height, self.width,
+            self.decoy_pos, self._decoy_table, *candidates, self.team.known_signs, self.team.sign_counts, signs.block,
+            signs.kind, signs_lib.REAL, self._found, signals)
+        self.metrics["false_alarms"] += false_alarms
+        self.metrics["signs_found"] += found
         caught = seen.any(axis=0)
         if caught.any():
             self.poacher_status[caught] = POACHER_CAUGHT
             if self.first_detection_time is None:
                 self.first_detection_time = self.t
-        found = self._sense_signs(airborne, signals[:, 2])
+        if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
+            phantom = signs.add(f_where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
+            self.team.learn_signs(f_uav, phantom, signs.block[phantom])
         signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
         signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
         return signals, seen, readings, found
-
-    def _sense_signs(self, airborne: np.ndarray, channel: np.ndarray) -> int:
-        """Signs seen this step (marked in ``channel`` ``(n, w, w)``, learned by the UAVs that saw them), and
-        false sign readings under sensor noise; returns how many real signs (neither false readings nor the
-        decoys' fake signs) the team found for the first time."""
-        signs, window = self.signs, self._window.reshape(self.n, -1)
-        uav, cell, sign, p = kernels.sign_candidates(signs.grid.reshape(-1), signs.born, signs.expires, window, self.t,
-                                                     airborne, self._sign_table, self._terrain_pad)
-        hit = sensing.detect(self.rng, p)
-        self.team.fit_signs(signs.count)
-        if len(self._found) < signs.capacity:
-            self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
-        channel = channel.reshape(self.n, -1)
-        fresh = kernels.see_signs(hit, uav, cell, sign, channel, self.team.known_signs, self.team.sign_counts, signs.block,
-                                  signs.kind, signs_lib.REAL, self._found)
-        # False sign readings: phantom records that only the reading UAV knows of.
-        f_uav, offsets, where = sensing.false_readings(self.rng, airborne, self._reach_offsets, self.config.sensor_noise,
-                                                       self._cells, (self.height, self.width))
-        if len(f_uav):
-            phantom = signs.add(where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
-            channel[f_uav, (offsets[:, 0] + self.r) * self.window + offsets[:, 1] + self.r] = 1.0
-            self.team.learn_signs(f_uav, phantom, signs.block[phantom])
-        self.metrics["signs_found"] += fresh
-        return fresh
 
     def _poach(self) -> int:
         """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
@@ -523,17 +500,13 @@ class ReserveParallelEnv(ParallelEnv):
     def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray) -> tuple[np.ndarray, int]:
         """Each UAV looks (coverage, visit stamps), then the team talks; returns the high-risk cells each UAV
         saw first ``(n,)`` and the team's new ones."""
-        self._stale_window, self._stale_blocks = self.team.staleness(self.t, self._window)  # before this step's look
-        own_new, new_cells = self._mark_visits(airborne)
         ok = airborne.copy()
         if self.jammer_on:
             self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
             ok &= ~self.jammed
         else:
             self.jammed[:] = False
-        links = self.team.in_range(self.uav_pos, ok)
-        self.team.update_beacons(self.rng, links)
-        self.team.communicate(self.rng, comm, links, self.signs.block[:self.signs.count])
+        own_new, new_cells = self._look_and_talk(airborne, ok, comm)
         self.detections = readings
         blocks = self._block[readings[:, 1], readings[:, 2]] if len(readings) else readings[:, 0]
         self.team.add_readings(self.t, readings[:, 0], blocks)
@@ -609,17 +582,16 @@ class ReserveParallelEnv(ParallelEnv):
         """High-risk cells seen so far this episode."""
         return self._n_covered
 
-    def _mark_visits(self, airborne: np.ndarray) -> tuple[np.ndarray, int]:
-        """Record what each airborne UAV sees now: the team's coverage and each UAV's own visit history.
+    def _look_and_talk(self, airborne: np.ndarray, ok: np.ndarray, comm: np.ndarray | None) -> tuple[np.ndarray, int]:
+        """The staleness the UAVs knew before this step, their looks (coverage, visit stamps), links, beacons and
+        messages (none when ``comm`` is None); see ``TeamKnowledge.look_and_talk``.
 
         :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
         """
-        idx = np.flatnonzero(airborne)
-        cells = self._cells[idx]
-        fresh = np.zeros(self.n, dtype=np.int64)
-        fresh[idx], new = self.team.record_visits(self.t, idx, self._window.reshape(self.n, -1)[idx],
-                                                  self._block[cells[:, 0], cells[:, 1]], self._high_risk_pad,
-                                                  self.visited.reshape(-1))
+        cells = self._cells
+        self._stale_window, self._stale_blocks, fresh, new = self.team.look_and_talk(
+            self.t, self.rng, self._window, self._block[cells[:, 0], cells[:, 1]], airborne, self._high_risk_pad,
+            self.visited.reshape(-1), self.uav_pos, ok, comm, self.signs.block[:self.signs.count])
         self._n_covered += new
         return fresh, new
 

@@ -2,16 +2,15 @@
 
 Each sensor fires independently; a target is detected when any of them fires, so the detection
 probability is ``1 - (1 - p_visual)(1 - p_thermal)(1 - p_motion)``. Signs of poacher activity are
-seen by the visual sensor alone. The whole noise model lives here: detection draws, false alarms,
-decoys, false sign readings and the noise on the signal channels. All functions are vectorised over
-(UAV, target) pairs.
+seen by the visual sensor alone. The whole noise model lives here: detection, false-alarm, decoy and sign
+probabilities (as tables over distance and terrain) and the noise on the signal channels; the compiled loop
+that applies them to a step's draws is ``kernels.sense``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from wildlife_reserve.reserve import kernels
 from wildlife_reserve.reserve.modes import Weather
 from wildlife_reserve.reserve.terrain import THERMAL_OCCLUSION, VISUAL_OCCLUSION
 
@@ -114,42 +113,15 @@ def sign_detection_table(sensor_radius: int, weather: Weather, noise: float) -> 
     return SIGN_PEAK * base * (1.0 - VISUAL_OCCLUSION[None, :]) * weather.signs * (1.0 - 0.5 * noise)
 
 
-def detect(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
-    """Independent detection draws with probabilities ``p`` (any shape)."""
-    return rng.random(p.shape) < p
+def decoy_table(sensor_radius: int, reach: int, noise: float) -> np.ndarray:
+    """Chance that a decoy reads as a poacher (adversarial condition), ``DECOY_PEAK * f(d) * (1 - noise / 2)`` as
+    ``table[distance]`` (terrain and weather do not apply; distances clipped to ``reach + 1``, where it is 0).
 
-
-def false_readings(
-    rng: np.random.Generator, airborne: np.ndarray, reach_offsets: np.ndarray, noise: float, cells: np.ndarray,
-    shape: tuple[int, int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Spurious readings: each airborne UAV reads one with :func:`false_alarm_probability`, at a uniform
-    offset within the sensing reach; readings that would fall off the map are dropped.
-
-    :param airborne: ``(n,)`` which UAVs sense
-    :param reach_offsets: ``(m, 2)`` offsets within the reach
-    :param cells: ``(n, 2)`` the UAVs' cells
-    :param shape: ``(height, width)`` of the map
-    :return: the reading UAVs ``(k,)``, their offsets ``(k, 2)`` and the cells read ``(k, 2)``
+    :param sensor_radius: nominal sensor radius
+    :param reach: effective radius (see :func:`effective_radius`)
+    :param noise: sensor corruption level in [0, 1]
     """
-    alarm_draw, spot_draw = rng.random((2, len(airborne)))  # one call: the same stream as two
-    return kernels.false_reading_cells(alarm_draw, spot_draw, false_alarm_probability(noise), airborne, reach_offsets,
-                                       cells, shape[0], shape[1])
-
-
-def decoy_readings(
-    rng: np.random.Generator, delta: np.ndarray, airborne: np.ndarray, sensor_radius: int, reach: int, noise: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Decoys read as poachers (adversarial condition): ``DECOY_PEAK * f(d) * (1 - noise / 2)``; terrain
-    and weather do not apply.
-
-    :param delta: ``(n, D, 2)`` decoy cell minus UAV cell
-    :param airborne: ``(n,)`` which UAVs sense
-    :return: the reading UAVs ``(k,)`` and the decoys' offsets from them ``(k, 2)``
-    """
-    p = DECOY_PEAK * range_falloff(np.abs(delta).max(-1), sensor_radius, reach) * (1 - 0.5 * noise)
-    uav, idx = np.nonzero(detect(rng, p) & airborne[:, None])
-    return uav, delta[uav, idx]
+    return DECOY_PEAK * range_falloff(np.arange(reach + 2), sensor_radius, reach) * (1 - 0.5 * noise)
 
 
 def noisy_signals(rng: np.random.Generator, signals: np.ndarray, noise: float) -> np.ndarray:
