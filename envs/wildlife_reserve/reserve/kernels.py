@@ -33,11 +33,18 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
     n, c = cells.shape
     ages = np.empty((n, c), dtype=np.float32)
     one = np.float32(1.0)
+    sources = np.empty(n, dtype=np.int64)
     for r in range(n):
+        m = 0
+        for s in range(n):  # a source r knows nothing of (knowledge NEVER) adds nothing
+            if knowledge[r, s] > NEVER:
+                sources[m] = s
+                m += 1
         for j in range(c):
             cell = cells[r, j]
             best = NEVER
-            for s in range(n):
+            for q in range(m):
+                s = sources[q]
                 known = knowledge[r, s]
                 value = last[cell, s]
                 if value > known:
@@ -458,26 +465,34 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
 
 
 @njit(cache=True)
-def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray, battery: np.ndarray, speed: float,
-        upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds.
+def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarray, battery: np.ndarray, speed: float,
+        upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray, padded_width: int,
+        window_offsets: np.ndarray) -> tuple:  # pragma: no cover - compiled
+    """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds; a grounded UAV
+    neither moves nor talks (``move`` and ``comm`` are zeroed in place for it) nor hovers.
 
     :param comm_costs: energy of each communication choice (none, broadcast, query)
-    :return: new positions, velocities (displacement / speed), energy spent and the batteries left
+    :param window_offsets: ``(w, w)`` flat offsets of a window's cells from its top-left corner in the padded grids
+    :return: new positions, velocities (displacement / speed), energy spent, the batteries left, which UAVs are now
+        grounded (battery <= 1e-12), their cells ``(n, 2)``, their windows' padded flat cells ``(n, w, w)``
     """
     n = len(pos)
     new, velocity = np.empty((n, 2)), np.empty((n, 2))
     energy, left = np.empty(n), np.empty(n)
+    cells = np.empty((n, 2), dtype=np.int64)
     for u in range(n):
+        if grounded[u]:
+            move[u, 0], move[u, 1], comm[u] = 0.0, 0.0, 0
         for axis in range(2):
             new[u, axis] = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
             velocity[u, axis] = (new[u, axis] - pos[u, axis]) / speed
-        e = (hover if airborne[u] else 0.0) + move_cost * np.sqrt(velocity[u, 0] ** 2 + velocity[u, 1] ** 2)
+            cells[u, axis] = np.int64(np.floor(new[u, axis]))
+        e = (0.0 if grounded[u] else hover) + move_cost * np.sqrt(velocity[u, 0] ** 2 + velocity[u, 1] ** 2)
         e += comm_costs[comm[u]]
         energy[u] = min(e, battery[u])
         left[u] = battery[u] - energy[u]
-    return new, velocity, energy, left
+    window = (cells[:, 0] * padded_width + cells[:, 1]).reshape((n, 1, 1)) + window_offsets
+    return new, velocity, energy, left, left <= 1e-12, cells, window
 
 
 @njit(cache=True)

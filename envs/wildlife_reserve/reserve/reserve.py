@@ -372,14 +372,11 @@ class ReserveParallelEnv(ParallelEnv):
                                                                    dict[str, Any], list[tuple[int, ...]]]:
         """The step itself, from decoded actions (see :meth:`step_arrays` for what it returns)."""
         airborne = ~self.grounded
-        if self.grounded.any():
-            move[self.grounded] = 0.0
-            comm[self.grounded] = COMM_NONE
         self.t += 1
 
-        energy = self._fly(move, comm, airborne)
+        energy = self._fly(move, comm)
         cells = self._cells
-        own_collisions = self._collisions(cells, airborne)
+        own_collisions = kernels.collisions(cells, airborne)
         self._move_ground_actors(cells[airborne])
         signals, seen, readings, signs_found = self._sense(cells, airborne)
         poaching_events = self._poach()
@@ -398,18 +395,14 @@ class ReserveParallelEnv(ParallelEnv):
         return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from()
 
     # ------------------------------------------------------------------ the phases of a step
-    def _fly(self, move: np.ndarray, comm: np.ndarray, airborne: np.ndarray) -> np.ndarray:
-        """Move the UAVs, spend their energy and ground those whose battery ran out; returns ``(n,)`` energy spent."""
-        self.uav_pos, self.velocity, energy, self.battery = kernels.fly(
-            self.uav_pos, move, comm, airborne, self.battery, self.config.uav_speed, self._upper, ENERGY_COSTS["hover"],
-            ENERGY_COSTS["move"], self._comm_costs)
-        self.grounded = self.battery <= 1e-12
-        self._set_window(self._uav_cells())
+    def _fly(self, move: np.ndarray, comm: np.ndarray) -> np.ndarray:
+        """Move the UAVs, spend their energy and ground those whose battery ran out (a grounded UAV's ``move`` and
+        ``comm`` are zeroed in place); returns ``(n,)`` energy spent."""
+        self.uav_pos, self.velocity, energy, self.battery, grounded, self._cells, self._window = kernels.fly(
+            self.uav_pos, move, comm, self.grounded, self.battery, self.config.uav_speed, self._upper,
+            ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs, self._padded_shape[1], self._win_offsets)
+        self.grounded = grounded
         return energy
-
-    def _collisions(self, cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:
-        """``(n,)`` other airborne UAVs in each UAV's cell."""
-        return kernels.collisions(cells, airborne)
 
     def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
         """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them."""
