@@ -378,15 +378,15 @@ class _SteppedCopies:
         infos: list[dict] = []
         for c, env in enumerate(self.envs):
             lo, hi = c * n, (c + 1) * n
-            obs, reward, terminated, truncated, info, heard = env.step_arrays(actions[lo:hi])
+            obs, reward, terminated, truncated, info, heard = env.step_arrays(actions[lo:hi], observations[lo:hi])
             rewards[lo:hi] = reward
             if not (terminated or truncated):
-                observations[lo:hi] = obs
                 if self.with_state:
                     info = {**info, STATE_KEY: self._state(env)}
                 infos.extend({**info, LINKS_KEY: senders} for senders in heard)
                 continue
             terminations[lo:hi], truncations[lo:hi] = terminated, truncated
+            obs = obs.copy()  # the terminal observations: the reset's go where they were written
             ended = {TERMINAL_STATE_KEY: self._state(env)} if self.with_state else {}
             observations[lo:hi], reset_infos = self._reset_copy(env, None, None)  # an automatic reset, unseeded
             if self.with_state:

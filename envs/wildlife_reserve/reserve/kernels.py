@@ -739,3 +739,37 @@ def poaching_timers(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarr
                     any_near = True
         timer[i] = timer[i] + 1 if any_near else 0
     return near, timer
+
+
+@njit(cache=True)
+def decode_actions(choices: np.ndarray, steps: np.ndarray, n_moves: int,
+                   n_comms: int) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover - compiled
+    """Discrete actions ``move + n_moves * comm`` as ``(n, 2)`` unit moves (rows of ``steps``) and ``(n,)``
+    communication choices, and whether every action was in ``[0, n_moves * n_comms)`` (the rest is then garbage)."""
+    n = len(choices)
+    move, comm = np.empty((n, 2)), np.empty(n, dtype=np.int64)
+    valid = True
+    for u in range(n):
+        a = choices[u]
+        if a < 0 or a >= n_moves * n_comms:
+            valid = False
+            a = 0
+        comm[u] = a // n_moves
+        move[u, 0], move[u, 1] = steps[a % n_moves, 0], steps[a % n_moves, 1]
+    return move, comm, valid
+
+
+@njit(cache=True)
+def senders_by_receiver(links: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """The senders of ``links[s, r]`` grouped by receiver, ascending within each, and where each receiver's group
+    ends ``(n,)``."""
+    n = len(links)
+    senders, ends = np.empty(n * n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    k = 0
+    for r in range(n):
+        for s in range(n):
+            if links[s, r]:
+                senders[k] = s
+                k += 1
+        ends[r] = k
+    return senders[:k], ends

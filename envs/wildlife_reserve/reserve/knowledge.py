@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import NEVER
-from wildlife_reserve.reserve.kernels import beliefs, learn_signs, look_and_talk
+from wildlife_reserve.reserve.kernels import beliefs, learn_signs, look_and_talk, senders_by_receiver
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -157,8 +157,8 @@ class TeamKnowledge:
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
-        receiver, sender = np.nonzero(self.comm_links.T)  # grouped by receiver, senders ascending within each
-        if not len(receiver):
+        senders, ends = senders_by_receiver(self.comm_links)
+        if not len(senders):
             return [()] * self.n
-        senders, ends = sender.tolist(), np.cumsum(np.bincount(receiver, minlength=self.n)).tolist()
+        senders, ends = senders.tolist(), ends.tolist()
         return [tuple(senders[start:end]) for start, end in zip([0, *ends], ends)]

@@ -49,14 +49,15 @@ def state_size(config: ReserveConfig) -> int:
     return 4 * config.n_uavs + 4 * config.n_poachers + 3 * config.n_leopards + 2 * config.belief_size**2 + 1
 
 
-def build_observations(env: ReserveParallelEnv, signals: np.ndarray) -> np.ndarray:
+def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``(n, obs_dim)`` observations of every UAV.
 
     :param env: the reserve, after this step's sensing and communication
     :param signals: ``(n, 3, w, w)`` this step's poacher, leopard and sign readings, as the sensors report them
+    :param out: a C-contiguous float32 ``(n, obs_dim)`` array to fill (every entry is written), or None
     """
     cfg, team = env.config, env.team
-    obs = np.empty((env.n, env.obs_dim), dtype=np.float32)
+    obs = np.empty((env.n, env.obs_dim), dtype=np.float32) if out is None else out
     fill_observations(obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
                       env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
                       min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),

@@ -355,21 +355,26 @@ class ReserveParallelEnv(ParallelEnv):
         infos = {a: {**info, "heard_from": senders} for a, senders in zip(agents, heard)}
         return observations, rewards, terminations, truncations, infos
 
-    def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, bool, dict[str, Any],
-                                                         list[tuple[int, ...]]]:
+    def step_arrays(self, actions: np.ndarray, out: np.ndarray | None = None) -> tuple[
+            np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
         """:meth:`step` on arrays, in agent order, without the per-agent dictionaries (the fast vector environment,
         ``sb3_emmarl.common.vec_env.ReserveVecEnv``, steps the reserve through it; ``step`` is this plus the dicts).
 
         :param actions: ``(n,)`` ints (discrete) or ``(n, 3)`` floats (continuous), one row per UAV
+        :param out: a C-contiguous float32 ``(n, obs_dim)`` array to write the observations into (returned), or None
         :return: observations ``(n, obs_dim)``, rewards ``(n,)``, terminated, truncated (every UAV alike), the info
             every UAV shares (``mode``, and ``metrics`` on the last step) and each UAV's ``heard_from``
         """
         if not self.agents:
             raise RuntimeError("step_arrays() called on a finished episode: call reset() first")
-        return self._advance(*self._action_arrays(actions))
+        if out is not None and (out.shape != (self.n, self.obs_dim) or out.dtype != np.float32
+                                or not out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous float32 array of shape {(self.n, self.obs_dim)}, got "
+                             f"{out.dtype} {out.shape}")
+        return self._advance(*self._action_arrays(actions), out)
 
-    def _advance(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, bool,
-                                                                   dict[str, Any], list[tuple[int, ...]]]:
+    def _advance(self, move: np.ndarray, comm: np.ndarray, out: np.ndarray | None = None) -> tuple[
+            np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
         """The step itself, from decoded actions (see :meth:`step_arrays` for what it returns)."""
         airborne = ~self.grounded
         self.t += 1
@@ -383,7 +388,7 @@ class ReserveParallelEnv(ParallelEnv):
         own_new, new_cells = self._share(comm, airborne, readings)
         rewards = self._rewards(seen, signs_found, own_new, new_cells, poaching_events, own_collisions, energy)
 
-        obs = build_observations(self, signals)
+        obs = build_observations(self, signals, out)
         truncated = self.t >= self.max_cycles
         terminated = bool(self.grounded.all())
         info: dict[str, Any] = {"mode": self.mode}
@@ -557,6 +562,10 @@ class ReserveParallelEnv(ParallelEnv):
             comm = np.select([act[:, 2] > 1 / 3, act[:, 2] < -1 / 3], [COMM_BROADCAST, COMM_QUERY], COMM_NONE)
             return act[:, :2], comm
         choices = np.asarray(actions).reshape(-1)
+        if choices.dtype == np.int64 and choices.size == self.n:  # what SB3 and SuperSuit pass: decoded in one call
+            move, comm, valid = kernels.decode_actions(choices, _MOVES, N_MOVES, N_COMMS)
+            if valid:
+                return move, comm
         whole = choices.dtype.kind in "iu" or (choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)))
         if not whole or choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
             raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
