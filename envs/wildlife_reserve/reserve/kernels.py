@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import N_CHANNELS, NEVER
+from wildlife_reserve.reserve.constants import COMM_NONE, N_CHANNELS, NEVER, POACHER_ACTIVE
 
 
 @njit(cache=True)
@@ -474,7 +474,8 @@ def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarra
     :param comm_costs: energy of each communication choice (none, broadcast, query)
     :param window_offsets: ``(w, w)`` flat offsets of a window's cells from its top-left corner in the padded grids
     :return: new positions, velocities (displacement / speed), energy spent, the batteries left, which UAVs are now
-        grounded (battery <= 1e-12), their cells ``(n, 2)``, their windows' padded flat cells ``(n, w, w)``
+        grounded (battery <= 1e-12) and whether all are, their cells ``(n, 2)``, their windows' padded flat cells
+        ``(n, w, w)``
     """
     n = len(pos)
     new, velocity = np.empty((n, 2)), np.empty((n, 2))
@@ -482,7 +483,7 @@ def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarra
     cells = np.empty((n, 2), dtype=np.int64)
     for u in range(n):
         if grounded[u]:
-            move[u, 0], move[u, 1], comm[u] = 0.0, 0.0, 0
+            move[u, 0], move[u, 1], comm[u] = 0.0, 0.0, COMM_NONE
         for axis in range(2):
             new[u, axis] = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
             velocity[u, axis] = (new[u, axis] - pos[u, axis]) / speed
@@ -492,7 +493,8 @@ def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarra
         energy[u] = min(e, battery[u])
         left[u] = battery[u] - energy[u]
     window = (cells[:, 0] * padded_width + cells[:, 1]).reshape((n, 1, 1)) + window_offsets
-    return new, velocity, energy, left, left <= 1e-12, cells, window
+    grounded_now = left <= 1e-12
+    return new, velocity, energy, left, grounded_now, grounded_now.all(), cells, window
 
 
 @njit(cache=True)
@@ -675,9 +677,9 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
     (the ``candidate_*`` of ``sign_candidates``; ``see_signs``), false sign readings ``(2, n)``. Marks ``signals``
     ``(n, 3, w, w)``; updates ``known``, ``counts`` and ``found`` in place.
 
-    :return: who detected which poacher ``(n, P)``, the poacher readings ``(k, 3)`` (``record_readings``), the number
-        of false poacher readings (decoys included), the real signs the team found for the first time, and the false
-        sign readings' UAVs ``(f,)`` and cells ``(f, 2)``
+    :return: who detected which poacher ``(n, P)``, the poachers detected by anyone ``(P,)`` and how many, the poacher
+        readings ``(k, 3)`` (``record_readings``), the number of false poacher readings (decoys included), the real
+        signs the team found for the first time, and the false sign readings' UAVs ``(f,)`` and cells ``(f, 2)``
     """
     n, m = len(cells), len(poachers) + len(leopards)
     p = detection_probabilities(np.concatenate((poachers, leopards)), cells, table, terrain,
@@ -704,7 +706,11 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
                                                     alarm_probability, airborne, reach_offsets, cells, height, width)
     for a in range(len(f_uav)):
         signals[f_uav[a], 2, f_offsets[a, 0] + radius, f_offsets[a, 1] + radius] = 1.0
-    return seen, readings, len(uav), fresh, f_uav, f_where
+    caught = np.zeros(len(poachers), dtype=np.bool_)
+    for u in range(n):
+        for i in range(len(poachers)):
+            caught[i] |= seen[u, i]
+    return seen, caught, caught.sum(), readings, len(uav), fresh, f_uav, f_where
 
 
 @njit(cache=True)
@@ -724,21 +730,25 @@ def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: flo
 
 
 @njit(cache=True)
-def poaching_timers(poachers: np.ndarray, active: np.ndarray, leopards: np.ndarray, alive: np.ndarray,
-                    timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Which active poacher is next to (Chebyshev distance <= 1) which live leopard ``(P, L)``, and each poacher's
-    timer: one more step if it is next to one, else 0."""
+def poaching_timers(poachers: np.ndarray, status: np.ndarray, leopards: np.ndarray, alive: np.ndarray,
+                    timer: np.ndarray, poaching_time: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    # pragma: no cover - compiled
+    """Which active poacher (``status == POACHER_ACTIVE``) is next to (Chebyshev distance <= 1) which live leopard
+    ``(P, L)``, each poacher's timer (one more step if it is next to one, else 0), which timers reached
+    ``poaching_time`` and whether any did."""
     near = np.zeros((len(poachers), len(leopards)), dtype=np.bool_)
     timer = timer.copy()
+    done = np.zeros(len(poachers), dtype=np.bool_)
     for i in range(len(poachers)):
         any_near = False
-        if active[i]:
+        if status[i] == POACHER_ACTIVE:
             for j in range(len(leopards)):
                 if alive[j] and max(abs(poachers[i, 0] - leopards[j, 0]), abs(poachers[i, 1] - leopards[j, 1])) <= 1:
                     near[i, j] = True
                     any_near = True
         timer[i] = timer[i] + 1 if any_near else 0
-    return near, timer
+        done[i] = timer[i] >= poaching_time
+    return near, timer, done, done.any()
 
 
 @njit(cache=True)

@@ -379,18 +379,18 @@ class ReserveParallelEnv(ParallelEnv):
         airborne = ~self.grounded
         self.t += 1
 
-        energy = self._fly(move, comm)
+        energy, terminated = self._fly(move, comm)
         cells = self._cells
         own_collisions = kernels.collisions(cells, airborne)
         self._move_ground_actors(cells[airborne])
-        signals, seen, readings, signs_found = self._sense(cells, airborne)
+        signals, seen, n_detected, readings, signs_found = self._sense(cells, airborne)
         poaching_events = self._poach()
         own_new, new_cells = self._share(comm, airborne, readings)
-        rewards = self._rewards(seen, signs_found, own_new, new_cells, poaching_events, own_collisions, energy)
+        rewards = self._rewards(seen, n_detected, signs_found, own_new, new_cells, poaching_events, own_collisions,
+                                energy)
 
         obs = build_observations(self, signals, out)
         truncated = self.t >= self.max_cycles
-        terminated = bool(self.grounded.all())
         info: dict[str, Any] = {"mode": self.mode}
         if truncated or terminated:
             info["metrics"] = self.episode_metrics()
@@ -400,14 +400,14 @@ class ReserveParallelEnv(ParallelEnv):
         return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from()
 
     # ------------------------------------------------------------------ the phases of a step
-    def _fly(self, move: np.ndarray, comm: np.ndarray) -> np.ndarray:
+    def _fly(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool]:
         """Move the UAVs, spend their energy and ground those whose battery ran out (a grounded UAV's ``move`` and
-        ``comm`` are zeroed in place); returns ``(n,)`` energy spent."""
-        self.uav_pos, self.velocity, energy, self.battery, grounded, self._cells, self._window = kernels.fly(
+        ``comm`` are zeroed in place); returns ``(n,)`` energy spent and whether every UAV is grounded."""
+        self.uav_pos, self.velocity, energy, self.battery, grounded, everyone, self._cells, self._window = kernels.fly(
             self.uav_pos, move, comm, self.grounded, self.battery, self.config.uav_speed, self._upper,
             ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs, self._padded_shape[1], self._win_offsets)
         self.grounded = grounded
-        return energy
+        return energy, bool(everyone)
 
     def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
         """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them."""
@@ -437,13 +437,14 @@ class ReserveParallelEnv(ParallelEnv):
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
 
-    def _sense(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    def _sense(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, int]:
         """Every airborne UAV senses poachers, leopards and signs; false alarms, decoys and false sign readings.
 
         Caught poachers leave play here.
 
         :return: signals ``(n, 3, w, w)`` (poacher, leopard and sign channels as the sensors report them),
-            ``(n, n_poachers)`` who detected which poacher, this step's poacher readings ``(k, 3)``
+            ``(n, n_poachers)`` who detected which poacher, how many poachers were detected (and caught), this step's
+            poacher readings ``(k, 3)``
             ``(uav, row, col)``, and the number of signs the team found for the first time
         """
         cfg, signs, n = self.config, self.signs, self.n
@@ -457,7 +458,7 @@ class ReserveParallelEnv(ParallelEnv):
         # The step's uniform draws, in the order kernels.sense reads them.
         targets, decoys = len(self.poacher_pos) + len(self.leopard_pos), len(self.decoy_pos)
         draws = self.rng.random(n * (targets + 2 + decoys + 2) + len(candidates[0]))
-        seen, readings, false_alarms, found, f_uav, f_where = kernels.sense(
+        seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where = kernels.sense(
             draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
             self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain, self.r,
             sensing.false_alarm_probability(cfg.sensor_noise), self._reach_offsets, self.height, self.width,
@@ -465,8 +466,7 @@ class ReserveParallelEnv(ParallelEnv):
             signs.kind, signs_lib.REAL, self._found, signals)
         self.metrics["false_alarms"] += false_alarms
         self.metrics["signs_found"] += found
-        caught = seen.any(axis=0)
-        if caught.any():
+        if n_caught:
             self.poacher_status[caught] = POACHER_CAUGHT
             if self.first_detection_time is None:
                 self.first_detection_time = self.t
@@ -475,17 +475,17 @@ class ReserveParallelEnv(ParallelEnv):
             self.team.learn_signs(f_uav, phantom, signs.block[phantom])
         signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
         signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
-        return signals, seen, readings, found
+        return signals, seen, int(n_caught), readings, found
 
     def _poach(self) -> int:
         """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
         returns the poaching events of this step."""
         if not len(self.leopard_pos):
             return 0
-        near, self.poaching_timer = kernels.poaching_timers(self.poacher_pos, self.poacher_status == POACHER_ACTIVE,
-                                                            self.leopard_pos, self.leopard_alive, self.poaching_timer)
-        done = self.poaching_timer >= self.config.poaching_time
-        if not done.any():
+        near, self.poaching_timer, done, any_done = kernels.poaching_timers(
+            self.poacher_pos, self.poacher_status, self.leopard_pos, self.leopard_alive, self.poaching_timer,
+            self.config.poaching_time)
+        if not any_done:
             return 0
         # One event per leopard killed; the poachers whose timer ran out leave.
         victims = np.unique(near[done].argmax(axis=1))
@@ -510,11 +510,10 @@ class ReserveParallelEnv(ParallelEnv):
         self.team.add_readings(self.t, readings[:, 0], blocks)
         return own_new, new_cells
 
-    def _rewards(self, seen: np.ndarray, signs_found: int, own_new: np.ndarray, new_cells: int, poaching_events: int,
-                 own_collisions: np.ndarray, energy: np.ndarray) -> np.ndarray:
+    def _rewards(self, seen: np.ndarray, n_detected: int, signs_found: int, own_new: np.ndarray, new_cells: int,
+                 poaching_events: int, own_collisions: np.ndarray, energy: np.ndarray) -> np.ndarray:
         """The team reward (and each UAV's, with shaping); updates the episode metrics."""
         cfg, weights = self.config, self.config.reward_weights
-        n_detected = int(seen.any(axis=0).sum())
         collisions = int(own_collisions.sum()) // 2
         spent = energy.sum()
         team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
