@@ -169,7 +169,7 @@ def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: 
 
 @njit(cache=True)
 def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, home: np.ndarray, home_range: float,
-                       leopard_move_prob: float, poachers: np.ndarray, active: np.ndarray, busy: np.ndarray,
+                       leopard_move_prob: float, poachers: np.ndarray, active: np.ndarray, timer: np.ndarray,
                        alive: np.ndarray, planned: np.ndarray, sight: float, uav_cells: np.ndarray,
                        notice_radius: float, move_prob: float, wander_prob: float, evasion_prob: float,
                        hide_in_cover: bool, cover: np.ndarray, steps: np.ndarray, track_prob: float
@@ -180,8 +180,9 @@ def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, home: np.ndarray
     :param draws: the uniform draws those calls make, in their order: ``3 L`` for the leopards, then ``5 P`` (four
         rows for the poachers' moves, one for their tracks) when any poacher is active (one numpy call draws the
         same stream as their several)
-    :param active: ``(P,)`` poachers in play; ``busy``: ``(P,)`` poaching (they do not move)
-    :return: leopard cells, which leopards moved, poacher cells, which poachers moved and which left tracks
+    :param active: ``(P,)`` poachers in play; ``timer``: ``(P,)`` their poaching timers (poaching ones do not move)
+    :return: leopard cells, which leopards moved, poacher cells, which poachers moved and the cells of the tracks
+        left ``(k, 2)``
     """
     height, width = cover.shape
     n_leopards, n = len(leopards), len(poachers)
@@ -190,13 +191,13 @@ def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, home: np.ndarray
                                  walk[2])
     leopard_moved = (new_leopards[:, 0] != leopards[:, 0]) | (new_leopards[:, 1] != leopards[:, 1])
     if len(draws) == 3 * n_leopards:  # no poacher active
-        return new_leopards, leopard_moved, poachers, np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+        return new_leopards, leopard_moved, poachers, np.zeros(n, dtype=np.bool_), np.zeros((0, 2), dtype=np.int64)
     target = poacher_targets(poachers, new_leopards, alive, planned, sight)
     moves = draws[3 * n_leopards:].reshape(5, n)
-    new_poachers, moved = move_poachers(poachers, active & ~busy, target, uav_cells, notice_radius, move_prob,
+    new_poachers, moved = move_poachers(poachers, active & (timer == 0), target, uav_cells, notice_radius, move_prob,
                                         wander_prob, evasion_prob, hide_in_cover, cover, steps, moves[0], moves[1],
                                         moves[2], moves[3])
-    return new_leopards, leopard_moved, new_poachers, moved, moved & (moves[4] < track_prob)
+    return new_leopards, leopard_moved, new_poachers, moved, new_poachers[moved & (moves[4] < track_prob)]
 
 
 @njit(cache=True)
@@ -396,8 +397,9 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
                       staleness: np.ndarray, signals: np.ndarray, cells: np.ndarray, grounded: np.ndarray, radius: int,
                       pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
                       progress: float, heard: np.ndarray, dist: np.ndarray, neighbour_scale: float, max_neighbours: int,
-                      block_staleness: np.ndarray, belief: np.ndarray,
-                      sign_map: np.ndarray) -> None:  # pragma: no cover - compiled
+                      block_staleness: np.ndarray, events: np.ndarray, knowledge: np.ndarray, belief_decay: float,
+                      t: float, sign_counts: np.ndarray,
+                      sign_values: np.ndarray) -> None:  # pragma: no cover - compiled
     """Every UAV's flat observation ``obs`` ``(n, obs_dim)``, in the order of ``observation_layout``:
 
     - ``window`` ``(7, w, w)``: occlusion, risk, staleness, the poacher, leopard and sign readings ``signals``
@@ -406,7 +408,9 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
     - ``own`` (6): position scaled to [0, 1] (capped at 1), velocity, battery, episode progress;
     - ``neighbours`` ``(max_neighbours, 3)``: the UAVs it heard (``heard[s, r]``), nearest first (the lower index among
       equals), as ``(clip((pos_s - pos_r) * neighbour_scale, -1, 1), 1)``; unused slots are 0;
-    - the coarse maps ``block_staleness``, ``belief`` and ``sign_map`` ``(n, blocks)``.
+    - the coarse maps ``(n, blocks)``: ``block_staleness``; the poacher-activity belief from the readings ``events``
+      each UAV knows of (:func:`beliefs`; 0 without readings); the signs each UAV knows of, ``sign_values[count]``
+      (the last entry for larger counts).
 
     :param occlusion: flat padded visual occlusion; ``risk`` likewise
     :param window: ``(n, w, w)`` padded flat cells of each UAV's window; ``staleness`` ``(n, w, w)``
@@ -418,6 +422,8 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
     neighbours = own + 6
     maps = neighbours + 3 * max_neighbours
     blocks = block_staleness.shape[1]
+    belief = beliefs(events, knowledge, blocks, belief_decay, t) if len(events) else np.zeros((n, blocks))
+    last_value = len(sign_values) - 1
     order = np.empty(n, dtype=np.int64)
     for u in range(n):
         row = obs[u]
@@ -461,7 +467,7 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
         for i in range(blocks):
             row[maps + i] = block_staleness[u, i]
             row[maps + blocks + i] = belief[u, i]
-            row[maps + 2 * blocks + i] = sign_map[u, i]
+            row[maps + 2 * blocks + i] = sign_values[min(np.int64(sign_counts[u, i]), last_value)]
 
 
 @njit(cache=True)
@@ -498,8 +504,8 @@ def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarra
 
 
 @njit(cache=True)
-def collisions(cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """``(n,)`` other airborne UAVs in each airborne UAV's cell."""
+def collisions(cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    """``(n,)`` other airborne UAVs in each airborne UAV's cell, and the pairs of UAVs that share a cell."""
     n = len(cells)
     count = np.zeros(n, dtype=np.int64)
     for u in range(n):
@@ -507,7 +513,7 @@ def collisions(cells: np.ndarray, airborne: np.ndarray) -> np.ndarray:  # pragma
             for v in range(n):
                 if v != u and airborne[v] and cells[u, 0] == cells[v, 0] and cells[u, 1] == cells[v, 1]:
                     count[u] += 1
-    return count
+    return count, count.sum() // 2
 
 
 @njit(cache=True)

@@ -12,10 +12,18 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import NEVER
-from wildlife_reserve.reserve.kernels import beliefs, learn_signs, look_and_talk, senders_by_receiver
+from wildlife_reserve.reserve.kernels import learn_signs, look_and_talk, senders_by_receiver
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
+#: That value for 0, 1, ... signs (numpy's exp, as tabulated): from 75 signs on it is exactly 1.0 in float64, so a
+#: larger count reads the last entry.
+SIGN_VALUES = 1.0 - np.exp(-np.arange(128) * (1.0 / SIGN_MAP_SCALE))
+
+
+def sign_values(counts: np.ndarray) -> np.ndarray:
+    """``1 - exp(-counts / SIGN_MAP_SCALE)`` of whole-number ``counts`` (from :data:`SIGN_VALUES`)."""
+    return SIGN_VALUES[np.minimum(counts, len(SIGN_VALUES) - 1).astype(np.int64)]
 
 
 class TeamKnowledge:
@@ -64,7 +72,6 @@ class TeamKnowledge:
         self.events = np.zeros((0, 3))  # (time, reading UAV, block) of the poacher readings
         self.known_signs = np.zeros((n, 64), dtype=bool)
         self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
-        self._sign_map, self._sign_map_total = np.zeros((n, self.n_blocks)), 0.0
 
     @property
     def own_last(self) -> np.ndarray:
@@ -139,21 +146,6 @@ class TeamKnowledge:
             grown = np.zeros((self.n, max(size, 2 * self.known_signs.shape[1])), dtype=bool)
             grown[:, :self.known_signs.shape[1]] = self.known_signs
             self.known_signs = grown
-
-    # ------------------------------------------------------------------ maps
-    def belief(self, t: int) -> np.ndarray:
-        """``(n, blocks)`` poacher activity from the readings each UAV knows of, in [0, 1)."""
-        if not len(self.events):
-            return np.zeros((self.n, self.n_blocks), dtype=np.float32)
-        return beliefs(self.events, self.knowledge, self.n_blocks, self.belief_decay, float(t))
-
-    def sign_map(self) -> np.ndarray:
-        """``(n, blocks)`` signs of poacher activity each UAV knows of, as ``1 - exp(-count / SIGN_MAP_SCALE)``."""
-        total = float(self.sign_counts.sum())  # counts only grow within an episode: their sum tells when to recompute
-        if total != self._sign_map_total:
-            self._sign_map = 1.0 - np.exp(-self.sign_counts * (1.0 / SIGN_MAP_SCALE))
-            self._sign_map_total = total
-        return self._sign_map
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""

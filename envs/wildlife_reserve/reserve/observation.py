@@ -9,7 +9,7 @@ import numpy as np
 from wildlife_reserve.reserve.config import ReserveConfig
 from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
 from wildlife_reserve.reserve.kernels import fill_observations
-from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE
+from wildlife_reserve.reserve.knowledge import SIGN_VALUES, sign_values
 
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.reserve import ReserveParallelEnv
@@ -61,7 +61,8 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.nda
     fill_observations(obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
                       env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
                       min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),
-                      cfg.max_neighbors, env._stale_blocks, team.belief(env.t), team.sign_map())
+                      cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
+                      float(env.t), team.sign_counts, SIGN_VALUES)
     return obs
 
 
@@ -79,7 +80,7 @@ def global_state(env: ReserveParallelEnv) -> np.ndarray:
     total = np.bincount(blocks, weights=env.high_risk.ravel(), minlength=size)
     coverage = np.divide(seen, total, out=np.zeros(size), where=total > 0)
     live = env.signs.live(env.t)
-    signs = 1.0 - np.exp(-np.bincount(env.signs.block[live], minlength=size) / SIGN_MAP_SCALE)
+    signs = sign_values(np.bincount(env.signs.block[live], minlength=size))
     progress = np.array([min(env.t / env.max_cycles, 1.0)])
     parts = [uavs.ravel(), poachers.ravel(), leopards.ravel(), coverage, signs, progress]
     return np.clip(np.concatenate(parts), -1.0, 1.0).astype(np.float32)

@@ -381,13 +381,13 @@ class ReserveParallelEnv(ParallelEnv):
 
         energy, terminated = self._fly(move, comm)
         cells = self._cells
-        own_collisions = kernels.collisions(cells, airborne)
+        own_collisions, collisions = kernels.collisions(cells, airborne)
         self._move_ground_actors(cells[airborne])
         signals, seen, n_detected, readings, signs_found = self._sense(cells, airborne)
         poaching_events = self._poach()
         own_new, new_cells = self._share(comm, airborne, readings)
         rewards = self._rewards(seen, n_detected, signs_found, own_new, new_cells, poaching_events, own_collisions,
-                                energy)
+                                int(collisions), energy)
 
         obs = build_observations(self, signals, out)
         truncated = self.t >= self.max_cycles
@@ -427,12 +427,12 @@ class ReserveParallelEnv(ParallelEnv):
         strategy = self.strategy
         self.leopard_pos, self.leopard_moved, self.poacher_pos, self.poacher_moved, tracks = kernels.move_ground_actors(
             draws, self.leopard_pos, self.leopard_home, float(cfg.leopard_range), actors.LEOPARD_MOVE_PROB,
-            self.poacher_pos, active, self.poaching_timer != 0, self.leopard_alive, self.poacher_target,
+            self.poacher_pos, active, self.poaching_timer, self.leopard_alive, self.poacher_target,
             float(actors.POACHER_SIGHT), uav_cells, actors.NOTICE_RADIUS * self.weather.notice_factor,
             strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
             actors.STEPS, signs_lib.TRACK_PROB)
-        if tracks.any():
-            self.signs.add(self.poacher_pos[tracks], self.t, signs_lib.TRACK, self.t)
+        if len(tracks):
+            self.signs.add(tracks, self.t, signs_lib.TRACK, self.t)
         self.jammer_on = self.jammer_pos is not None and any_active  # the jammer works while poachers are in
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
@@ -511,10 +511,9 @@ class ReserveParallelEnv(ParallelEnv):
         return own_new, new_cells
 
     def _rewards(self, seen: np.ndarray, n_detected: int, signs_found: int, own_new: np.ndarray, new_cells: int,
-                 poaching_events: int, own_collisions: np.ndarray, energy: np.ndarray) -> np.ndarray:
+                 poaching_events: int, own_collisions: np.ndarray, collisions: int, energy: np.ndarray) -> np.ndarray:
         """The team reward (and each UAV's, with shaping); updates the episode metrics."""
         cfg, weights = self.config, self.config.reward_weights
-        collisions = int(own_collisions.sum()) // 2
         spent = energy.sum()
         team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
                 - weights["poaching"] * poaching_events - weights["collision"] * collisions
