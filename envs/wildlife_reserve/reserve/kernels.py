@@ -168,36 +168,40 @@ def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: 
 
 
 @njit(cache=True)
-def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, home: np.ndarray, home_range: float,
-                       leopard_move_prob: float, poachers: np.ndarray, active: np.ndarray, timer: np.ndarray,
-                       alive: np.ndarray, planned: np.ndarray, sight: float, uav_cells: np.ndarray,
-                       notice_radius: float, move_prob: float, wander_prob: float, evasion_prob: float,
-                       hide_in_cover: bool, cover: np.ndarray, steps: np.ndarray, track_prob: float
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, leopard_moved: np.ndarray, home: np.ndarray,
+                       home_range: float, leopard_move_prob: float, poachers: np.ndarray, poacher_moved: np.ndarray,
+                       active: np.ndarray, timer: np.ndarray, alive: np.ndarray, planned: np.ndarray, sight: float,
+                       uav_cells: np.ndarray, notice_radius: float, move_prob: float, wander_prob: float,
+                       evasion_prob: float, hide_in_cover: bool, cover: np.ndarray, steps: np.ndarray,
+                       track_prob: float) -> np.ndarray:  # pragma: no cover - compiled
     """One step of the leopards and, if any poacher is active, of the poachers, in one call: :func:`move_leopards`,
-    :func:`poacher_targets`, :func:`move_poachers` and the track draw, in that order.
+    :func:`poacher_targets`, :func:`move_poachers` and the track draw, in that order. The cells ``leopards`` and
+    ``poachers`` and which of them moved (``leopard_moved``, ``poacher_moved``) are updated in place.
 
     :param draws: the uniform draws those calls make, in their order: ``3 L`` for the leopards, then ``5 P`` (four
         rows for the poachers' moves, one for their tracks) when any poacher is active (one numpy call draws the
         same stream as their several)
     :param active: ``(P,)`` poachers in play; ``timer``: ``(P,)`` their poaching timers (poaching ones do not move)
-    :return: leopard cells, which leopards moved, poacher cells, which poachers moved and the cells of the tracks
-        left ``(k, 2)``
+    :return: the cells of the tracks the poachers left ``(k, 2)``
     """
     height, width = cover.shape
     n_leopards, n = len(leopards), len(poachers)
     walk = draws[:3 * n_leopards].reshape(3, n_leopards)
     new_leopards = move_leopards(leopards, home, home_range, height, width, leopard_move_prob, steps, walk[0], walk[1],
                                  walk[2])
-    leopard_moved = (new_leopards[:, 0] != leopards[:, 0]) | (new_leopards[:, 1] != leopards[:, 1])
+    leopard_moved[:] = (new_leopards[:, 0] != leopards[:, 0]) | (new_leopards[:, 1] != leopards[:, 1])
+    leopards[:] = new_leopards
     if len(draws) == 3 * n_leopards:  # no poacher active
-        return new_leopards, leopard_moved, poachers, np.zeros(n, dtype=np.bool_), np.zeros((0, 2), dtype=np.int64)
+        poacher_moved[:] = False
+        return np.zeros((0, 2), dtype=np.int64)
     target = poacher_targets(poachers, new_leopards, alive, planned, sight)
     moves = draws[3 * n_leopards:].reshape(5, n)
     new_poachers, moved = move_poachers(poachers, active & (timer == 0), target, uav_cells, notice_radius, move_prob,
                                         wander_prob, evasion_prob, hide_in_cover, cover, steps, moves[0], moves[1],
                                         moves[2], moves[3])
-    return new_leopards, leopard_moved, new_poachers, moved, new_poachers[moved & (moves[4] < track_prob)]
+    poachers[:] = new_poachers
+    poacher_moved[:] = moved
+    return new_poachers[moved & (moves[4] < track_prob)]
 
 
 @njit(cache=True)
@@ -359,37 +363,40 @@ def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, all_bloc
                   airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray, first: np.ndarray,
                   block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray, pos: np.ndarray, ok: np.ndarray,
                   radius: float, comm: np.ndarray, beacon_draws: np.ndarray, message_draws: np.ndarray, loss: float,
-                  known: np.ndarray, counts: np.ndarray, sign_blocks: np.ndarray) -> tuple:  # pragma: no cover
+                  known: np.ndarray, counts: np.ndarray, sign_blocks: np.ndarray, stale_cells: np.ndarray,
+                  stale_blocks: np.ndarray, dist: np.ndarray, beacons: np.ndarray,
+                  delivered: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """One step of the team's knowledge in one call (each part is the kernel named, in this order): the staleness
-    of every window cell and block as each UAV knew it before this step (``known_ages``), the airborne UAVs' look
-    (``look``), the links in range (``links_in_range``), the beacons heard (``beacon_draws >= loss``), the messages
-    delivered (``deliver``) and what they carry (``merge_messages``; the signs learned are marked in ``known`` and
-    counted in ``counts`` by ``sign_blocks``). ``knowledge``, the stamps, ``visited``, ``known`` and ``counts`` are
-    updated in place, except that the merged knowledge is returned.
+    of every window cell and block as each UAV knew it before this step (``known_ages``, into ``stale_cells``
+    ``(n, c)`` and ``stale_blocks`` ``(n, blocks)``), the airborne UAVs' look (``look``), the links in range and
+    their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= loss``, into
+    ``beacons``), the messages delivered (``deliver``, into ``delivered``) and what they carry (``merge_messages``;
+    the signs learned are marked in ``known`` and counted in ``counts`` by ``sign_blocks``). Everything is updated
+    in place: the stamps, ``visited``, ``knowledge``, ``known``, ``counts`` and the outputs named.
 
     :param window: ``(n, c)`` padded flat cells of each UAV's window; ``all_blocks`` ``(n, blocks)`` every block
     :param cell_blocks: ``(n,)`` the block under each UAV
     :param ok: ``(n,)`` UAVs that can talk (airborne, unjammed)
-    :return: window staleness ``(n, c)``, block staleness ``(n, blocks)``, high-risk cells each UAV saw first
-        ``(n,)``, the team's new ones, distances ``(n, n)``, beacons ``(n, n)``, messages delivered ``(n, n)`` and the
-        merged knowledge ``(n, n)``
+    :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
     """
-    stale_cells = known_ages(last, first, knowledge, window, t, scale)
-    stale_blocks = known_ages(block_last, block_first, knowledge, all_blocks, t, scale)
+    stale_cells[:] = known_ages(last, first, knowledge, window, t, scale)
+    stale_blocks[:] = known_ages(block_last, block_first, knowledge, all_blocks, t, scale)
     uavs = np.flatnonzero(airborne)
     fresh = np.zeros(len(window), dtype=np.int64)
     fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, last, first, block_last,
                             block_first, knowledge, t)
-    dist, links = links_in_range(pos, ok, radius)
-    beacons = links & (beacon_draws >= loss)
-    delivered = deliver(links, comm, dist, message_draws, loss)
+    distances, links = links_in_range(pos, ok, radius)
+    dist[:] = distances
+    beacons[:] = links & (beacon_draws >= loss)
+    delivered[:] = deliver(links, comm, distances, message_draws, loss)
     merged, learned = merge_messages(delivered, knowledge, known)
+    knowledge[:] = merged
     for r in range(learned.shape[0]):
         for i in range(learned.shape[1]):
             if learned[r, i]:
                 known[r, i] = True
                 counts[r, sign_blocks[i]] += 1.0
-    return stale_cells, stale_blocks, fresh, new, dist, beacons, delivered, merged
+    return fresh, new
 
 
 @njit(cache=True)
@@ -471,36 +478,41 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
 
 
 @njit(cache=True)
-def fly(pos: np.ndarray, move: np.ndarray, comm: np.ndarray, grounded: np.ndarray, battery: np.ndarray, speed: float,
-        upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray, padded_width: int,
-        window_offsets: np.ndarray) -> tuple:  # pragma: no cover - compiled
+def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np.ndarray, cells: np.ndarray,
+        window: np.ndarray, move: np.ndarray, comm: np.ndarray, speed: float, upper: np.ndarray, hover: float,
+        move_cost: float, comm_costs: np.ndarray, padded_width: int,
+        window_offsets: np.ndarray) -> tuple[np.ndarray, bool]:  # pragma: no cover - compiled
     """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds; a grounded UAV
-    neither moves nor talks (``move`` and ``comm`` are zeroed in place for it) nor hovers.
+    neither moves nor talks (``move`` and ``comm`` are zeroed for it) nor hovers. Updates in place the positions
+    ``pos``, the velocities (displacement / speed), the batteries, which UAVs are grounded (battery <= 1e-12), their
+    ``cells`` ``(n, 2)`` and their windows' padded flat cells ``window`` ``(n, w, w)``.
 
     :param comm_costs: energy of each communication choice (none, broadcast, query)
     :param window_offsets: ``(w, w)`` flat offsets of a window's cells from its top-left corner in the padded grids
-    :return: new positions, velocities (displacement / speed), energy spent, the batteries left, which UAVs are now
-        grounded (battery <= 1e-12) and whether all are, their cells ``(n, 2)``, their windows' padded flat cells
-        ``(n, w, w)``
+    :return: the energy each UAV spent, and whether every UAV is now grounded
     """
-    n = len(pos)
-    new, velocity = np.empty((n, 2)), np.empty((n, 2))
-    energy, left = np.empty(n), np.empty(n)
-    cells = np.empty((n, 2), dtype=np.int64)
+    n, w = len(pos), window_offsets.shape[0]
+    energy = np.empty(n)
+    everyone = True
     for u in range(n):
         if grounded[u]:
             move[u, 0], move[u, 1], comm[u] = 0.0, 0.0, COMM_NONE
         for axis in range(2):
-            new[u, axis] = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
-            velocity[u, axis] = (new[u, axis] - pos[u, axis]) / speed
-            cells[u, axis] = np.int64(np.floor(new[u, axis]))
+            new = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
+            velocity[u, axis] = (new - pos[u, axis]) / speed
+            pos[u, axis] = new
+            cells[u, axis] = np.int64(np.floor(new))
         e = (0.0 if grounded[u] else hover) + move_cost * np.sqrt(velocity[u, 0] ** 2 + velocity[u, 1] ** 2)
         e += comm_costs[comm[u]]
         energy[u] = min(e, battery[u])
-        left[u] = battery[u] - energy[u]
-    window = (cells[:, 0] * padded_width + cells[:, 1]).reshape((n, 1, 1)) + window_offsets
-    grounded_now = left <= 1e-12
-    return new, velocity, energy, left, grounded_now, grounded_now.all(), cells, window
+        battery[u] = battery[u] - energy[u]
+        grounded[u] = battery[u] <= 1e-12
+        everyone = everyone and grounded[u]
+        corner = cells[u, 0] * padded_width + cells[u, 1]
+        for a in range(w):
+            for b in range(w):
+                window[u, a, b] = corner + window_offsets[a, b]
+    return energy, everyone
 
 
 @njit(cache=True)

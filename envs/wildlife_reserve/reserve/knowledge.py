@@ -86,13 +86,14 @@ class TeamKnowledge:
     # ------------------------------------------------------------------ one step: look, then talk
     def look_and_talk(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
                       airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
-                      ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray,
-                                                                                                  np.ndarray, int]:
+                      ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
+                      stale_blocks: np.ndarray) -> tuple[np.ndarray, int]:
         """What the team knows after this step, in one compiled call (``kernels.look_and_talk``):
 
         1. **Staleness** (as each UAV knew it before this look): time since each window cell and coarse block was
-           seen. UAV r knows UAV s's visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's
-           first visit if that one is, else nothing; ages are ``min((t - newest known visit) / max_cycles, 1)``.
+           seen, into ``stale_window`` ``(n, w, w)`` and ``stale_blocks`` ``(n, blocks)``. UAV r knows UAV s's
+           visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's first visit if that one is,
+           else nothing; ages are ``min((t - newest known visit) / max_cycles, 1)``.
         2. **Looks**: the ``airborne`` UAVs stamp their visit histories of the cells in their windows and of the
            block below them, and mark the team's coverage ``visited`` (flat padded bool, updated in place) of the
            ``high_risk`` cells.
@@ -102,28 +103,27 @@ class TeamKnowledge:
            knowledge (one hop), each message lost with ``comm_loss``; what the receivers learn (knowledge stamps,
            signs, counted by ``sign_blocks``, the block of every sign record).
 
-        The random draws are the beacons' ``(n, n)``, then the messages' ``(n, n)``.
+        The random draws are the beacons' ``(n, n)``, then the messages' ``(n, n)``. ``knowledge``, ``dist``,
+        ``beacons`` and ``comm_links`` are updated in place.
 
         :param window: ``(n, w, w)`` padded flat indices of each UAV's window
         :param cell_blocks: ``(n,)`` the block under each UAV
         :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query), or None
-        :return: ``(n, w, w)`` and ``(n, blocks)`` staleness in [0, 1], the high-risk cells each UAV saw that nobody
-            had seen before ``(n,)``, and the team's new ones
+        :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
         """
-        n, w = self.n, window.shape[-1]
+        n = self.n
         if comm is None:
             draws = rng.random((1, n, n))
             comm = np.zeros(n, dtype=np.int64)
         else:
             draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
         last, first = self._stamps
-        known = self.known_signs[:, :len(sign_blocks)]
-        cells, blocks, fresh, new, self.dist, self.beacons, self.comm_links, self.knowledge = look_and_talk(
+        return look_and_talk(
             np.float32(t), np.float32(1.0 / self.max_cycles), window.reshape(n, -1), self._all_blocks, cell_blocks,
             airborne, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1], self.knowledge,
-            uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss, known, self.sign_counts,
-            sign_blocks)
-        return cells.reshape(n, w, w), blocks, fresh, new
+            uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
+            self.known_signs[:, :len(sign_blocks)], self.sign_counts, sign_blocks, stale_window.reshape(n, -1),
+            stale_blocks, self.dist, self.beacons, self.comm_links)
 
     def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
         """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""

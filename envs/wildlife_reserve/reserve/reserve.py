@@ -329,6 +329,8 @@ class ReserveParallelEnv(ParallelEnv):
         self.first_detection_time: int | None = None
         self.detections = np.zeros((0, 3), dtype=np.int64)  # this step's poacher readings: (uav, row, col)
         self._set_window(self._uav_cells())
+        self._stale_window = np.empty((self.n, self.window, self.window), dtype=np.float32)
+        self._stale_blocks = np.empty((self.n, cfg.belief_size**2), dtype=np.float32)
         everyone = np.ones(self.n, dtype=bool)
         self._look_and_talk(everyone, everyone, None)
         signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
@@ -402,11 +404,12 @@ class ReserveParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------ the phases of a step
     def _fly(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool]:
         """Move the UAVs, spend their energy and ground those whose battery ran out (a grounded UAV's ``move`` and
-        ``comm`` are zeroed in place); returns ``(n,)`` energy spent and whether every UAV is grounded."""
-        self.uav_pos, self.velocity, energy, self.battery, grounded, everyone, self._cells, self._window = kernels.fly(
-            self.uav_pos, move, comm, self.grounded, self.battery, self.config.uav_speed, self._upper,
-            ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs, self._padded_shape[1], self._win_offsets)
-        self.grounded = grounded
+        ``comm`` are zeroed; positions, velocities, batteries, ``grounded``, cells and windows are updated in place);
+        returns ``(n,)`` energy spent and whether every UAV is grounded."""
+        energy, everyone = kernels.fly(self.uav_pos, self.velocity, self.battery, self.grounded, self._cells,
+                                       self._window, move, comm, self.config.uav_speed, self._upper,
+                                       ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
+                                       self._padded_shape[1], self._win_offsets)
         return energy, bool(everyone)
 
     def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
@@ -425,9 +428,10 @@ class ReserveParallelEnv(ParallelEnv):
         any_active = bool(active.any())
         draws = self.rng.random(3 * len(self.leopard_pos) + 5 * len(self.poacher_pos) * any_active)
         strategy = self.strategy
-        self.leopard_pos, self.leopard_moved, self.poacher_pos, self.poacher_moved, tracks = kernels.move_ground_actors(
-            draws, self.leopard_pos, self.leopard_home, float(cfg.leopard_range), actors.LEOPARD_MOVE_PROB,
-            self.poacher_pos, active, self.poaching_timer, self.leopard_alive, self.poacher_target,
+        tracks = kernels.move_ground_actors(
+            draws, self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
+            actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, active, self.poaching_timer,
+            self.leopard_alive, self.poacher_target,
             float(actors.POACHER_SIGHT), uav_cells, actors.NOTICE_RADIUS * self.weather.notice_factor,
             strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
             actors.STEPS, signs_lib.TRACK_PROB)
@@ -589,9 +593,10 @@ class ReserveParallelEnv(ParallelEnv):
         :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
         """
         cells = self._cells
-        self._stale_window, self._stale_blocks, fresh, new = self.team.look_and_talk(
+        fresh, new = self.team.look_and_talk(
             self.t, self.rng, self._window, self._block[cells[:, 0], cells[:, 1]], airborne, self._high_risk_pad,
-            self.visited.reshape(-1), self.uav_pos, ok, comm, self.signs.block[:self.signs.count])
+            self.visited.reshape(-1), self.uav_pos, ok, comm, self.signs.block[:self.signs.count], self._stale_window,
+            self._stale_blocks)
         self._n_covered += new
         return fresh, new
 
