@@ -1,0 +1,91 @@
+"""The reserve's compiled kernels against the plain numpy they replace, on random and hand-built inputs."""
+
+import numpy as np
+import pytest
+
+from wildlife_reserve import reserve_v0
+from wildlife_reserve.reserve import actors, kernels
+from wildlife_reserve.reserve.constants import COMM_NONE, N_COMMS, N_MOVES, NEVER
+from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE, SIGN_VALUES, sign_values
+
+
+def test_discrete_actions_decode_as_divmod_and_out_of_range_ones_are_flagged():
+    choices = np.arange(N_MOVES * N_COMMS, dtype=np.int64)
+    move, comm, valid = kernels.decode_actions(choices, actors.STEPS.astype(np.float64), N_MOVES, N_COMMS)
+    expected_comm, expected_move = np.divmod(choices, N_MOVES)
+    assert valid
+    np.testing.assert_array_equal(comm, expected_comm)
+    np.testing.assert_array_equal(move, actors.STEPS[expected_move])
+    for bad in (-1, N_MOVES * N_COMMS):
+        assert not kernels.decode_actions(np.array([0, bad]), actors.STEPS.astype(np.float64), N_MOVES, N_COMMS)[2]
+
+
+def reference_ages(last, first, knowledge, cells, t, scale):
+    """The staleness as numpy computes it: sources' stamps known to each receiver, newest first."""
+    seen_last, seen_first = last[cells].transpose(0, 2, 1), first[cells].transpose(0, 2, 1)  # (r, s, c)
+    known = knowledge[:, :, None]
+    seen = np.where(seen_last <= known, seen_last, np.where(seen_first <= known, seen_first, NEVER))
+    return np.minimum((np.float32(t) - seen.max(axis=1)) * np.float32(scale), np.float32(1.0))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_staleness_is_the_newest_visit_each_uav_knows_of(seed):
+    """Random stamps with never-seen cells and never-heard sources (whose stamps must not count)."""
+    rng = np.random.default_rng(seed)
+    n, m, c, t = 6, 40, 9, 50
+    last = rng.integers(0, t, (m, n)).astype(np.float32)
+    first = np.minimum(last, rng.integers(0, t, (m, n))).astype(np.float32)
+    never = rng.random((m, n)) < 0.3
+    last[never], first[never] = NEVER, -NEVER
+    knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
+    knowledge[rng.random((n, n)) < 0.3] = NEVER
+    cells = rng.integers(0, m, (n, c))
+    ages = kernels.known_ages(last, first, knowledge, cells, np.float32(t), np.float32(1 / 80))
+    np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, cells, t, 1 / 80))
+
+
+def test_flight_updates_in_place_and_a_grounded_uav_neither_moves_talks_nor_hovers():
+    pos = np.array([[2.5, 2.5], [5.5, 5.5]])
+    velocity, battery, grounded = np.zeros((2, 2)), np.array([1.0, 0.0]), np.array([False, True])
+    cells, window = np.zeros((2, 2), dtype=np.int64), np.zeros((2, 3, 3), dtype=np.int64)
+    move, comm = np.array([[0.0, 1.0], [1.0, 0.0]]), np.array([1, 1])
+    offsets = np.arange(9, dtype=np.int64).reshape(3, 3)
+    energy, everyone = kernels.fly(pos, velocity, battery, grounded, cells, window, move, comm, 2.0,
+                                   np.array([9.99, 9.99]), 0.5, 0.25, np.array([0.0, 0.1, 0.05]), 12, offsets)
+    np.testing.assert_array_equal(pos, [[2.5, 4.5], [5.5, 5.5]])
+    np.testing.assert_array_equal(velocity, [[0.0, 1.0], [0.0, 0.0]])
+    assert comm.tolist() == [1, COMM_NONE] and move[1].tolist() == [0.0, 0.0]
+    np.testing.assert_allclose(energy, [0.5 + 0.25 + 0.1, 0.0])
+    assert grounded.tolist() == [False, True] and bool(everyone) is False
+    np.testing.assert_array_equal(cells, [[2, 4], [5, 5]])
+    np.testing.assert_array_equal(window, (cells[:, 0] * 12 + cells[:, 1])[:, None, None] + offsets)
+
+
+def test_links_are_grouped_by_receiver_with_senders_ascending():
+    links = np.zeros((4, 4), dtype=bool)
+    links[[3, 0, 2, 1], [0, 2, 0, 2]] = True  # s -> r
+    senders, ends = kernels.senders_by_receiver(links)
+    assert senders.tolist() == [2, 3, 0, 1] and ends.tolist() == [2, 2, 4, 4]
+
+
+def test_sign_values_are_numpys_exp_for_every_count():
+    counts = np.arange(1000)
+    expected = 1.0 - np.exp(-counts / SIGN_MAP_SCALE)
+    np.testing.assert_array_equal(sign_values(counts), expected)
+    np.testing.assert_array_equal(sign_values(counts.astype(np.float64)), expected)
+    assert SIGN_VALUES[-1] == 1.0  # so a count beyond the table reads the exact value
+
+
+def test_step_arrays_writes_into_out_and_rejects_a_wrong_one():
+    env = reserve_v0.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
+    env.reset(seed=0)
+    out = np.full((3, env.obs_dim), np.nan, dtype=np.float32)
+    obs = env.step_arrays(np.zeros(3, dtype=np.int64), out)[0]
+    assert obs is out and np.isfinite(out).all()
+    reference = reserve_v0.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
+    reference.reset(seed=0)
+    np.testing.assert_array_equal(reference.step_arrays(np.zeros(3, dtype=np.int64))[0], out)
+    for bad in (np.zeros((3, env.obs_dim)), np.zeros((2, env.obs_dim), dtype=np.float32),
+                np.zeros((env.obs_dim, 3), dtype=np.float32).T):
+        with pytest.raises(ValueError, match="out must be a C-contiguous float32 array of shape"):
+            env.step_arrays(np.zeros(3, dtype=np.int64), bad)
