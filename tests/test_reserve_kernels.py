@@ -40,7 +40,7 @@ def test_staleness_is_the_newest_visit_each_uav_knows_of(seed):
     knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
     knowledge[rng.random((n, n)) < 0.3] = NEVER
     cells = rng.integers(0, m, (n, c))
-    ages = kernels.known_ages(last, first, knowledge, cells, np.float32(t), np.float32(1 / 80))
+    ages = kernels.known_ages(last, first, knowledge, cells, np.float32(t), np.float32(1 / 80), np.float32(t - 1))
     np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, cells, t, 1 / 80))
 
 
@@ -89,3 +89,17 @@ def test_step_arrays_writes_into_out_and_rejects_a_wrong_one():
                 np.zeros((env.obs_dim, 3), dtype=np.float32).T):
         with pytest.raises(ValueError, match="out must be a C-contiguous float32 array of shape"):
             env.step_arrays(np.zeros(3, dtype=np.int64), bad)
+
+
+def test_block_staleness_is_the_per_cell_staleness_of_every_block():
+    rng = np.random.default_rng(7)
+    n, blocks, t = 5, 16, 30
+    last = rng.integers(0, t, (blocks, n)).astype(np.float32)
+    first = np.minimum(last, rng.integers(0, t, (blocks, n))).astype(np.float32)
+    never = rng.random((blocks, n)) < 0.3
+    last[never], first[never] = NEVER, -NEVER
+    knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
+    knowledge[rng.random((n, n)) < 0.3] = NEVER
+    every = np.tile(np.arange(blocks), (n, 1))
+    ages = kernels.known_block_ages(last, first, knowledge, np.float32(t), np.float32(1 / 40))
+    np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, every, t, 1 / 40))

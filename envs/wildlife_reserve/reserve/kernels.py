@@ -18,11 +18,15 @@ from wildlife_reserve.reserve.constants import COMM_NONE, N_CHANNELS, NEVER, POA
 
 @njit(cache=True)
 def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells: np.ndarray, t: np.float32,
-               scale: np.float32) -> np.ndarray:  # pragma: no cover - compiled
+               scale: np.float32, newest: np.float32) -> np.ndarray:  # pragma: no cover - compiled
     """Age in [0, 1] of the newest visit each receiver knows of, at its own cells.
 
     ``ages[r, c] = min((t - max_s seen[s, r, c]) * scale, 1)`` with ``seen = last[cells[r, c], s]`` if that
     is ``<= knowledge[r, s]``, else ``first[cells[r, c], s]`` if that is, else ``NEVER``.
+
+    The maximum is taken over the sources the receiver knows anything of (``knowledge > NEVER``: the others add
+    ``NEVER``), the receiver's own stamps first, and stops at a stamp equal to ``newest``, which no stamp may exceed
+    (the step of the latest look): for most cells of a UAV's window its own look of the step before decides.
 
     :param last: ``(m, n)`` float32 last-visit time at each cell of each source (cell-major: the sources' stamps of a
         cell share a cache line)
@@ -36,8 +40,11 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
     sources = np.empty(n, dtype=np.int64)
     for r in range(n):
         m = 0
-        for s in range(n):  # a source r knows nothing of (knowledge NEVER) adds nothing
-            if knowledge[r, s] > NEVER:
+        if knowledge[r, r] > NEVER:
+            sources[0] = r
+            m = 1
+        for s in range(n):
+            if s != r and knowledge[r, s] > NEVER:
                 sources[m] = s
                 m += 1
         for j in range(c):
@@ -45,16 +52,33 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
             best = NEVER
             for q in range(m):
                 s = sources[q]
-                known = knowledge[r, s]
-                value = last[cell, s]
-                if value > known:
-                    value = first[cell, s]
-                    if value > known:
-                        value = NEVER
-                if value > best:
-                    best = value
+                known, newer, older = knowledge[r, s], last[cell, s], first[cell, s]
+                best = max(best, newer if newer <= known else (older if older <= known else NEVER))
+                if best >= newest:
+                    break
             age = (t - best) * scale
             ages[r, j] = age if age < one else one
+    return ages
+
+
+@njit(cache=True)
+def known_block_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, t: np.float32,
+                     scale: np.float32) -> np.ndarray:  # pragma: no cover - compiled
+    """:func:`known_ages` of every block for every receiver, ``(n, blocks)``, from block stamps ``last`` and
+    ``first`` ``(blocks, n)``: a plain loop over all sources that the compiler vectorises (a source the receiver
+    knows nothing of, ``knowledge == NEVER``, adds ``NEVER`` by the formula itself), 3x faster at 50 UAVs than the
+    per-cell loop with its early exit, which rarely applies to blocks."""
+    n, blocks = knowledge.shape[0], last.shape[0]
+    ages = np.empty((n, blocks), dtype=np.float32)
+    one = np.float32(1.0)
+    for r in range(n):
+        for b in range(blocks):
+            best = NEVER
+            for s in range(n):
+                known, newer, older = knowledge[r, s], last[b, s], first[b, s]
+                best = max(best, newer if newer <= known else (older if older <= known else NEVER))
+            age = (t - best) * scale
+            ages[r, b] = age if age < one else one
     return ages
 
 
@@ -359,7 +383,7 @@ def deliver(links: np.ndarray, comm: np.ndarray, dist: np.ndarray, draws: np.nda
 
 
 @njit(cache=True)
-def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, all_blocks: np.ndarray, cell_blocks: np.ndarray,
+def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blocks: np.ndarray,
                   airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray, first: np.ndarray,
                   block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray, pos: np.ndarray, ok: np.ndarray,
                   radius: float, comm: np.ndarray, beacon_draws: np.ndarray, message_draws: np.ndarray, loss: float,
@@ -367,20 +391,22 @@ def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, all_bloc
                   stale_blocks: np.ndarray, dist: np.ndarray, beacons: np.ndarray,
                   delivered: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """One step of the team's knowledge in one call (each part is the kernel named, in this order): the staleness
-    of every window cell and block as each UAV knew it before this step (``known_ages``, into ``stale_cells``
-    ``(n, c)`` and ``stale_blocks`` ``(n, blocks)``), the airborne UAVs' look (``look``), the links in range and
+    of every window cell and block as each UAV knew it before this step (``known_ages``, ``known_block_ages``, into
+    ``stale_cells`` ``(n, c)`` and ``stale_blocks`` ``(n, blocks)``), the airborne UAVs' look (``look``), the links in
+    range and
     their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= loss``, into
     ``beacons``), the messages delivered (``deliver``, into ``delivered``) and what they carry (``merge_messages``;
     the signs learned are marked in ``known`` and counted in ``counts`` by ``sign_blocks``). Everything is updated
     in place: the stamps, ``visited``, ``knowledge``, ``known``, ``counts`` and the outputs named.
 
-    :param window: ``(n, c)`` padded flat cells of each UAV's window; ``all_blocks`` ``(n, blocks)`` every block
+    :param window: ``(n, c)`` padded flat cells of each UAV's window
     :param cell_blocks: ``(n,)`` the block under each UAV
     :param ok: ``(n,)`` UAVs that can talk (airborne, unjammed)
     :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
     """
-    stale_cells[:] = known_ages(last, first, knowledge, window, t, scale)
-    stale_blocks[:] = known_ages(block_last, block_first, knowledge, all_blocks, t, scale)
+    newest = t - np.float32(1.0)  # the stamps are of looks before this step's
+    stale_cells[:] = known_ages(last, first, knowledge, window, t, scale, newest)
+    stale_blocks[:] = known_block_ages(block_last, block_first, knowledge, t, scale)
     uavs = np.flatnonzero(airborne)
     fresh = np.zeros(len(window), dtype=np.int64)
     fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, last, first, block_last,

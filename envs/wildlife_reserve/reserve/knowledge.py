@@ -58,7 +58,6 @@ class TeamKnowledge:
         # Cell-major, (cell, UAV): the staleness reads every UAV's stamps of a few cells.
         self._stamps = np.empty((2, self.cells_padded, n), dtype=np.float32)
         self._block_stamps = np.empty((2, n_blocks, n), dtype=np.float32)
-        self._all_blocks = np.ascontiguousarray(np.broadcast_to(np.arange(n_blocks), (n, n_blocks)))
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
@@ -119,7 +118,7 @@ class TeamKnowledge:
             draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
         last, first = self._stamps
         return look_and_talk(
-            np.float32(t), np.float32(1.0 / self.max_cycles), window.reshape(n, -1), self._all_blocks, cell_blocks,
+            np.float32(t), np.float32(1.0 / self.max_cycles), window.reshape(n, -1), cell_blocks,
             airborne, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1], self.knowledge,
             uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
             self.known_signs[:, :len(sign_blocks)], self.sign_counts, sign_blocks, stale_window.reshape(n, -1),
