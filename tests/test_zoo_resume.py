@@ -112,8 +112,8 @@ def test_a_nan_stops_training_with_a_message_and_no_model_less_folder(tmp_path, 
     original = ReserveParallelEnv.step_arrays  # what the zoo's (batched) vector environment calls
     calls = []
 
-    def step_arrays(self, actions):
-        observations, rewards, *rest = original(self, actions)
+    def step_arrays(self, actions, out=None):
+        observations, rewards, *rest = original(self, actions, out)
         calls.append(1)
         if len(calls) >= 4 * 45:  # 4 copies: step 45, in the third rollout, after the first checkpoint (step 256)
             rewards = np.full_like(rewards, np.nan)
