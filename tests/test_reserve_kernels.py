@@ -28,17 +28,23 @@ def reference_ages(last, first, knowledge, cells, t, scale):
     return np.minimum((np.float32(t) - seen.max(axis=1)) * np.float32(scale), np.float32(1.0))
 
 
+def random_stamps(rng, rows, n, t):
+    """Visit stamps ``(rows, n)`` before step ``t`` with never-seen entries, and knowledge with never-heard sources."""
+    last = rng.integers(0, t, (rows, n)).astype(np.float32)
+    first = np.minimum(last, rng.integers(0, t, (rows, n))).astype(np.float32)
+    never = rng.random((rows, n)) < 0.3
+    last[never], first[never] = NEVER, -NEVER
+    knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
+    knowledge[rng.random((n, n)) < 0.3] = NEVER
+    return last, first, knowledge
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_staleness_is_the_newest_visit_each_uav_knows_of(seed):
     """Random stamps with never-seen cells and never-heard sources (whose stamps must not count)."""
     rng = np.random.default_rng(seed)
     n, m, c, t = 6, 40, 9, 50
-    last = rng.integers(0, t, (m, n)).astype(np.float32)
-    first = np.minimum(last, rng.integers(0, t, (m, n))).astype(np.float32)
-    never = rng.random((m, n)) < 0.3
-    last[never], first[never] = NEVER, -NEVER
-    knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
-    knowledge[rng.random((n, n)) < 0.3] = NEVER
+    last, first, knowledge = random_stamps(rng, m, n, t)
     cells = rng.integers(0, m, (n, c))
     ages = kernels.known_ages(last, first, knowledge, cells, np.float32(t), np.float32(1 / 80), np.float32(t - 1))
     np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, cells, t, 1 / 80))
@@ -92,14 +98,8 @@ def test_step_arrays_writes_into_out_and_rejects_a_wrong_one():
 
 
 def test_block_staleness_is_the_per_cell_staleness_of_every_block():
-    rng = np.random.default_rng(7)
     n, blocks, t = 5, 16, 30
-    last = rng.integers(0, t, (blocks, n)).astype(np.float32)
-    first = np.minimum(last, rng.integers(0, t, (blocks, n))).astype(np.float32)
-    never = rng.random((blocks, n)) < 0.3
-    last[never], first[never] = NEVER, -NEVER
-    knowledge = rng.integers(0, t, (n, n)).astype(np.float32)
-    knowledge[rng.random((n, n)) < 0.3] = NEVER
+    last, first, knowledge = random_stamps(np.random.default_rng(7), blocks, n, t)
     every = np.tile(np.arange(blocks), (n, 1))
     ages = kernels.known_block_ages(last, first, knowledge, np.float32(t), np.float32(1 / 40))
     np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, every, t, 1 / 40))
