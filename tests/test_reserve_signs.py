@@ -291,7 +291,7 @@ def test_the_decoys_fake_signs_are_seen_but_earn_nothing():
         env.reset(seed=seed)
         fakes = np.flatnonzero(env.signs.kind[:env.signs.count] == signs_lib.DECOY)
         env.uav_pos[0] = env.signs.pos[fakes[0]] + 0.5
-        env._set_window(env._uav_cells())
+        env._place_windows()
         obs, *_ = env.step({"uav_0": STAY})
         assert env.split_observation(obs["uav_0"])["window"][CH_SIGN, env.r, env.r] == 1.0
         assert env.team.known_signs[0, fakes[0]] and env.metrics["signs_found"] == 0

@@ -13,7 +13,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import COMM_NONE, N_CHANNELS, NEVER, POACHER_ACTIVE
+from wildlife_reserve.reserve.constants import (
+    CH_LEOPARD,
+    CH_OCCLUSION,
+    CH_POACHER,
+    CH_RISK,
+    CH_SIGN,
+    CH_STALENESS,
+    CH_UAV,
+    COMM_NONE,
+    NEVER,
+    POACHER_ACTIVE,
+)
+
+
+@njit(cache=True, inline="always")
+def _known_stamp(newer: np.float32, older: np.float32, known: np.float32) -> np.float32:  # pragma: no cover
+    """A source's stamp as a receiver that knows it up to ``known`` sees it: its last visit ``newer`` if that is
+    known, else its first visit ``older`` if that is, else ``NEVER``."""
+    return newer if newer <= known else (older if older <= known else NEVER)
 
 
 @njit(cache=True)
@@ -52,8 +70,7 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
             best = NEVER
             for q in range(m):
                 s = sources[q]
-                known, newer, older = knowledge[r, s], last[cell, s], first[cell, s]
-                best = max(best, newer if newer <= known else (older if older <= known else NEVER))
+                best = max(best, _known_stamp(last[cell, s], first[cell, s], knowledge[r, s]))
                 if best >= newest:
                     break
             age = (t - best) * scale
@@ -75,8 +92,7 @@ def known_block_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray,
         for b in range(blocks):
             best = NEVER
             for s in range(n):
-                known, newer, older = knowledge[r, s], last[b, s], first[b, s]
-                best = max(best, newer if newer <= known else (older if older <= known else NEVER))
+                best = max(best, _known_stamp(last[b, s], first[b, s], knowledge[r, s]))
             age = (t - best) * scale
             ages[r, b] = age if age < one else one
     return ages
@@ -393,10 +409,9 @@ def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blo
     """One step of the team's knowledge in one call (each part is the kernel named, in this order): the staleness
     of every window cell and block as each UAV knew it before this step (``known_ages``, ``known_block_ages``, into
     ``stale_cells`` ``(n, c)`` and ``stale_blocks`` ``(n, blocks)``), the airborne UAVs' look (``look``), the links in
-    range and
-    their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= loss``, into
+    range and their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= loss``, into
     ``beacons``), the messages delivered (``deliver``, into ``delivered``) and what they carry (``merge_messages``;
-    the signs learned are marked in ``known`` and counted in ``counts`` by ``sign_blocks``). Everything is updated
+    the signs learned go through ``learn_signs``, by ``sign_blocks``). Everything is updated
     in place: the stamps, ``visited``, ``knowledge``, ``known``, ``counts`` and the outputs named.
 
     :param window: ``(n, c)`` padded flat cells of each UAV's window
@@ -417,11 +432,8 @@ def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blo
     delivered[:] = deliver(links, comm, distances, message_draws, loss)
     merged, learned = merge_messages(delivered, knowledge, known)
     knowledge[:] = merged
-    for r in range(learned.shape[0]):
-        for i in range(learned.shape[1]):
-            if learned[r, i]:
-                known[r, i] = True
-                counts[r, sign_blocks[i]] += 1.0
+    who, sign = np.nonzero(learned)
+    learn_signs(known, counts, who, sign, sign_blocks[sign])
     return fresh, new
 
 
@@ -431,8 +443,8 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
                       pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
                       progress: float, heard: np.ndarray, dist: np.ndarray, neighbour_scale: float, max_neighbours: int,
                       block_staleness: np.ndarray, events: np.ndarray, knowledge: np.ndarray, belief_decay: float,
-                      t: float, sign_counts: np.ndarray,
-                      sign_values: np.ndarray) -> None:  # pragma: no cover - compiled
+                      t: float, sign_counts: np.ndarray, sign_values: np.ndarray, own: int, neighbours: int,
+                      maps: int) -> None:  # pragma: no cover - compiled
     """Every UAV's flat observation ``obs`` ``(n, obs_dim)``, in the order of ``observation_layout``:
 
     - ``window`` ``(7, w, w)``: occlusion, risk, staleness, the poacher, leopard and sign readings ``signals``
@@ -447,13 +459,11 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
 
     :param occlusion: flat padded visual occlusion; ``risk`` likewise
     :param window: ``(n, w, w)`` padded flat cells of each UAV's window; ``staleness`` ``(n, w, w)``
+    :param own: where the own features start in a row; ``neighbours`` and ``maps`` likewise (the window starts at 0)
     """
     n = len(obs)
     w = 2 * radius + 1
     c = w * w
-    own = N_CHANNELS * c  # then N_OWN = 6 own features (observation.py)
-    neighbours = own + 6
-    maps = neighbours + 3 * max_neighbours
     blocks = block_staleness.shape[1]
     belief = beliefs(events, knowledge, blocks, belief_decay, t) if len(events) else np.zeros((n, blocks))
     last_value = len(sign_values) - 1
@@ -464,18 +474,18 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
         for a in range(w):
             for b in range(w):
                 j, cell = a * w + b, window[u, a, b]
-                row[j] = occlusion[cell]
-                row[c + j] = risk[cell]
-                row[2 * c + j] = staleness[u, a, b]
-                row[3 * c + j] = 0.0 if blind else signals[u, 0, a, b]
-                row[4 * c + j] = 0.0 if blind else signals[u, 1, a, b]
-                row[5 * c + j] = 0.0
-                row[6 * c + j] = 0.0 if blind else signals[u, 2, a, b]
+                row[CH_OCCLUSION * c + j] = occlusion[cell]
+                row[CH_RISK * c + j] = risk[cell]
+                row[CH_STALENESS * c + j] = staleness[u, a, b]
+                row[CH_POACHER * c + j] = 0.0 if blind else signals[u, 0, a, b]
+                row[CH_LEOPARD * c + j] = 0.0 if blind else signals[u, 1, a, b]
+                row[CH_UAV * c + j] = 0.0
+                row[CH_SIGN * c + j] = 0.0 if blind else signals[u, 2, a, b]
         if not blind:
             for v in range(n):
                 d_row, d_col = cells[v, 0] - cells[u, 0], cells[v, 1] - cells[u, 1]
                 if v != u and not grounded[v] and abs(d_row) <= radius and abs(d_col) <= radius:
-                    row[5 * c + (d_row + radius) * w + d_col + radius] = 1.0
+                    row[CH_UAV * c + (d_row + radius) * w + d_col + radius] = 1.0
         row[own] = min(pos[u, 0] * inv_scale[0], 1.0)
         row[own + 1] = min(pos[u, 1] * inv_scale[1], 1.0)
         row[own + 2], row[own + 3] = velocity[u, 0], velocity[u, 1]
@@ -511,13 +521,12 @@ def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np
     """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds; a grounded UAV
     neither moves nor talks (``move`` and ``comm`` are zeroed for it) nor hovers. Updates in place the positions
     ``pos``, the velocities (displacement / speed), the batteries, which UAVs are grounded (battery <= 1e-12), their
-    ``cells`` ``(n, 2)`` and their windows' padded flat cells ``window`` ``(n, w, w)``.
+    ``cells`` and their windows (:func:`place_windows`).
 
     :param comm_costs: energy of each communication choice (none, broadcast, query)
-    :param window_offsets: ``(w, w)`` flat offsets of a window's cells from its top-left corner in the padded grids
     :return: the energy each UAV spent, and whether every UAV is now grounded
     """
-    n, w = len(pos), window_offsets.shape[0]
+    n = len(pos)
     energy = np.empty(n)
     everyone = True
     for u in range(n):
@@ -527,18 +536,31 @@ def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np
             new = min(max(pos[u, axis] + move[u, axis] * speed, 0.0), upper[axis])
             velocity[u, axis] = (new - pos[u, axis]) / speed
             pos[u, axis] = new
-            cells[u, axis] = np.int64(np.floor(new))
         e = (0.0 if grounded[u] else hover) + move_cost * np.sqrt(velocity[u, 0] ** 2 + velocity[u, 1] ** 2)
         e += comm_costs[comm[u]]
         energy[u] = min(e, battery[u])
         battery[u] = battery[u] - energy[u]
         grounded[u] = battery[u] <= 1e-12
         everyone = everyone and grounded[u]
+    place_windows(pos, cells, window, padded_width, window_offsets)
+    return energy, everyone
+
+
+@njit(cache=True)
+def place_windows(pos: np.ndarray, cells: np.ndarray, window: np.ndarray, padded_width: int,
+                  window_offsets: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The UAVs' ``cells`` ``(n, 2)`` (their positions, floored) and their windows' padded flat cells ``window``
+    ``(n, w, w)``, written in place.
+
+    :param window_offsets: ``(w, w)`` flat offsets of a window's cells from its top-left corner in the padded grids
+    """
+    w = window_offsets.shape[0]
+    for u in range(len(pos)):
+        cells[u, 0], cells[u, 1] = np.int64(np.floor(pos[u, 0])), np.int64(np.floor(pos[u, 1]))
         corner = cells[u, 0] * padded_width + cells[u, 1]
         for a in range(w):
             for b in range(w):
                 window[u, a, b] = corner + window_offsets[a, b]
-    return energy, everyone
 
 
 @njit(cache=True)

@@ -328,7 +328,9 @@ class ReserveParallelEnv(ParallelEnv):
         self.first_entry_time: int | None = None
         self.first_detection_time: int | None = None
         self.detections = np.zeros((0, 3), dtype=np.int64)  # this step's poacher readings: (uav, row, col)
-        self._set_window(self._uav_cells())
+        self._cells = np.empty((self.n, 2), dtype=np.int64)
+        self._window = np.empty((self.n, self.window, self.window), dtype=np.int64)
+        self._place_windows()
         self._stale_window = np.empty((self.n, self.window, self.window), dtype=np.float32)
         self._stale_blocks = np.empty((self.n, cfg.belief_size**2), dtype=np.float32)
         everyone = np.ones(self.n, dtype=bool)
@@ -571,16 +573,13 @@ class ReserveParallelEnv(ParallelEnv):
         whole = choices.dtype.kind in "iu" or (choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)))
         if not whole or choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
             raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
-        comm, move = np.divmod(choices.astype(np.int64, copy=False), N_MOVES)
-        return _MOVES[move], comm
+        move, comm, _ = kernels.decode_actions(choices.astype(np.int64), _MOVES, N_MOVES, N_COMMS)
+        return move, comm
 
-    def _uav_cells(self) -> np.ndarray:
-        return np.floor(self.uav_pos).astype(np.int64)
-
-    def _set_window(self, cells: np.ndarray) -> None:
-        """The UAVs' cells ``(n, 2)`` and the flat indices ``(n, w, w)`` of their observation windows in the padded grids."""
-        self._cells = cells
-        self._window = (cells[:, 0] * self._padded_shape[1] + cells[:, 1])[:, None, None] + self._win_offsets
+    def _place_windows(self) -> None:
+        """The UAVs' cells ``(n, 2)`` and the flat indices ``(n, w, w)`` of their observation windows in the padded
+        grids, from their positions (in place; ``kernels.fly`` does the same after every flight)."""
+        kernels.place_windows(self.uav_pos, self._cells, self._window, self._padded_shape[1], self._win_offsets)
 
     def _covered(self) -> int:
         """High-risk cells seen so far this episode."""
