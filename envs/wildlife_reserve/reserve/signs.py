@@ -175,8 +175,12 @@ class Signs:
         """
         pos = np.asarray(pos, dtype=np.int64).reshape(-1, 2)
         k = len(pos)
-        born = np.full(k, born, dtype=np.float64) if np.ndim(born) == 0 else np.asarray(born, dtype=np.float64)
-        kind = np.full(k, kind, dtype=np.int64) if np.ndim(kind) == 0 else np.asarray(kind, dtype=np.int64)
+        # A scalar is filled (the common case: cheap); an array must broadcast to (k,), as before (checked here:
+        # the compiled place_signs does not check bounds).
+        born = np.full(k, born, dtype=np.float64) if np.ndim(born) == 0 else np.broadcast_to(
+            np.asarray(born, dtype=np.float64), (k,))
+        kind = np.full(k, kind, dtype=np.int64) if np.ndim(kind) == 0 else np.broadcast_to(
+            np.asarray(kind, dtype=np.int64), (k,))
         if self.count + k > self.capacity:
             self._grow(max(2 * self.capacity, self.count + k))
         start = self.count
