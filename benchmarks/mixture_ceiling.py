@@ -12,6 +12,11 @@ uniformly random actions (no policy, so nothing but the model is measured):
   (component ``k`` is mode ``k``): what this model family and these features can do at best, whatever EM
   finds. It is the ceiling of the first row.
 
+Beside it, the same two fittings of a model that can say *where* readings are made: the mixture of Poisson models
+of reading counts by (map block, window ring) of :mod:`sb3_emmarl.common.latent.counts` (``counts``), fitted
+by its annealed EM, or told, on the team totals of the same training episodes (``transitions`` is EM-PPO's
+model). EM-PPO does not use the count model yet; this measures what it would bring.
+
 Each is scored on held-out episodes (other seeds) by the aligned accuracy of the posterior's argmax over the
 8 modes (components matched to modes by the Hungarian method, as ``evaluate_team`` does) and of the
 poacher strategy read off the aligned mode, at 25 %, 50 % and 100 % of the episode, from **one UAV**'s own
@@ -36,6 +41,7 @@ from scipy.special import softmax
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.counts import PoissonMixture, ReadingCounter
 from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.vec_env import make_vec_env
@@ -59,6 +65,14 @@ class Episodes:
     team_episode: np.ndarray
     step: np.ndarray
     mode: np.ndarray
+    #: Reading counts ``(units, len(POINTS), channels, bins)`` and exposures ``(units, len(POINTS), bins)`` of each
+    #: UAV-episode summed up to each of :data:`POINTS` (:class:`ReadingCounter`), with the unit's UAV and team
+    #: episode ids and mode.
+    counts: np.ndarray
+    exposure: np.ndarray
+    count_uav: np.ndarray
+    count_team: np.ndarray
+    count_mode: np.ndarray
 
     def transitions(self, team: bool) -> Transitions:
         """As E-step data; with ``team``, the agents of one reserve share their episode (EM-PPO's team pooling)."""
@@ -71,7 +85,12 @@ def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
     actions; features and encoded actions as ``model``'s belief reads them."""
     venv = make_vec_env(n_copies=n_copies, seed=seed)
     wrapper = find_belief_wrapper(model.get_env())
+    counter = ReadingCounter.from_env(venv.unwrapped.prototype)
     n, per_copy = venv.num_envs, venv.num_envs // n_copies
+    length = venv.unwrapped.prototype.max_cycles
+    marks = {max(1, round(point * length)): k for k, point in enumerate(POINTS)}  # steps seen -> point
+    summed_counts, summed_exposure = np.zeros((n, counter.n_channels, counter.n_bins)), np.zeros((n, counter.n_bins))
+    units: list[tuple] = []  # (uav episode, team episode, mode, point, counts, exposure)
     rng = np.random.default_rng(seed)
     features = wrapper.feature_fn(venv.reset())
     modes = np.array([info["mode"] for info in venv.unwrapped.reset_infos])
@@ -84,18 +103,69 @@ def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
         observations, _, dones, infos = venv.step(actions)
         following = wrapper.feature_fn(observations)
         after = following.copy()  # the episode's last transition leads to its terminal observation
+        seen = observations.copy()
         for i in np.flatnonzero(dones):
-            after[i] = wrapper.feature_fn(infos[i]["terminal_observation"][None])[0]
-        rows.append((features, wrapper.encode_action(actions), after, team * per_copy + np.arange(n) % per_copy,
-                     team.copy(), step.copy(), modes.copy()))
+            seen[i] = infos[i]["terminal_observation"]
+            after[i] = wrapper.feature_fn(seen[i][None])[0]
+        uav = team * per_copy + np.arange(n) % per_copy
+        rows.append((features, wrapper.encode_action(actions), after, uav, team.copy(), step.copy(), modes.copy()))
         features = following
         step += 1
+        counts, exposure = counter(seen)
+        summed_counts += counts
+        summed_exposure += exposure
+        for i in np.flatnonzero(np.isin(step, list(marks))):
+            units.append((uav[i], team[i], modes[i], marks[step[i]], summed_counts[i].copy(), summed_exposure[i].copy()))
         for copy in np.unique(np.flatnonzero(dones) // per_copy):
             entries = slice(copy * per_copy, (copy + 1) * per_copy)
             team[entries], step[entries], next_team, finished = next_team, 0, next_team + 1, finished + 1
+            summed_counts[entries], summed_exposure[entries] = 0.0, 0.0
         modes = np.array([info["mode"] for info in infos])
     venv.close()
-    return Episodes(*(np.concatenate(column) for column in zip(*rows)))
+    order = sorted(range(len(units)), key=lambda j: (units[j][0], units[j][3]))  # by unit, then point
+    uav_ids, team_ids, unit_modes, _, counts, exposure = (np.array([units[j][f] for j in order]) for f in range(6))
+    n_points = len(POINTS)
+    return Episodes(*(np.concatenate(column) for column in zip(*rows)),
+                    counts=counts.reshape(-1, n_points, *counts.shape[1:]),
+                    exposure=exposure.reshape(-1, n_points, exposure.shape[-1]),
+                    count_uav=uav_ids[::n_points], count_team=team_ids[::n_points], count_mode=unit_modes[::n_points])
+
+
+def team_totals(episodes: Episodes, point: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Counts, exposures and modes of each team episode, summed over its UAVs up to ``POINTS[point]``."""
+    teams, index = np.unique(episodes.count_team, return_inverse=True)
+    counts = np.zeros((len(teams), *episodes.counts.shape[2:]))
+    exposure = np.zeros((len(teams), episodes.exposure.shape[-1]))
+    np.add.at(counts, index, episodes.counts[:, point])
+    np.add.at(exposure, index, episodes.exposure[:, point])
+    modes = np.zeros(len(teams), dtype=np.int64)
+    modes[index] = episodes.count_mode
+    return counts, exposure, modes
+
+
+def fit_counts(seed: int, train: Episodes, told: bool) -> PoissonMixture:
+    """The reading-count mixture (K = 8) on the training episodes' team totals: annealed EM, or told the modes."""
+    counts, exposure, modes = team_totals(train, len(POINTS) - 1)
+    mixture = PoissonMixture(N_MODES, *counts.shape[1:])
+    return mixture.fit_told(counts, exposure, modes) if told else mixture.fit(counts, exposure, seed=seed)
+
+
+def score(posterior: np.ndarray, modes: np.ndarray) -> tuple[float, float]:
+    """Aligned mode and strategy accuracy of the posteriors' argmax."""
+    guess = align_components(posterior, modes, N_MODES)[posterior.argmax(axis=1)]
+    return float((guess == modes).mean()), float((guess // len(WEATHERS) == modes // len(WEATHERS)).mean())
+
+
+def count_accuracies(mixture: PoissonMixture, test: Episodes) -> dict[str, float]:
+    """As :func:`accuracies`, for the reading-count mixture."""
+    scores = {}
+    for k, point in enumerate(POINTS):
+        team = team_totals(test, k)
+        for source, (counts, exposure, modes) in (("one UAV", (test.counts[:, k], test.exposure[:, k], test.count_mode)),
+                                                   ("team", team)):
+            mode, strategy = score(mixture.posterior(counts, exposure), modes)
+            scores[f"{source} mode {point:.0%}"], scores[f"{source} strategy {point:.0%}"] = mode, strategy
+    return scores
 
 
 class ToldEStep(EStep):
@@ -151,10 +221,8 @@ def accuracies(model, test: Episodes) -> dict[str, float]:
             np.add.at(evidence, index, beta * log_lik[seen])
             modes = np.zeros(len(keys), dtype=np.int64)
             modes[index] = test.mode[seen]
-            posterior = softmax(evidence + log_prior, axis=1)
-            guess = align_components(posterior, modes, N_MODES)[posterior.argmax(axis=1)]
-            scores[f"{source} mode {point:.0%}"] = float((guess == modes).mean())
-            scores[f"{source} strategy {point:.0%}"] = float((guess // len(WEATHERS) == modes // len(WEATHERS)).mean())
+            mode, strategy = score(softmax(evidence + log_prior, axis=1), modes)
+            scores[f"{source} mode {point:.0%}"], scores[f"{source} strategy {point:.0%}"] = mode, strategy
     return scores
 
 
@@ -177,20 +245,24 @@ def main(argv: list[str] | None = None) -> int:
     rows = {}
     for fitting in ("em", "told"):
         runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
-        rows[fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
+        rows["transitions", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
+    for fitting in ("em", "told"):
+        runs = [count_accuracies(fit_counts(seed, train, told=fitting == "told"), test) for seed in args.seeds]
+        rows["counts", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
     modes = np.unique(test.team_episode, return_index=True)[1]
     commonest = np.bincount(test.mode[modes], minlength=N_MODES).max() / len(modes)
     strategies = np.bincount(test.mode[modes] // len(WEATHERS)).max() / len(modes)
-    print(f"em_ppo.yml's latent model on the default reserve, uniformly random actions: "
-          f"{len(np.unique(train.team_episode))} training and {len(modes)} held-out episodes, {args.e_steps} E-steps, "
-          f"seeds {args.seeds}; aligned accuracy, mean +- std over seeds; commonest mode {commonest:.3f}, "
-          f"commonest strategy {strategies:.3f}")
-    print(f"{'fitting':<8}{'source':<9}{'what':<10}" + "".join(f"{f'{p:.0%}':>15}" for p in POINTS))
-    for fitting, scores in rows.items():
+    print(f"transitions: em_ppo.yml's latent model ({args.e_steps} E-steps); counts: the reading-count mixture (K = 8, "
+          f"annealed EM); the default reserve, uniformly random actions: {len(np.unique(train.team_episode))} training "
+          f"and {len(modes)} held-out episodes, seeds {args.seeds}; aligned accuracy, mean +- std over seeds; commonest "
+          f"mode {commonest:.3f}, commonest strategy {strategies:.3f}")
+    print(f"{'model':<12}{'fitting':<8}{'source':<9}{'what':<10}" + "".join(f"{f'{p:.0%}':>15}" for p in POINTS))
+    for (family, fitting), scores in rows.items():
         for source in ("one UAV", "team"):
             for what in ("mode", "strategy"):
                 cells = [scores[f"{source} {what} {p:.0%}"] for p in POINTS]
-                print(f"{fitting:<8}{source:<9}{what:<10}" + "".join(f"{c.mean():>8.3f} +- {c.std():.3f}" for c in cells))
+                print(f"{family:<12}{fitting:<8}{source:<9}{what:<10}"
+                      + "".join(f"{c.mean():>8.3f} +- {c.std():.3f}" for c in cells))
     print(f"wall time {time.perf_counter() - start:.0f} s")
     return 0
 

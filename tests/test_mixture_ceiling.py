@@ -1,4 +1,4 @@
-"""The mixture-ceiling benchmark: the episodes it plays, the told E-step, and the script end to end."""
+"""The mixture-ceiling benchmark: the episodes (and reading counts) it plays, the told E-step, and the script end to end."""
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ def played(ceiling):
     return reader, ceiling.collect(reader, n_episodes=3, n_copies=2, seed=5)
 
 
-def test_episodes_are_whole_and_consistent(played):
+def test_episodes_are_whole_and_consistent(ceiling, played):
     reader, episodes = played
     n_uavs, length = 10, 200
     assert len(np.unique(episodes.team_episode)) == 4  # 3 rounded up to whole rounds of 2 copies
@@ -33,6 +33,18 @@ def test_episodes_are_whole_and_consistent(played):
     assert episodes.features.shape[1] == reader.latent_layout.feature_dim
     assert episodes.actions.shape[1] == reader.latent_layout.action_dim
     np.testing.assert_array_equal(episodes.actions.sum(axis=1), 1.0)  # one-hot discrete actions
+    # the reading counts: one unit per UAV-episode, summed up to each point, so never falling from one to the next
+    units = 4 * n_uavs
+    assert episodes.counts.shape[:3] == (units, 3, 3) and episodes.exposure.shape[:2] == (units, 3)
+    assert len(np.unique(episodes.count_uav)) == units
+    assert np.all(np.diff(episodes.counts, axis=1) >= 0) and np.all(np.diff(episodes.exposure, axis=1) >= 0)
+    assert np.all(np.diff(episodes.exposure.sum(axis=-1), axis=1) > 0)
+    for uav, team, mode in zip(episodes.count_uav, episodes.count_team, episodes.count_mode):
+        rows = episodes.uav_episode == uav
+        assert np.all(episodes.team_episode[rows] == team) and np.all(episodes.mode[rows] == mode)
+    counts, exposure, modes = ceiling.team_totals(episodes, 1)
+    assert counts.shape[0] == 4 and np.allclose(counts.sum(), episodes.counts[:, 1].sum())
+    assert np.allclose(exposure.sum(), episodes.exposure[:, 1].sum()) and sorted(modes) == sorted(episodes.count_mode[::10])
 
 
 def test_the_told_e_step_holds_every_episode_at_its_true_mode(ceiling, played):
@@ -55,8 +67,8 @@ def test_the_script_prints_every_row_and_rejects_bad_arguments(ceiling, capsys):
     assert ceiling.main(["--train-episodes", "2", "--test-episodes", "2", "--e-steps", "1", "--seeds", "0",
                          "--n-copies", "2"]) == 0
     out = capsys.readouterr().out
-    rows = [line.split() for line in out.splitlines() if line.startswith(("em ", "told "))]
-    assert len(rows) == 8
+    rows = [line.split() for line in out.splitlines() if line.startswith(("transitions ", "counts "))]
+    assert len(rows) == 16  # 2 models x 2 fittings x 2 sources x 2 targets
     for row in rows:
         values = [float(v) for v in row if v.replace(".", "", 1).isdigit()]
         assert len(values) == 6 and all(0.0 <= v <= 1.0 for v in values)
