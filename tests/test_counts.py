@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.stats import poisson
 
-from sb3_emmarl.common.latent.counts import PoissonMixture, ReadingCounter
+from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, PoissonMixture, ReadingCounter
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_SIGN
 
@@ -125,3 +125,154 @@ def test_the_mixture_rejects_bad_arguments_and_statistics():
         mixture.fit(np.zeros((2, 1, 3)), np.ones((2, 3)), anneal_from=0.5)
     with pytest.raises(ValueError, match="labels must be"):
         mixture.fit_told(np.zeros((2, 1, 3)), np.ones((2, 3)), np.array([0, 2]))
+
+
+# ---------------------------------------------------------------------- the count model inside EM-PPO
+
+
+def test_em_ppo_on_the_reserve_has_a_count_model_and_off_it_none():
+    import gymnasium as gym
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+    from sb3_emmarl import EMPPO
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    on = EMPPO("MlpPolicy", make_vec_env(env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30}), n_steps=32,
+               batch_size=32, seed=0)
+    assert (on.latent_layout.count_channels, on.latent_layout.count_bins) == (3, 8 * 8 * 4)
+    assert on.policy.latent_model.has_counts
+    off = EMPPO("MlpPolicy", sb3_make_vec_env(lambda: gym.make("CartPole-v1"), n_envs=2), n_steps=32, batch_size=32,
+                seed=0)
+    assert off.latent_layout.count_bins == 0 and not off.policy.latent_model.has_counts
+
+
+def test_the_belief_adds_the_count_evidence_of_every_new_observation():
+    import torch as th
+
+    from sb3_emmarl import EMPPO
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    model = EMPPO("MlpPolicy", make_vec_env(env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30}, seed=4),
+                  n_steps=32, batch_size=32, seed=0, likelihood_temperature=0.5, fusion=False)
+    latent = model.policy.latent_model
+    with th.no_grad():
+        latent.count_log_rates.copy_(th.randn(latent.count_log_rates.shape) - 2.0)
+    venv = model.get_env()
+    wrapper, obs_dim = venv, model.latent_layout.obs_dim
+    observations = venv.reset()[:, :obs_dim]
+    rng = np.random.default_rng(0)
+    expected = np.zeros((venv.num_envs, latent.n_components))
+    for _ in range(12):  # within one episode (30 steps)
+        actions = rng.integers(15, size=venv.num_envs)
+        following = venv.step(actions)[0][:, :obs_dim]
+        with th.no_grad():
+            x, a = th.as_tensor(model._feature_fn(observations)), th.as_tensor(model._encode_action(actions))
+            x_next = th.as_tensor(model._feature_fn(following))
+            counts, exposure = model._counter(following)
+            read = latent.count_log_likelihood(th.as_tensor(counts.reshape(len(counts), -1), dtype=th.float32),
+                                               th.as_tensor(exposure, dtype=th.float32))
+            step = 0.5 * latent.transition_log_likelihood(x, a, x_next) + COUNT_EVIDENCE_WEIGHT * read
+        expected += step.double().numpy()
+        observations = following
+    np.testing.assert_allclose(wrapper.tracker.evidence, expected, rtol=1e-3, atol=1e-2)
+    assert np.abs(expected).max() > 1.0  # the counts did weigh in
+
+
+def counted_e_step(window: int = 2):
+    """An E-step over a latent model with a count model of 2 components, 1 channel and 3 bins."""
+    import torch as th
+
+    from sb3_emmarl.common.latent.em import EStep
+    from sb3_emmarl.common.latent.layout import LatentLayout
+    from sb3_emmarl.common.latent.model import LatentModel
+
+    th.manual_seed(0)
+    layout = LatentLayout(obs_dim=2, feature_dim=2, action_dim=1, n_components=2, count_channels=1, count_bins=3)
+    # the transitions tell nothing here: only the counts weigh in the responsibilities
+    return EStep(LatentModel(layout), n_epochs=1, window=window, starved_share=0.0, likelihood_temperature=1e-6)
+
+
+def rollout(episodes: list[int], rng: np.random.Generator, steps: int = 20):
+    """Transitions (nothing to tell from them) and per-episode counts: episodes < 2 read bin 0, the others bin 2."""
+    from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
+
+    ids = np.repeat(episodes, steps)
+    x = rng.standard_normal((len(ids), 2)).astype(np.float32)
+    data = Transitions.from_numpy(x, np.zeros((len(ids), 1)), x, ids)
+    exposure = np.ones((len(ids), 3))
+    counts = rng.poisson(np.where((ids < 2)[:, None], [2.0, 0.1, 0.1], [0.1, 0.1, 2.0]))[:, None, :].astype(float)
+    return data, EpisodeCounts.from_steps(ids, counts, exposure), exposure.sum()
+
+
+def test_the_e_step_fits_the_count_rates_in_closed_form_counting_each_rollout_once():
+    import torch as th
+
+    from sb3_emmarl.common.latent.em import COUNT_DECAY, COUNT_PRIOR_EXPOSURE
+
+    e_step, rng = counted_e_step(), np.random.default_rng(0)
+    first, first_counts, first_exposure = rollout([0, 1, 2, 3], rng)
+    e_step.add(first, first_counts)
+    e_step.step()
+    second, second_counts, second_exposure = rollout([0, 1, 2, 3], rng)  # the same episodes, their next steps
+    e_step.add(second, second_counts)
+    e_step.step()
+    sums = e_step.count_sums
+    # the first rollout stays in the window but joined the sums once, then decayed once
+    assert float(sums["exposure"].sum()) == pytest.approx(COUNT_DECAY * first_exposure + second_exposure)
+    assert float(sums["pooled"][1]) == pytest.approx(first_exposure + second_exposure)
+    pooled = sums["pooled"][0] / sums["pooled"][1]
+    prior = COUNT_PRIOR_EXPOSURE
+    rates = (sums["counts"].reshape(2, 1, 3) + prior * pooled) / (sums["exposure"][:, None] + prior)
+    th.testing.assert_close(e_step.model.count_log_rates.exp(), rates.float())
+
+
+def test_the_counts_alone_tell_two_kinds_of_episode_apart_after_a_few_e_steps():
+    from sb3_emmarl.common.latent.metrics import align_components
+
+    e_step, rng = counted_e_step(window=1), np.random.default_rng(1)
+    for round_ in range(15):
+        episodes = list(range(4 * round_, 4 * round_ + 4))
+        data, counts, _ = rollout([e % 4 for e in episodes], rng)
+        data.episodes += 4 * round_
+        counts.episodes += 4 * round_
+        e_step.add(data, counts)
+        e_step.step()
+    log_r, _, _ = e_step.responsibilities(data)
+    posterior, kinds = log_r.exp().numpy(), np.array([0, 0, 1, 1])
+    assert (align_components(posterior, kinds, 2)[posterior.argmax(1)] == kinds).all()
+    assert posterior.max(axis=1).min() > 0.9
+
+
+def test_episode_counts_from_observations_sum_the_per_step_counts():
+    from sb3_emmarl.common.latent.em import EpisodeCounts
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    venv = make_vec_env(n_copies=2, seed=1, env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30})
+    counter = ReadingCounter.from_env(venv.unwrapped.prototype)
+    rng, rows = np.random.default_rng(0), [venv.reset()]
+    for _ in range(20):
+        rows.append(venv.step(rng.integers(15, size=venv.num_envs))[0])
+    observations = np.concatenate(rows)
+    episodes = rng.integers(5, 9, size=len(observations))  # any ids
+    grouped = EpisodeCounts.from_observations(counter, observations, episodes)
+    counts, exposure = counter(observations)
+    assert counts.sum() > 0
+    steps = EpisodeCounts.from_steps(episodes, counts, exposure)
+    np.testing.assert_array_equal(grouped.episodes.numpy(), [5, 6, 7, 8])
+    np.testing.assert_allclose(grouped.counts.numpy(), steps.counts.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(grouped.exposure.numpy(), steps.exposure.numpy(), rtol=1e-5)
+
+
+def test_the_compiled_step_likelihood_equals_the_binned_counts_times_the_table():
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    venv = make_vec_env(n_copies=2, seed=2)
+    counter = ReadingCounter.from_env(venv.unwrapped.prototype)
+    rng = np.random.default_rng(0)
+    venv.reset()
+    for _ in range(40):
+        observations = venv.step(rng.integers(15, size=venv.num_envs))[0]
+        table = rng.standard_normal((1 + counter.n_channels, counter.n_bins, 4))
+        binned = counter.binned(*counter.cells(observations))[..., :counter.n_bins]
+        np.testing.assert_allclose(counter.log_likelihood(observations, table), np.einsum("npb,pbk->nk", binned, table),
+                                   rtol=1e-10, atol=1e-10)

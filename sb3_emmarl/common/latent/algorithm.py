@@ -15,8 +15,8 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
-from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
-from sb3_emmarl.common.latent.features import encode_actions, features_from_spec
+from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
+from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.validation import RULES
 
@@ -72,8 +72,10 @@ class LatentAlgorithmMixin:
         venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
         wrapper = find_belief_wrapper(venv)
         self.feature_spec = wrapper.feature_spec
+        counter = wrapper.counter
         layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, wrapper.n_components,
-                              tuple(decoder_hidden))
+                              tuple(decoder_hidden), count_channels=counter.n_channels if counter else 0,
+                              count_bins=counter.n_bins if counter else 0)
         policy_kwargs["latent_kwargs"] = layout.to_dict()
         policy_kwargs["use_latent"] = self.use_latent
         return venv, policy_kwargs
@@ -82,6 +84,7 @@ class LatentAlgorithmMixin:
         """After the policy exists: the layout, the E-step, the feature function and the belief wrapper's model."""
         self.latent_layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
         self._feature_fn = features_from_spec(self.feature_spec)[0]
+        self._counter = counter_from_spec(self.feature_spec) if self.latent_layout.count_bins else None
         self._encode_action = encode_actions(self.action_space)[0]
         self.e_step = None
         if self.policy.latent_model is not None:
@@ -103,7 +106,7 @@ class LatentAlgorithmMixin:
             wrapper.attach(self.policy.latent_model, self.likelihood_temperature, self.fusion)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_layout"]
+        return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_layout", "_counter"]
 
     def save(self, path: Any, exclude: Any = None, include: Any = None) -> None:
         """As SB3's ``save``, with the E-step's whole state (optimizer, counters, generator, kept transitions), so that
@@ -125,13 +128,19 @@ class LatentAlgorithmMixin:
         return self._feature_fn(flat).reshape(*observations.shape[:-1], -1)
 
     def _transitions(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray,
-                     new_episode: np.ndarray, valid: np.ndarray) -> Transitions:
+                     new_episode: np.ndarray, valid: np.ndarray,
+                     next_observations: np.ndarray | None = None) -> tuple[Transitions, EpisodeCounts | None]:
         """E-step data from ``(T, n, ...)`` arrays of features, actions taken, the features that followed, flags of
-        steps that begin an episode, and flags of the transitions to keep."""
+        steps that begin an episode, and flags of the transitions to keep; with a count model, also the reading
+        counts of the observations that followed (augmented ``(T, n, total_dim)``), summed per episode."""
         ids = episode_ids(self._episode_counters, new_episode, self.agents_per_copy, self.team_pooling)
         t, e = np.nonzero(valid)
-        return Transitions.from_numpy(features[t, e], self._encode_action(actions[t, e]), next_features[t, e], ids[t, e],
-                                      self.device)
+        transitions = Transitions.from_numpy(features[t, e], self._encode_action(actions[t, e]), next_features[t, e],
+                                             ids[t, e], self.device)
+        if self._counter is None or next_observations is None:
+            return transitions, None
+        following = next_observations[t, e][:, : self.latent_layout.obs_dim]
+        return transitions, EpisodeCounts.from_observations(self._counter, following, ids[t, e], self.device)
 
     def _init_replay_e_step(self) -> None:
         """Off-policy EM algorithms: the E-step reads the replay buffer's rows added since its last handover (a loaded
@@ -141,7 +150,7 @@ class LatentAlgorithmMixin:
         if getattr(self, "_last_dones", None) is None or len(self._last_dones) != self.n_envs:
             self._last_dones = np.ones(self.n_envs, dtype=bool)
 
-    def _replay_transitions(self) -> Transitions:
+    def _replay_transitions(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The replay buffer's rows added since the last call, as E-step data (off-policy algorithms)."""
         buffer = self.replay_buffer
         if buffer.optimize_memory_usage:
@@ -154,13 +163,15 @@ class LatentAlgorithmMixin:
         if len(rows):
             self._last_dones = dones[-1]
         return self._transitions(self._features(buffer.observations[rows]), buffer.actions[rows],
-                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones))
+                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones),
+                                 buffer.next_observations[rows])
 
-    def _run_e_step(self, transitions: Transitions) -> None:
-        """Remember the rollout's transitions; every ``e_step_interval`` rollouts, run the E-step and log it."""
+    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None]) -> None:
+        """Remember the rollout's transitions (and reading counts); every ``e_step_interval`` rollouts, run the E-step
+        and log it."""
         if self.e_step is None:
             return
-        self.e_step.add(transitions)
+        self.e_step.add(*data)
         self._n_rollouts += 1
         if self._n_rollouts % self.e_step_interval:
             return
@@ -192,14 +203,15 @@ class LatentAlgorithmMixin:
         flat = obs.reshape(-1, layout.obs_dim).astype(np.float32)
         n = len(flat)
         tracker = BeliefTracker(n, layout.n_components, layout.feature_dim, layout.action_dim,
-                                model=self.policy.latent_model, likelihood_temperature=self.likelihood_temperature)
+                                model=self.policy.latent_model, likelihood_temperature=self.likelihood_temperature,
+                                counter=self._counter)
         starts = np.ones(n, dtype=bool)
         if state is not None:
             tracker.set_state(state[0] if isinstance(state, tuple) else state)
             starts = np.zeros(n, dtype=bool) if episode_start is None else np.asarray(episode_start, bool).reshape(n)
         features = self._feature_fn(flat)
         tracker.start(np.flatnonzero(starts), features[starts])
-        tracker.advance(np.flatnonzero(~starts), features[~starts])
+        tracker.advance(np.flatnonzero(~starts), features[~starts], flat[~starts] if self._counter is not None else None)
         augmented = np.concatenate([flat, tracker.beliefs()], axis=1).reshape(*obs.shape[:-1], layout.total_dim)
         actions, _ = self.policy.predict(augmented, None, None, deterministic)
         tracker.set_actions(self._encode_action(np.asarray(actions).reshape(n, -1)))

@@ -2,12 +2,14 @@
 
 :class:`BeliefTracker` keeps, per vector entry, the evidence ``e_k = beta * sum_{j < t} log p(x_{j+1} | x_j, a_j,
 z = k)`` that the entry's own transitions since its episode began give each component (one decoder call per
-step: constant cost, no history re-read), and the belief ``q(z) = softmax(log pi + e + sum of the evidence
-last heard from each teammate)``. Fusion follows the links the environment reports: the reserve lists in
-``infos[i]["heard_from"]`` the teammates whose messages reached UAV ``i`` this step (after range, loss and
-jamming); the UAV then records the evidence those teammates hold now (their own, never what they heard, so
-nothing is counted twice) and keeps it until it hears from them again. No link, no fusion: with
-``comm_loss=1`` every belief is the agent's own.
+step: constant cost, no history re-read), plus, on the reserve, ``COUNT_EVIDENCE_WEIGHT`` times the
+log-likelihood of each new observation's reading counts under the component's count model
+(:mod:`~sb3_emmarl.common.latent.counts`: where on the map signs, leopards and poachers were read), and the
+belief ``q(z) = softmax(log pi + e + sum of the evidence last heard from each teammate)``. Fusion follows the
+links the environment reports: the reserve lists in ``infos[i]["heard_from"]`` the teammates whose messages
+reached UAV ``i`` this step (after range, loss and jamming); the UAV then records the evidence those teammates
+hold now (their own, never what they heard, so nothing is counted twice) and keeps it until it hears from them
+again. No link, no fusion: with ``comm_loss=1`` every belief is the agent's own.
 
 :class:`BeliefWrapper` is the ``VecEnvWrapper`` that runs a tracker during training and evaluation and
 appends the belief to every observation (terminal observations included), so that SB3's rollout and
@@ -27,9 +29,15 @@ from scipy.special import log_softmax
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_emmarl.common.latent.features import default_features, encode_actions
+from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter
+from sb3_emmarl.common.latent.features import counter_from_spec, default_features, encode_actions
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.vec_env import LINKS_KEY
+
+#: Probabilities below this are 0 in the beliefs the policies read: sharp beliefs reached float32 subnormals
+#: (1e-45 seen), and a matrix product over inputs holding subnormals runs at about two thirds of its speed on
+#: this CPU (the reserve's risk channel had the same problem); the rows still sum to 1 within 1e-5.
+BELIEF_FLOOR = 1e-6
 
 
 class BeliefTracker:
@@ -44,11 +52,14 @@ class BeliefTracker:
     :param model: the latent model (None: every belief is uniform, as in the no-latent ablation)
     :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood
     :param fusion: combine the evidence of teammates heard from (else each belief is the agent's own)
+    :param counter: the reading counter of the observations (the reserve's), used when the model has a count model
     """
 
     def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, agents_per_copy: int = 1,
-                 model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
+                 model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True,
+                 counter: ReadingCounter | None = None) -> None:
         self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
+        self.counter = counter
         self.likelihood_temperature, self.fusion = float(likelihood_temperature), bool(fusion)
         self.model = model
         self.evidence = np.zeros((n_entries, n_components))
@@ -78,13 +89,17 @@ class BeliefTracker:
         """The actions every entry just took (encoded), for the next transition."""
         self.actions[:] = encoded_actions
 
-    def advance(self, indices: np.ndarray, next_features: np.ndarray) -> None:
-        """Add the evidence of the transitions ``(x_t, a_t) -> x_{t+1}`` of ``indices``."""
+    def advance(self, indices: np.ndarray, next_features: np.ndarray, next_observations: np.ndarray | None = None) -> None:
+        """Add the evidence of the transitions ``(x_t, a_t) -> x_{t+1}`` of ``indices`` (and of the reading counts of
+        their ``next_observations``, when the model and the tracker have a count model)."""
         if len(indices) == 0:
             return
         if self._likelihood is not None:
             log_lik = self._likelihood.log_likelihood(self.features[indices], self.actions[indices], next_features)
             self.evidence[indices] += self.likelihood_temperature * log_lik
+            if next_observations is not None and self.counter is not None and self._model.has_counts:
+                counts = self._likelihood.count_log_likelihood(self.counter, next_observations, refresh=False)
+                self.evidence[indices] += COUNT_EVIDENCE_WEIGHT * counts
         self.features[indices] = next_features
 
     def fuse(self, infos: Sequence[dict[str, Any]]) -> None:
@@ -107,8 +122,10 @@ class BeliefTracker:
         return log_softmax(evidence, axis=1)
 
     def beliefs(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities."""
-        return np.exp(self.log_beliefs(indices)).astype(np.float32)
+        """``q(z)`` of ``indices`` ``(n, K)`` as float32 probabilities, those below :data:`BELIEF_FLOOR` as 0."""
+        beliefs = np.exp(self.log_beliefs(indices)).astype(np.float32)
+        beliefs[beliefs < BELIEF_FLOOR] = 0.0
+        return beliefs
 
     # ------------------------------------------------------------------ state for predict()
     def get_state(self) -> np.ndarray:
@@ -151,12 +168,14 @@ class BeliefWrapper(VecEnvWrapper):
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"the latent algorithms need flat Box observations, got {space}")
         self.feature_fn, self.feature_spec, self.feature_dim = default_features(venv)
+        self.counter = counter_from_spec(self.feature_spec)
         self.encode_action, self.action_dim = encode_actions(venv.action_space)
         self.obs_dim, self.n_components = int(space.shape[0]), int(n_components)
         low = np.concatenate([space.low, np.zeros(n_components, np.float32)]).astype(np.float32)
         high = np.concatenate([space.high, np.ones(n_components, np.float32)]).astype(np.float32)
         super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
-        self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim, agents_per_copy(venv))
+        self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim, agents_per_copy(venv),
+                                     counter=self.counter)
 
     def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
         """Compute beliefs with ``model`` from now on (evidence gathered so far is kept)."""
@@ -191,12 +210,13 @@ class BeliefWrapper(VecEnvWrapper):
         features = self.feature_fn(observations)
         done_idx = np.flatnonzero(dones)
         tracker = self.tracker
-        following = features
+        following, seen = features, observations
         if len(done_idx):  # the episode's last transition leads to its terminal observation
             terminal = np.stack([infos[i]["terminal_observation"] for i in done_idx])
-            following = features.copy()
+            following, seen = features.copy(), np.array(observations, copy=True)
             following[done_idx] = self.feature_fn(terminal)
-        tracker.advance(np.arange(self.num_envs), following)
+            seen[done_idx] = terminal
+        tracker.advance(np.arange(self.num_envs), following, seen if tracker.counter is not None else None)
         tracker.fuse(infos)
         if len(done_idx):
             terminal_beliefs = tracker.beliefs(done_idx)

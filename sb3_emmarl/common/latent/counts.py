@@ -20,7 +20,8 @@ softmax of a product of the summed statistics with ``log(rate)`` and ``rate``, a
 
 A sign read from consecutive steps is counted each time (the UAV moves at most ``uav_speed`` cells), so the
 independence assumption overstates the evidence; ``temperature`` divides the log-likelihood, as EM-PPO's
-``likelihood_temperature`` does for the transition model. The posterior's argmax does not depend on it.
+``likelihood_temperature`` does for the transition model. The posterior's argmax does not depend on it; EM's fit
+does, and EM-PPO weighs the count evidence by :data:`COUNT_EVIDENCE_WEIGHT` in its beliefs and responsibilities.
 
 EM (:meth:`PoissonMixture.fit`): responsibilities are the posterior of each training unit (an episode's team or
 UAV), the rates ``(sum_n r_nk counts_n + a * pooled) / (sum_n r_nk exposure_n + a)`` (a Gamma prior worth ``a``
@@ -30,16 +31,52 @@ its assignments hard at once and stops in a poor optimum; deterministic annealin
 by a temperature falling geometrically from ``anneal_from`` to ``temperature``) and restarts keep the best of
 several fits by their log-evidence.
 
-This module is the model and its fit; EM-PPO's belief and E-step do not use it yet (docs/em.md).
+EM-PPO, EM-DDPG and VDN+EM add this model's evidence to their transition model's on the reserve: the belief
+(``belief.py``) adds each new observation's count log-likelihood, the E-step (``em.py``) reads each episode's
+counts in the responsibilities and sets the rates in closed form from running sums, as :meth:`PoissonMixture.m_step`
+does from a batch.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.special import logsumexp, softmax
 
 #: The window channels counted, in order: signs of poacher activity, leopards, poachers.
 COUNTED_CHANNELS = ("sign", "leopard", "poacher")
+#: The factor on the count log-likelihood in EM-PPO's beliefs and E-step responsibilities (the count model's
+#: ``1 / temperature``): a reading is counted from about three consecutive steps. Measured with the model fitted
+#: online on random-patrol episodes (benchmarks/mixture_ceiling.py's data): a team's mid-episode accuracy 0.65 at
+#: 1/3, 0.63 at 1 and 0.48 at 1/10.
+COUNT_EVIDENCE_WEIGHT = 1.0 / 3.0
+
+
+@njit(cache=True)
+def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlusion: int, channels: np.ndarray,
+                          height: int, width: int, blocks: np.ndarray, width_padded: int, offsets: np.ndarray,
+                          ring: np.ndarray, n_rings: int, table: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
+    """``ReadingCounter.binned(*cells(observations))`` times ``table`` ``(1 + channels, bins, K)`` summed over parts and
+    bins, row by row, without the binned arrays (the belief's one call per step)."""
+    n, k, cells = observations.shape[0], table.shape[2], offsets.shape[0]
+    out = np.zeros((n, k))
+    for i in range(n):
+        row = min(max(int(np.floor(np.float64(observations[i, own]) * (height - 1))), 0), height - 1)
+        col = min(max(int(np.floor(np.float64(observations[i, own + 1]) * (width - 1))), 0), width - 1)
+        corner = row * width_padded + col
+        for c in range(cells):
+            block = blocks[corner + offsets[c]]
+            if block < 0:
+                continue
+            b = block * n_rings + ring[c]
+            seen = 1.0 - observations[i, window + occlusion * cells + c]
+            for j in range(k):
+                out[i, j] += seen * table[0, b, j]
+            for p in range(channels.shape[0]):
+                if observations[i, window + channels[p] * cells + c] > 0.5:
+                    for j in range(k):
+                        out[i, j] += table[1 + p, b, j]
+    return out
 
 
 class ReadingCounter:
@@ -70,11 +107,19 @@ class ReadingCounter:
         if max(self.channels) >= n_channels:
             raise ValueError(f"the window needs channels {self.channels}, it has {n_channels}")
         self.occlusion = CH_OCCLUSION
-        offsets = np.indices((w, w)).reshape(2, -1) - self.r
-        self._offsets = offsets.T  # (w * w, 2) cell offsets from the UAV
-        self._ring = np.abs(offsets).max(axis=0)  # (w * w,)
         self.n_rings = self.r + 1
         self.n_bins = self.belief_size**2 * self.n_rings
+        # Every window cell's bin as one table lookup: table[row + r + d_row, col + r + d_col] for the UAV at (row,
+        # col) is the block of the cell (as the reserve's coarse maps place it) times its ring, -1 off the map.
+        rows = np.arange(height) * self.belief_size // height
+        cols = np.arange(width) * self.belief_size // width
+        blocks = np.full((height + 2 * self.r, width + 2 * self.r), -1, dtype=np.int64)
+        blocks[self.r:self.r + height, self.r:self.r + width] = rows[:, None] * self.belief_size + cols[None, :]
+        offsets = np.indices((w, w)).reshape(2, -1)  # (2, w * w): a window cell's place in the padded table
+        ring = np.abs(offsets - self.r).max(axis=0)
+        self._blocks, self._offsets, self._ring = blocks, offsets, ring
+        self._width_padded = blocks.shape[1]
+        self._flat_offsets = offsets[0] * blocks.shape[1] + offsets[1]  # (w * w,)
 
     @classmethod
     def from_env(cls, env) -> ReadingCounter:
@@ -86,20 +131,10 @@ class ReadingCounter:
     def n_channels(self) -> int:
         return len(self.channels)
 
-    def bins(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each window cell's bin and whether it lies inside the map, both ``(n, w * w)``."""
-        own = observations[:, self.own_part]
-        cell = np.rint(own[:, :2] * [self.height - 1, self.width - 1]).astype(np.int64)
-        where = cell[:, None, :] + self._offsets[None]  # (n, w * w, 2)
-        inside = (where[..., 0] >= 0) & (where[..., 0] < self.height) & (where[..., 1] >= 0) & (where[..., 1] < self.width)
-        rows = np.clip(where[..., 0], 0, self.height - 1) * self.belief_size // self.height
-        cols = np.clip(where[..., 1], 0, self.width - 1) * self.belief_size // self.width
-        return (rows * self.belief_size + cols) * self.n_rings + self._ring[None], inside
-
-    def __call__(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Counts ``(n, n_channels, n_bins)`` and exposures ``(n, n_bins)`` of the readings in each observation.
-
-        A reading is a window cell whose channel is above 0.5 (the channels are 0/1 without sensor noise).
+    def cells(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each window cell's bin (``n_bins`` off the map) ``(n, w * w)``, its exposure ``(n, w * w)`` (transparency, 0
+        off the map) and its readings ``(n, n_channels, w * w)`` (bool: the channel above 0.5; the channels are 0/1
+        without sensor noise).
 
         :param observations: ``(n, obs_dim)`` flat observations of the reserve
         """
@@ -107,14 +142,53 @@ class ReadingCounter:
         if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
             raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
         n = len(observations)
+        # The UAV's cell is its position floored, as the reserve places its window. The observation holds the
+        # position scaled to [0, 1] in float32, which cannot tell a position on a cell's edge from one a hair below
+        # (where the reserve's bounds hold UAVs): on random patrols 7% of the cells found are one off, the bins of
+        # their windows shifted by a cell; the fit and the beliefs read them alike.
+        own = observations[:, self.own_part.start:self.own_part.start + 2].astype(np.float64)
+        row = np.clip(np.floor(own[:, 0] * (self.height - 1)), 0, self.height - 1).astype(np.int64)
+        col = np.clip(np.floor(own[:, 1] * (self.width - 1)), 0, self.width - 1).astype(np.int64)
+        corner = row * self._width_padded + col  # the window's top-left cell in the padded table
+        block = self._blocks.ravel()[corner[:, None] + self._flat_offsets[None]]
+        inside = block >= 0
+        bins = np.where(inside, block * self.n_rings + self._ring[None], self.n_bins)
         window = observations[:, self.window_part].reshape(n, -1, self._ring.size)
-        bins, inside = self.bins(observations)
-        flat = (np.arange(n)[:, None] * self.n_bins + bins).ravel()
-        seen = (1.0 - window[:, self.occlusion]) * inside
-        exposure = np.bincount(flat, weights=seen.ravel(), minlength=n * self.n_bins).reshape(n, self.n_bins)
-        counts = np.stack([np.bincount(flat, weights=((window[:, c] > 0.5) & inside).ravel(),
-                                       minlength=n * self.n_bins).reshape(n, self.n_bins) for c in self.channels], 1)
-        return counts, exposure
+        exposure = np.where(inside, 1.0 - window[:, self.occlusion], 0.0)
+        readings = (window[:, list(self.channels)] > 0.5) & inside[:, None, :]
+        return bins, exposure, readings
+
+    def __call__(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Counts ``(n, n_channels, n_bins)`` and exposures ``(n, n_bins)`` of the readings in each observation.
+
+        :param observations: ``(n, obs_dim)`` flat observations of the reserve
+        """
+        summed = self.binned(*self.cells(observations))
+        return summed[:, 1:, :self.n_bins], summed[:, 0, :self.n_bins]
+
+    def log_likelihood(self, observations: np.ndarray, table: np.ndarray) -> np.ndarray:
+        """``(n, K)``: each observation's exposures and counts by bin (:meth:`binned`) times a ``(1 + n_channels,
+        n_bins, K)`` table (minus the rates, then each channel's log-rates), summed: the count log-likelihood of one
+        step, in one compiled call."""
+        observations = np.ascontiguousarray(observations, dtype=np.float32)
+        if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
+            raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
+        return _count_log_likelihood(observations, self.own_part.start, self.window_part.start, self.occlusion,
+                                     np.array(self.channels, dtype=np.int64), self.height, self.width,
+                                     self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring,
+                                     self.n_rings, np.ascontiguousarray(table, dtype=np.float64))
+
+    def binned(self, bins: np.ndarray, exposure: np.ndarray, readings: np.ndarray,
+               groups: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`cells` summed by bin: ``(n, 1 + n_channels, n_bins + 1)``, the exposures then each channel's counts,
+        the last bin holding what lay off the map; with ``groups`` (``(n,)`` ints in ``[0, G)``), summed by group too:
+        ``(G, 1 + n_channels, n_bins + 1)``."""
+        n, size, parts = len(bins), self.n_bins + 1, 1 + self.n_channels
+        weights = np.concatenate([exposure[:, None], readings], axis=1)  # (n, 1 + channels, w * w)
+        unit = np.arange(n) if groups is None else np.asarray(groups, dtype=np.int64)
+        n_units = n if groups is None else (int(unit.max()) + 1 if n else 0)
+        index = ((unit[:, None, None] * parts + np.arange(parts)[None, :, None]) * size + bins[:, None, :]).ravel()
+        return np.bincount(index, weights=weights.ravel(), minlength=n_units * parts * size).reshape(n_units, parts, size)
 
 
 def _check_statistics(counts: np.ndarray, exposure: np.ndarray, shape: tuple[int, int] | None = None) -> tuple[

@@ -110,6 +110,10 @@ def default_features(venv: VecEnv) -> tuple[FeatureFn, dict, int]:
     if isinstance(layout, dict) and {"window", "own", "belief"} <= set(layout):
         spec = {"kind": "reserve", "obs_dim": obs_dim,
                 "layout": {name: [part.start, part.stop, list(shape)] for name, (part, shape) in layout.items()}}
+        try:  # the grid's sides place each window cell on the map, for the reading counts
+            spec["grid"] = [int(venv.get_attr(side, indices=[0])[0]) for side in ("height", "width")]
+        except (AttributeError, NotImplementedError):
+            pass
     else:
         spec = {"kind": "generic", "obs_dim": obs_dim}
     fn, dim = features_from_spec(spec)
@@ -126,6 +130,18 @@ def features_from_spec(spec: dict) -> tuple[FeatureFn, int]:
     if spec.get("kind") == "generic":
         return generic_features(obs_dim)
     raise ValueError(f"feature specification kind must be 'reserve' or 'generic', got {spec.get('kind')!r}")
+
+
+def counter_from_spec(spec: dict):
+    """The :class:`~sb3_emmarl.common.latent.counts.ReadingCounter` of a :func:`default_features` specification: one
+    on the reserve (when the specification knows its grid: models saved before the count model have none), else
+    None."""
+    from sb3_emmarl.common.latent.counts import ReadingCounter
+
+    if spec.get("kind") != "reserve" or "grid" not in spec:
+        return None
+    layout = {name: (slice(start, stop), tuple(shape)) for name, (start, stop, shape) in spec["layout"].items()}
+    return ReadingCounter(layout, tuple(spec["grid"]), int(layout["belief"][1][0]))
 
 
 def encode_actions(action_space: spaces.Space) -> tuple[Callable[[np.ndarray], np.ndarray], int]:

@@ -18,6 +18,9 @@ class LatentLayout:
     :param action_dim: size of the encoded action (one-hot size for discrete actions)
     :param n_components: ``K``, components of the categorical latent variable
     :param decoder_hidden: hidden layer sizes of the decoder's shared trunk
+    :param count_channels: channels of the reading-count model (:mod:`~sb3_emmarl.common.latent.counts`); 0 with
+        ``count_bins`` 0 when there is none (off the reserve)
+    :param count_bins: bins per channel of the reading-count model
     """
 
     obs_dim: int
@@ -25,12 +28,21 @@ class LatentLayout:
     action_dim: int
     n_components: int
     decoder_hidden: tuple[int, ...] = field(default=(64, 64))
+    count_channels: int = 0
+    count_bins: int = 0
 
     def __post_init__(self) -> None:
         for name in ("obs_dim", "feature_dim", "action_dim", "n_components"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        for name in ("count_channels", "count_bins"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an int >= 0, got {value!r}")
+        if (self.count_channels == 0) != (self.count_bins == 0):
+            raise ValueError(f"count_channels and count_bins must both be 0 (no count model) or both >= 1, got "
+                             f"{self.count_channels} and {self.count_bins}")
         hidden = self.decoder_hidden
         if isinstance(hidden, (str, bytes)) or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
                                                       for h in hidden):

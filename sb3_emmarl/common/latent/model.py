@@ -25,12 +25,17 @@ import torch as th
 import torch.nn.functional as F
 from torch import nn
 
+from sb3_emmarl.common.latent.counts import ReadingCounter
 from sb3_emmarl.common.latent.features import product
 from sb3_emmarl.common.latent.layout import LatentLayout
 
 #: Bounds of the decoder's log standard deviations: a feature that never changes would otherwise drive its
 #: deviation to zero and its log-likelihood, hence every belief, to infinity.
 LOG_STD_BOUNDS = (-3.0, 2.0)
+
+
+#: Standard deviation of the noise on the reading-count model's first log-rates (they break the components' symmetry).
+COUNT_START_NOISE = 0.1
 
 
 def gaussian_log_density(target: th.Tensor, mean: th.Tensor, log_std: th.Tensor) -> th.Tensor:
@@ -74,6 +79,13 @@ class LatentModel(nn.Module):
         self.decoder_bias = nn.Parameter(0.03 * th.randn(k, d_x))
         self.decoder_log_std = nn.Parameter(th.zeros(d_x))
         self.register_buffer("log_prior", th.full((k,), -math.log(k)))
+        if layout.count_bins:
+            # The reading-count model's log-rates (counts.py), set in closed form by the E-step. They start equal up
+            # to a little noise, so that the first E-steps' responsibilities already differ by the counts.
+            shape = (k, layout.count_channels, layout.count_bins)
+            self.register_buffer("count_log_rates", COUNT_START_NOISE * th.randn(shape))
+        else:
+            self.count_log_rates = None
 
     def component_means(self, features: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """Each component's predicted mean of ``x_{t+1}``: ``(B, K, d_x)``, as ``x_t`` plus a predicted change
@@ -95,6 +107,22 @@ class LatentModel(nn.Module):
         """Log-density of ``x_{t+1}`` under a one-hot or relaxed ``z`` ``(B, K)`` (the means mixed by it)."""
         mean = (z[:, :, None] * self.component_means(features, actions)).sum(1)
         return gaussian_log_density(next_features, mean, self.log_std())
+
+    @property
+    def has_counts(self) -> bool:
+        """Whether the model has the reading-count term (on the reserve)."""
+        return self.count_log_rates is not None
+
+    def count_log_likelihood(self, counts: th.Tensor, exposure: th.Tensor) -> th.Tensor:
+        """``(B, K)`` log-likelihood of summed reading counts ``(B, channels * bins)`` and exposures ``(B, bins)``
+        (:meth:`~sb3_emmarl.common.latent.counts.PoissonMixture.log_likelihood`, in torch)."""
+        log_rates = self.count_log_rates.flatten(1)  # (K, channels * bins)
+        return counts @ log_rates.T - exposure @ self.count_log_rates.exp().sum(1).T
+
+    @th.no_grad()
+    def set_count_rates(self, rates: th.Tensor) -> None:
+        """The E-step's closed-form update of the reading-count rates ``(K, channels, bins)`` (all > 0)."""
+        self.count_log_rates.copy_(rates.log())
 
     def posterior_from(self, evidence: th.Tensor) -> th.Tensor:
         """``log q(z)`` from summed (tempered) log-likelihoods ``(B, K)``: ``log_softmax(log pi + evidence)``."""
@@ -131,6 +159,10 @@ class LatentModel(nn.Module):
             delta *= param[source].abs().mean() + 1e-3
             param[dead] = param[source] + delta
             param[source] -= delta
+        if self.has_counts:  # the rates split likewise, on the log scale
+            delta = noise * th.randn(self.count_log_rates[source].shape, generator=generator).to(self.log_prior.device)
+            self.count_log_rates[dead] = self.count_log_rates[source] + delta
+            self.count_log_rates[source] -= delta
         prior = self.prior()
         prior[dead] = prior[source] = prior[source] / 2
         self.log_prior.copy_((prior / prior.sum()).log())
@@ -172,6 +204,10 @@ class StepLikelihood:
             self.constant = float(-(log_std.astype(np.float64).sum() + 0.5 * math.log(2 * math.pi) * d_x))
             self.log_prior = model.log_prior.detach().cpu().double().numpy().copy()
             self.shape = (k, d_x)
+            if model.has_counts:  # the count log-likelihood's table: minus the rates, then each channel's log-rates
+                log_rates = model.count_log_rates.detach().cpu().double()  # (K, channels, bins)
+                table = th.cat([-log_rates.exp().sum(1, keepdim=True), log_rates], dim=1)  # (K, 1 + channels, bins)
+                self.count_table = table.permute(1, 2, 0).contiguous().numpy()  # (1 + channels, bins, K)
         self._version = version
 
     def log_likelihood(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray) -> np.ndarray:
@@ -184,6 +220,18 @@ class StepLikelihood:
         means = product(hidden, self.readout, self.bias).reshape(-1, k, d_x) + features[:, None, :]
         z = (next_features[:, None, :] - means) * self.inv_std
         return self.constant - 0.5 * np.einsum("bkd,bkd->bk", z, z).astype(np.float64)
+
+    def count_log_likelihood(self, counter: ReadingCounter, observations: np.ndarray, refresh: bool = True) -> np.ndarray:
+        """``(B, K)`` float64 log-likelihoods of the reading counts of each observation ``(B, obs_dim)`` (what
+        :meth:`LatentModel.count_log_likelihood` gives for the counts and exposures ``counter`` finds in them).
+
+        :param counter: the observations' reading counter
+        :param refresh: check the model's version first (False: the caller has just done so, with nothing written
+            to the model since)
+        """
+        if refresh:
+            self._refresh()
+        return counter.log_likelihood(observations, self.count_table)
 
     def prior(self) -> np.ndarray:
         """``log pi`` ``(K,)``, float64."""
