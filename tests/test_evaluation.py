@@ -55,6 +55,17 @@ def test_a_trained_model_is_evaluated_reproducibly_with_sampled_or_argmax_action
     assert th.equal(state, th.random.get_rng_state())  # the caller's torch generator is left as it was
 
 
+def test_evaluations_in_threads_of_one_process_give_what_each_gives_alone():
+    from concurrent.futures import ThreadPoolExecutor
+
+    model = PPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), n_steps=32, batch_size=48, n_epochs=1, seed=0)
+    model.learn(96)
+    alone = [evaluate_team(model, 4, seed=seed, env_kwargs=SMALL) for seed in (9, 10)]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # as the zoo's comparisons evaluate runs
+        together = list(pool.map(lambda seed: evaluate_team(model, 4, seed=seed, env_kwargs=SMALL), (9, 10)))
+    assert together == alone
+
+
 def test_the_centralised_view_is_detected_and_evaluated():
     model = PPO("MlpPolicy", CentralizedReserveEnv(**SMALL), n_steps=32, batch_size=32, n_epochs=1, seed=0)
     assert is_centralized(model, SMALL)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from typing import Any, Protocol
 
 import numpy as np
@@ -80,6 +81,12 @@ def is_centralized(model: Predictor, env_kwargs: dict[str, Any] | None = None) -
     return space.shape == prototype.state_space.shape and space.shape != prototype.observation_space("uav_0").shape
 
 
+#: Held while an evaluation draws from torch's global generator: two evaluations in threads of one process (the
+#: zoo's comparisons evaluate each run in a thread as the next trains) would otherwise interleave their draws, and
+#: the same model on the same seed scored 12.5 in one comparison and 8.7 when evaluated alone.
+_TORCH_RNG_LOCK = threading.Lock()
+
+
 def evaluate_team(
     model: Predictor,
     n_episodes: int = 10,
@@ -122,7 +129,7 @@ def evaluate_team(
     has_latent = getattr(getattr(model, "policy", None), "latent_model", None) is not None
     latent = LatentTracker(model, vec_env) if has_latent else None
     records: list[dict[str, Any]] = []
-    with th.random.fork_rng():
+    with _TORCH_RNG_LOCK, th.random.fork_rng():
         th.manual_seed(seed)
         observations = vec_env.reset()
         if latent is not None:
