@@ -46,9 +46,9 @@ from scipy.special import logsumexp, softmax
 #: The window channels counted, in order: signs of poacher activity, leopards, poachers.
 COUNTED_CHANNELS = ("sign", "leopard", "poacher")
 #: The factor on the count log-likelihood in EM-PPO's beliefs and E-step responsibilities (the count model's
-#: ``1 / temperature``): a reading is counted from about three consecutive steps. Measured with the model fitted
-#: online on random-patrol episodes (benchmarks/mixture_ceiling.py's data): a team's mid-episode accuracy 0.65 at
-#: 1/3, 0.63 at 1 and 0.48 at 1/10.
+#: ``1 / temperature``): a reading is counted from about three consecutive steps. With the model fitted online, as
+#: the E-step fits it, on 400 random-patrol episodes (benchmarks/mixture_ceiling.py's episodes; an ad-hoc script, not
+#: kept): a team's mid-episode accuracy 0.65 at 1/3, 0.63 at 1 and 0.48 at 1/10.
 COUNT_EVIDENCE_WEIGHT = 1.0 / 3.0
 
 
@@ -103,7 +103,8 @@ class ReadingCounter:
         self.window_part, (n_channels, w, _) = observation_layout["window"]
         self.own_part = observation_layout["own"][0]
         self.height, self.width, self.belief_size, self.r = height, width, int(belief_size), w // 2
-        self.channels = (CH_SIGN, CH_LEOPARD, CH_POACHER)
+        self.channels = tuple({"sign": CH_SIGN, "leopard": CH_LEOPARD, "poacher": CH_POACHER}[name]
+                              for name in COUNTED_CHANNELS)
         if max(self.channels) >= n_channels:
             raise ValueError(f"the window needs channels {self.channels}, it has {n_channels}")
         self.occlusion = CH_OCCLUSION

@@ -26,7 +26,7 @@ per E-step, as the policy and so the data drift), and ``rates = (sums of counts 
 exposures + a)``. The first round weighs the episodes by random responsibilities (Dirichlet(1), from the
 E-step's generator): equal starting rates would give every component the same share of every episode, and the
 components' rates would never part (EM's usual random start; annealing instead did worse online: 0.55
-against 0.64 in the measurement of counts.py).
+against 0.64 in the measurement that ``counts.COUNT_EVIDENCE_WEIGHT`` cites).
 """
 
 from __future__ import annotations
