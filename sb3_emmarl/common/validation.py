@@ -273,6 +273,7 @@ RULES: dict[str, Rule] = {
     "fusion": boolean(),
     "estimator": choice("enumerate", "gumbel"),
     "team_pooling": boolean(),
+    "reading_counts": boolean(),
     "e_step_interval": integer(1, 10**4),
     "e_step_kwargs": mapping(E_STEP_RULES, "e_step_kwargs"),
     "use_latent": boolean(),

@@ -42,6 +42,9 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param fusion: fuse teammates' evidence along the links
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
+    :param reading_counts: on the reserve, add the reading-count model (``counts.py``) to the latent model; off by
+        default here: with it EM-DDPG scored far below DDPG (team reward -75, -227 and -436 on 3 seeds at 300k
+        agent-steps, DDPG -102 and -147 on the first two; docs/results.md)
     :param e_step_interval: ``train()`` calls between E-steps
     :param e_step_kwargs: overrides of the E-step defaults
     :param use_latent: False is the no-latent ablation
@@ -77,6 +80,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         fusion: bool = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
+        reading_counts: bool = False,
         e_step_interval: int = 20,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
@@ -94,7 +98,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         e_step_kwargs = {"window": 20, **(e_step_kwargs or {})}
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               e_step_interval, e_step_kwargs, policy_kwargs, verbose,
+                                               reading_counts, e_step_interval, e_step_kwargs, policy_kwargs, verbose,
                                                loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
                          batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,

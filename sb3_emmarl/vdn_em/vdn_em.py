@@ -52,6 +52,8 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param fusion: fuse teammates' evidence along the links
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
+    :param reading_counts: on the reserve, add the reading-count model (where signs, leopards and poachers were
+        read; ``counts.py``) to the latent model; ignored elsewhere
     :param e_step_interval: ``train()`` calls between E-steps (default 50: with ``train_freq=4``, every 200 steps, a
         reserve episode)
     :param e_step_kwargs: overrides of the E-step defaults (``window`` defaults to 100 ``train()`` calls here: the
@@ -95,6 +97,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         fusion: bool = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
+        reading_counts: bool = True,
         e_step_interval: int = 50,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
@@ -112,7 +115,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
             else e_step_kwargs
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               e_step_interval, e_step_kwargs, policy_kwargs, verbose,
+                                               reading_counts, e_step_interval, e_step_kwargs, policy_kwargs, verbose,
                                                loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,

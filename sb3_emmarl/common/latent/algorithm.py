@@ -49,7 +49,7 @@ class LatentAlgorithmMixin:
 
     def _init_latent(self, env: Any, n_components: int, decoder_hidden: tuple[int, ...], likelihood_temperature: float,
                      fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
-                     team_pooling: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
+                     team_pooling: bool, reading_counts: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
                      policy_kwargs: dict[str, Any] | None, verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
         """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``."""
         n_components = RULES["n_components"]("n_components", n_components)
@@ -59,11 +59,13 @@ class LatentAlgorithmMixin:
         decoder_hidden = tuple(RULES["decoder_hidden"]("decoder_hidden", decoder_hidden))
         e_step_kwargs = RULES["e_step_kwargs"]("e_step_kwargs", e_step_kwargs)
         for name, value in (("fusion", fusion), ("use_latent", use_latent), ("freeze_e_step", freeze_e_step),
-                            ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling)):
+                            ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling),
+                            ("reading_counts", reading_counts)):
             RULES[name](name, value)
         self.likelihood_temperature = float(likelihood_temperature)
         self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
         self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
+        self.reading_counts = bool(reading_counts)
         self.e_step_kwargs = {**E_STEP_DEFAULTS, **(e_step_kwargs or {})}
         self.e_step = None
         policy_kwargs = dict(policy_kwargs or {})
@@ -72,7 +74,7 @@ class LatentAlgorithmMixin:
         venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
         wrapper = find_belief_wrapper(venv)
         self.feature_spec = wrapper.feature_spec
-        counter = wrapper.counter
+        counter = wrapper.counter if self.reading_counts else None
         layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, wrapper.n_components,
                               tuple(decoder_hidden), count_channels=counter.n_channels if counter else 0,
                               count_bins=counter.n_bins if counter else 0)
