@@ -42,9 +42,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param fusion: fuse teammates' evidence along the links
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
-    :param reading_counts: on the reserve, add the reading-count model (``counts.py``) to the latent model; off by
-        default here: with it EM-DDPG scored far below DDPG (team reward -75, -227 and -436 on 3 seeds at 300k
-        agent-steps, DDPG -102 and -147 on the first two; docs/results.md)
+    :param reading_counts: on the reserve, add the reading-count model (where signs, leopards and poachers were
+        read; ``counts.py``) to the latent model; ignored elsewhere
     :param e_step_interval: ``train()`` calls between E-steps
     :param e_step_kwargs: overrides of the E-step defaults
     :param use_latent: False is the no-latent ablation
@@ -80,7 +79,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         fusion: bool = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
-        reading_counts: bool = False,
+        reading_counts: bool = True,
         e_step_interval: int = 20,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
