@@ -207,7 +207,8 @@ def rollout(episodes: list[int], rng: np.random.Generator, steps: int = 20):
 def test_the_e_step_fits_the_count_rates_in_closed_form_counting_each_rollout_once():
     import torch as th
 
-    from sb3_emmarl.common.latent.em import COUNT_DECAY, COUNT_PRIOR_EXPOSURE
+    from sb3_emmarl.common.latent.counts import PRIOR_EXPOSURE
+    from sb3_emmarl.common.latent.em import COUNT_DECAY
 
     e_step, rng = counted_e_step(), np.random.default_rng(0)
     first, first_counts, first_exposure = rollout([0, 1, 2, 3], rng)
@@ -221,7 +222,7 @@ def test_the_e_step_fits_the_count_rates_in_closed_form_counting_each_rollout_on
     assert float(sums["exposure"].sum()) == pytest.approx(COUNT_DECAY * first_exposure + second_exposure)
     assert float(sums["pooled"][1]) == pytest.approx(first_exposure + second_exposure)
     pooled = sums["pooled"][0] / sums["pooled"][1]
-    prior = COUNT_PRIOR_EXPOSURE
+    prior = PRIOR_EXPOSURE
     rates = (sums["counts"].reshape(2, 1, 3) + prior * pooled) / (sums["exposure"][:, None] + prior)
     th.testing.assert_close(e_step.model.count_log_rates.exp(), rates.float())
 

@@ -50,6 +50,21 @@ COUNTED_CHANNELS = ("sign", "leopard", "poacher")
 #: the E-step fits it, on 400 random-patrol episodes (benchmarks/mixture_ceiling.py's episodes; an ad-hoc script, not
 #: kept): a team's mid-episode accuracy 0.65 at 1/3, 0.63 at 1 and 0.48 at 1/10.
 COUNT_EVIDENCE_WEIGHT = 1.0 / 3.0
+#: ``a``: the Gamma prior on the rates, in cells of exposure at the channel's pooled rate.
+PRIOR_EXPOSURE = 1.0
+
+
+def closed_form_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarray,
+                      prior_exposure: float = PRIOR_EXPOSURE) -> np.ndarray:
+    """The M-step's rates ``(K, channels, bins)``: ``(counts + a * pooled) / (exposure + a)``.
+
+    :param counts: responsibility-weighted sums of counts ``(K, channels, bins)``
+    :param exposure: responsibility-weighted sums of exposures ``(K, bins)``
+    :param pooled: each channel's rate over all the data ``(channels,)`` (the prior's centre; floored at 1e-12)
+    :param prior_exposure: ``a``
+    """
+    pooled = np.maximum(np.asarray(pooled, dtype=np.float64), 1e-12)
+    return (counts + prior_exposure * pooled[None, :, None]) / (exposure[:, None, :] + prior_exposure)
 
 
 @njit(cache=True)
@@ -215,7 +230,7 @@ class PoissonMixture:
     :param prior_exposure: ``a``, the Gamma prior's weight in cells of exposure at the pooled rate, number > 0
     """
 
-    def __init__(self, n_components: int, n_channels: int, n_bins: int, prior_exposure: float = 1.0) -> None:
+    def __init__(self, n_components: int, n_channels: int, n_bins: int, prior_exposure: float = PRIOR_EXPOSURE) -> None:
         for name, value in (("n_components", n_components), ("n_channels", n_channels), ("n_bins", n_bins)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")
@@ -247,10 +262,7 @@ class PoissonMixture:
         if r.shape != (len(counts), self.n_components):
             raise ValueError(f"responsibilities must be (N, K) = {(len(counts), self.n_components)}, got {r.shape}")
         pooled = counts.sum(axis=(0, 2)) / max(exposure.sum(), 1e-12)  # (channels,)
-        a = self.prior_exposure
-        numerator = np.einsum("nk,ncb->kcb", r, counts) + a * np.maximum(pooled, 1e-12)[None, :, None]
-        denominator = (r.T @ exposure)[:, None, :] + a
-        self.rates = numerator / denominator
+        self.rates = closed_form_rates(np.einsum("nk,ncb->kcb", r, counts), r.T @ exposure, pooled, self.prior_exposure)
         shares = np.maximum(r.mean(axis=0), 1e-6)
         self.log_prior = np.log(shares / shares.sum())
 

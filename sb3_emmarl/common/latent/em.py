@@ -40,7 +40,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter
+from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, closed_form_rates
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, sum_by_group
 
 FIELDS = ("features", "actions", "next_features", "episodes")
@@ -48,8 +48,6 @@ FIELDS = ("features", "actions", "next_features", "episodes")
 COUNT_DECAY = 0.99
 #: Rounds of responsibilities and rates of the count model per E-step (on the episodes' summed counts: cheap).
 COUNT_ITERATIONS = 5
-#: ``a``: the count model's Gamma prior, in cells of exposure at the channel's pooled rate (as ``PoissonMixture``).
-COUNT_PRIOR_EXPOSURE = 1.0
 #: Transitions per chunk when the responsibilities read every kept transition: the per-feature densities of all of
 #: them at once (transitions x K x features floats) would briefly hold hundreds of MB at the zoo's E-step window.
 LIKELIHOOD_CHUNK = 8192
@@ -236,7 +234,7 @@ class EStep:
     def _episode_counts(self, ids: th.Tensor, parts: list[EpisodeCounts | None]) -> tuple[th.Tensor, th.Tensor,
                                                                                           list[tuple]]:
         """The reading counts ``(S, channels * bins)`` and exposures ``(S, bins)`` of the sorted episode ``ids``
-        summed over ``parts``, and each part's rows as ``(part, index into ids)``."""
+        summed over ``parts``, and for each part ``(part, index of its rows into ids, whether ids holds them)``."""
         log_rates = self.model.count_log_rates
         counts = th.zeros(len(ids), log_rates[0].numel(), device=ids.device)
         exposure = th.zeros(len(ids), log_rates.shape[2], device=ids.device)
@@ -286,7 +284,7 @@ class EStep:
             sums["pooled"][:channels] += part.counts[known].double().reshape(-1, channels, bins).sum((0, 2))
             sums["pooled"][channels] += part.exposure[known].double().sum()
         base = {name: sums[name] * COUNT_DECAY for name in ("counts", "exposure")}
-        pooled = (sums["pooled"][:channels] / sums["pooled"][channels].clamp_min(1e-12)).clamp_min(1e-12)
+        pooled = (sums["pooled"][:channels] / sums["pooled"][channels].clamp_min(1e-12)).cpu().numpy()
 
         def count_evidence() -> th.Tensor:
             with th.no_grad():
@@ -305,9 +303,8 @@ class EStep:
                 weights = r[index[known]]  # (S, K)
                 counts += weights.T @ part.counts[known].double()
                 exposure += weights.T @ part.exposure[known].double()
-            rates = (counts.reshape(k, channels, bins) + COUNT_PRIOR_EXPOSURE * pooled[None, :, None]) / (
-                exposure[:, None, :] + COUNT_PRIOR_EXPOSURE)
-            self.model.set_count_rates(rates.float())
+            rates = closed_form_rates(counts.reshape(k, channels, bins).cpu().numpy(), exposure.cpu().numpy(), pooled)
+            self.model.set_count_rates(th.as_tensor(rates, dtype=th.float32, device=ids.device))
         sums["counts"], sums["exposure"] = counts, exposure
         self.count_sums = sums
 
