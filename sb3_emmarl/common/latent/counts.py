@@ -147,6 +147,12 @@ class ReadingCounter:
     def n_channels(self) -> int:
         return len(self.channels)
 
+    def _checked(self, observations: np.ndarray) -> np.ndarray:
+        observations = np.asarray(observations)
+        if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
+            raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
+        return observations
+
     def cells(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each window cell's bin (``n_bins`` off the map) ``(n, w * w)``, its exposure ``(n, w * w)`` (transparency, 0
         off the map) and its readings ``(n, n_channels, w * w)`` (bool: the channel above 0.5; the channels are 0/1
@@ -154,9 +160,7 @@ class ReadingCounter:
 
         :param observations: ``(n, obs_dim)`` flat observations of the reserve
         """
-        observations = np.asarray(observations)
-        if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
-            raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
+        observations = self._checked(observations)
         n = len(observations)
         # The UAV's cell is its position floored, as the reserve places its window. The observation holds the
         # position scaled to [0, 1] in float32, which cannot tell a position on a cell's edge from one a hair below
@@ -186,9 +190,7 @@ class ReadingCounter:
         """``(n, K)``: each observation's exposures and counts by bin (:meth:`binned`) times a ``(1 + n_channels,
         n_bins, K)`` table (minus the rates, then each channel's log-rates), summed: the count log-likelihood of one
         step, in one compiled call."""
-        observations = np.ascontiguousarray(observations, dtype=np.float32)
-        if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
-            raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
+        observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
         return _count_log_likelihood(observations, self.own_part.start, self.window_part.start, self.occlusion,
                                      np.array(self.channels, dtype=np.int64), self.height, self.width,
                                      self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring,

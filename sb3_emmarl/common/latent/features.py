@@ -120,12 +120,17 @@ def default_features(venv: VecEnv) -> tuple[FeatureFn, dict, int]:
     return fn, spec, dim
 
 
+def layout_from_spec(spec: dict) -> dict:
+    """The reserve's ``observation_layout`` (name -> (slice, shape)) as a :func:`default_features` specification
+    records it."""
+    return {name: (slice(start, stop), tuple(shape)) for name, (start, stop, shape) in spec["layout"].items()}
+
+
 def features_from_spec(spec: dict) -> tuple[FeatureFn, int]:
     """The feature function of a :func:`default_features` specification, and ``d_x``."""
     obs_dim = int(spec["obs_dim"])
     if spec.get("kind") == "reserve":
-        layout = {name: (slice(start, stop), tuple(shape)) for name, (start, stop, shape) in spec["layout"].items()}
-        fn = reserve_features(layout)
+        fn = reserve_features(layout_from_spec(spec))
         return fn, int(fn(np.zeros((1, obs_dim), dtype=np.float32)).shape[1])
     if spec.get("kind") == "generic":
         return generic_features(obs_dim)
@@ -140,7 +145,7 @@ def counter_from_spec(spec: dict):
 
     if spec.get("kind") != "reserve" or "grid" not in spec:
         return None
-    layout = {name: (slice(start, stop), tuple(shape)) for name, (start, stop, shape) in spec["layout"].items()}
+    layout = layout_from_spec(spec)
     return ReadingCounter(layout, tuple(spec["grid"]), int(layout["belief"][1][0]))
 
 
