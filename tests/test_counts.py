@@ -277,3 +277,16 @@ def test_the_compiled_step_likelihood_equals_the_binned_counts_times_the_table()
         binned = counter.binned(*counter.cells(observations))[..., :counter.n_bins]
         np.testing.assert_allclose(counter.log_likelihood(observations, table), np.einsum("npb,pbk->nk", binned, table),
                                    rtol=1e-10, atol=1e-10)
+
+
+def test_grouped_counts_reject_groups_that_do_not_fit(reserve):
+    counter = ReadingCounter.from_env(reserve)
+    observations = np.stack([blank(reserve, 5, 3)] * 3)
+    with pytest.raises(ValueError, match="one entry per observation"):
+        counter.grouped(observations, [0, 1])
+    with pytest.raises(ValueError, match=r"groups must lie in \[0, 2\)"):
+        counter.grouped(observations, [0, 1, 2], n_groups=2)
+    summed = counter.grouped(observations, [1, 1, 1], n_groups=3)
+    assert summed.shape == (3, 1 + counter.n_channels, counter.n_bins)
+    np.testing.assert_allclose(summed[1], 3 * counter.grouped(observations[:1], [0])[0])
+    assert not summed[[0, 2]].any()

@@ -68,6 +68,20 @@ def closed_form_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarr
 
 
 @njit(cache=True)
+def _window_bins(observations: np.ndarray, i: int, own: int, height: int, width: int, blocks: np.ndarray,
+                 width_padded: int, offsets: np.ndarray, ring: np.ndarray, n_rings: int,
+                 bins: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Each window cell's bin of observation ``i`` into ``bins`` ``(w * w,)``, -1 off the map (see
+    :meth:`ReadingCounter.cells`: the UAV's cell is its position floored, as the reserve places its window)."""
+    row = min(max(int(np.floor(np.float64(observations[i, own]) * (height - 1))), 0), height - 1)
+    col = min(max(int(np.floor(np.float64(observations[i, own + 1]) * (width - 1))), 0), width - 1)
+    corner = row * width_padded + col
+    for c in range(offsets.shape[0]):
+        block = blocks[corner + offsets[c]]
+        bins[c] = -1 if block < 0 else block * n_rings + ring[c]
+
+
+@njit(cache=True)
 def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlusion: int, channels: np.ndarray,
                           height: int, width: int, blocks: np.ndarray, width_padded: int, offsets: np.ndarray,
                           ring: np.ndarray, n_rings: int, table: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
@@ -75,15 +89,13 @@ def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlu
     bins, row by row, without the binned arrays (the belief's one call per step)."""
     n, k, cells = observations.shape[0], table.shape[2], offsets.shape[0]
     out = np.zeros((n, k))
+    bins = np.empty(cells, dtype=np.int64)
     for i in range(n):
-        row = min(max(int(np.floor(np.float64(observations[i, own]) * (height - 1))), 0), height - 1)
-        col = min(max(int(np.floor(np.float64(observations[i, own + 1]) * (width - 1))), 0), width - 1)
-        corner = row * width_padded + col
+        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
         for c in range(cells):
-            block = blocks[corner + offsets[c]]
-            if block < 0:
+            b = bins[c]
+            if b < 0:
                 continue
-            b = block * n_rings + ring[c]
             seen = 1.0 - observations[i, window + occlusion * cells + c]
             for j in range(k):
                 out[i, j] += seen * table[0, b, j]
@@ -91,6 +103,30 @@ def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlu
                 if observations[i, window + channels[p] * cells + c] > 0.5:
                     for j in range(k):
                         out[i, j] += table[1 + p, b, j]
+    return out
+
+
+@njit(cache=True)
+def _grouped_counts(observations: np.ndarray, groups: np.ndarray, n_groups: int, own: int, window: int,
+                    occlusion: int, channels: np.ndarray, height: int, width: int, blocks: np.ndarray,
+                    width_padded: int, offsets: np.ndarray, ring: np.ndarray, n_rings: int,
+                    n_bins: int) -> np.ndarray:  # pragma: no cover (compiled)
+    """``ReadingCounter.binned(*cells(observations), groups)`` without the off-map bin, in one pass:
+    ``(n_groups, 1 + channels, n_bins)``."""
+    cells = offsets.shape[0]
+    out = np.zeros((n_groups, 1 + channels.shape[0], n_bins))
+    bins = np.empty(cells, dtype=np.int64)
+    for i in range(observations.shape[0]):
+        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
+        g = groups[i]
+        for c in range(cells):
+            b = bins[c]
+            if b < 0:
+                continue
+            out[g, 0, b] += 1.0 - observations[i, window + occlusion * cells + c]
+            for p in range(channels.shape[0]):
+                if observations[i, window + channels[p] * cells + c] > 0.5:
+                    out[g, 1 + p, b] += 1.0
     return out
 
 
@@ -195,6 +231,27 @@ class ReadingCounter:
                                      np.array(self.channels, dtype=np.int64), self.height, self.width,
                                      self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring,
                                      self.n_rings, np.ascontiguousarray(table, dtype=np.float64))
+
+    def grouped(self, observations: np.ndarray, groups: np.ndarray, n_groups: int | None = None) -> np.ndarray:
+        """The exposures and counts of the observations in each group, by bin: ``(G, 1 + n_channels, n_bins)``, what
+        :meth:`binned` of :meth:`cells` gives with ``groups`` (without the off-map bin), in one compiled pass (the
+        E-step's per-episode sums of a rollout).
+
+        :param observations: ``(n, obs_dim)`` flat observations of the reserve
+        :param groups: ``(n,)`` ints in ``[0, n_groups)``
+        :param n_groups: ``G`` (None: ``max(groups) + 1``)
+        """
+        observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
+        groups = np.asarray(groups, dtype=np.int64).reshape(-1)
+        if len(groups) != len(observations):
+            raise ValueError(f"groups must have one entry per observation ({len(observations)}), got {len(groups)}")
+        n_groups = (int(groups.max()) + 1 if len(groups) else 0) if n_groups is None else int(n_groups)
+        if len(groups) and (groups.min() < 0 or groups.max() >= n_groups):
+            raise ValueError(f"groups must lie in [0, {n_groups}), got [{groups.min()}, {groups.max()}]")
+        return _grouped_counts(observations, groups, n_groups, self.own_part.start, self.window_part.start,
+                               self.occlusion, np.array(self.channels, dtype=np.int64), self.height, self.width,
+                               self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring, self.n_rings,
+                               self.n_bins)
 
     def binned(self, bins: np.ndarray, exposure: np.ndarray, readings: np.ndarray,
                groups: np.ndarray | None = None) -> np.ndarray:

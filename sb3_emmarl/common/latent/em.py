@@ -41,7 +41,7 @@ import torch as th
 import torch.nn.functional as F
 
 from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, closed_form_rates
-from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, sum_by_group
+from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
 
 FIELDS = ("features", "actions", "next_features", "episodes")
 #: Decay per E-step of the count model's running sums.
@@ -108,7 +108,7 @@ class EpisodeCounts:
                           device: th.device | str = "cpu") -> EpisodeCounts:
         """The reading counts of ``observations`` ``(N, obs_dim)`` summed by their ``episodes`` ``(N,)``."""
         ids, index = np.unique(np.asarray(episodes, dtype=np.int64), return_inverse=True)
-        summed = counter.binned(*counter.cells(observations), groups=index)[..., :counter.n_bins]
+        summed = counter.grouped(observations, index, len(ids))
         return EpisodeCounts(th.as_tensor(ids, device=device),
                              th.as_tensor(summed[:, 1:].reshape(len(ids), -1), dtype=th.float32, device=device),
                              th.as_tensor(summed[:, 0], dtype=th.float32, device=device))
@@ -116,12 +116,16 @@ class EpisodeCounts:
 
 def transition_log_likelihoods(model: LatentModel, data: Transitions) -> th.Tensor:
     """``log p(x_{t+1} | x_t, a_t, z = k)`` of every transition of ``data`` ``(N, K)``, without gradient, in chunks of
-    :data:`LIKELIHOOD_CHUNK` transitions."""
-    with th.no_grad():
-        return th.cat([model.transition_log_likelihood(data.features[i:i + LIKELIHOOD_CHUNK],
-                                                       data.actions[i:i + LIKELIHOOD_CHUNK],
-                                                       data.next_features[i:i + LIKELIHOOD_CHUNK])
-                       for i in range(0, len(data), LIKELIHOOD_CHUNK)])
+    :data:`LIKELIHOOD_CHUNK` transitions: through :class:`~sb3_emmarl.common.latent.model.StepLikelihood`, whose
+    compiled density never builds the ``(N, K, d_x)`` arrays that
+    :meth:`~sb3_emmarl.common.latent.model.LatentModel.transition_log_likelihood` needs for its gradient (a third of
+    an E-step's time went into them)."""
+    likelihood = StepLikelihood(model)
+    arrays = [part.detach().cpu().numpy() for part in (data.features, data.actions, data.next_features)]
+    chunks = [likelihood.log_likelihood(*(array[i:i + LIKELIHOOD_CHUNK] for array in arrays))
+              for i in range(0, len(data), LIKELIHOOD_CHUNK)]
+    values = np.concatenate(chunks) if chunks else np.zeros((0, model.n_components))
+    return th.as_tensor(values, dtype=th.float32, device=data.features.device)
 
 
 def episode_ids(counters: np.ndarray, new_episode: np.ndarray, agents_per_copy: int = 1,

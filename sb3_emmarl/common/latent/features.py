@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import torch as th
 from gymnasium import spaces
+from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
 
 #: Observations larger than this are reduced to this many compact features by a fixed projection.
@@ -20,20 +20,42 @@ MAX_GENERIC_FEATURES = 32
 FeatureFn = Callable[[np.ndarray], np.ndarray]
 
 
-def product(x: np.ndarray, weight: th.Tensor, bias: th.Tensor | None = None) -> np.ndarray:
-    """``x @ weight (+ bias)`` for the small float32 products of the per-step belief, through torch.
-
-    Not numpy's ``@``: numpy's OpenBLAS starts worker threads for products of a few dozen rows and they keep
-    spinning between calls (measured: 16% of a second core over a whole EM-PPO run, for no speed), where torch's
-    matrix product obeys ``torch.set_num_threads`` as the networks do.
-
-    :param x: ``(n, a)`` float32 array
-    :param weight: ``(a, b)`` float32 tensor on the CPU
-    :param bias: ``(b,)`` float32 tensor, or None
-    """
-    with th.inference_mode():
-        rows = th.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
-        return (th.mm(rows, weight) if bias is None else th.addmm(bias, rows, weight)).numpy()
+@njit(cache=True)
+def _reserve_features(obs: np.ndarray, window: int, cells: int, read: np.ndarray, uav: int, ring: np.ndarray,
+                      maps: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """:func:`reserve_features` of every row of ``obs`` into ``out``, in one pass (see there for what they are)."""
+    n_read = read.shape[0]
+    for i in range(obs.shape[0]):
+        animals, outer = 0.0, 0.0
+        for p in range(n_read):
+            base, count = window + read[p] * cells, 0.0
+            for c in range(cells):
+                if obs[i, base + c] > 0.5:
+                    count += 1.0
+                    if p < 2 and ring[c]:
+                        outer += 1.0
+            if p < 2:
+                animals += count
+            out[i, p] = min(count, 5.0) / 5.0
+        out[i, n_read] = outer / max(animals, 1.0)
+        uavs = 0.0
+        if uav >= 0:
+            for c in range(cells):
+                if obs[i, window + uav * cells + c] > 0.5:
+                    uavs += 1.0
+        out[i, n_read + 1] = min(uavs, 5.0) / 5.0
+        column = n_read + 2
+        for m in range(maps.shape[0]):
+            start, h, w = maps[m, 0], maps[m, 1], maps[m, 2]
+            for a in range(0, h, 2):
+                for b in range(0, w, 2):
+                    best = -np.inf
+                    for da in range(2):
+                        for db in range(2):  # cells past an odd side count as 0, as a zero padding would
+                            value = obs[i, start + (a + da) * w + b + db] if a + da < h and b + db < w else 0.0
+                            best = max(best, value)
+                    out[i, column] = best
+                    column += 1
 
 
 def reserve_features(layout: dict) -> FeatureFn:
@@ -45,44 +67,27 @@ def reserve_features(layout: dict) -> FeatureFn:
     the sign map are where the poacher strategy shows, the readings where the weather does (see the
     environment's documentation of signs). The UAV's own position, velocity and battery are left out: they
     follow from its actions in every mode alike, and modelling them would only add noise to the evidence.
+    One compiled pass over each row (the belief computes them for every agent at every step).
 
     :param layout: the reserve's ``observation_layout`` (name -> (slice, shape))
     """
     from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_POACHER, CH_SIGN, CH_UAV
 
     window_part, window_shape = layout["window"]
-    maps = [layout[name] for name in ("belief", "signs") if name in layout]
     channels, width = window_shape[0], window_shape[1]
     r = width // 2
-    ring = (np.maximum(*np.abs(np.indices((width, width)) - r)) == r).ravel()
-    read = [c for c in (CH_POACHER, CH_LEOPARD, CH_SIGN) if c < channels]
-    # Every count is a sum of readings (> 0.5) over some window cells: one product with a 0/1 matrix over the
-    # window gives them all (columns: each read channel's count, the animals' count on the outer ring, the UAVs).
-    cells = width * width
-    counting = th.zeros((channels * cells, len(read) + 2), dtype=th.float32)
-    for column, channel in enumerate(read):
-        counting[channel * cells:(channel + 1) * cells, column] = 1.0
-    for channel in read[:2]:  # poachers and leopards
-        counting[channel * cells:(channel + 1) * cells, len(read)] = th.from_numpy(ring.astype(np.float32))
-    if CH_UAV < channels:
-        counting[CH_UAV * cells:(CH_UAV + 1) * cells, len(read) + 1] = 1.0
-
-    def pool(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        n, (h, w) = len(values), shape
-        grid = values.reshape(n, h, w)
-        if h % 2 or w % 2:
-            grid = np.pad(grid, ((0, 0), (0, h % 2), (0, w % 2)))
-        pooled = np.maximum(np.maximum(grid[:, 0::2, 0::2], grid[:, 0::2, 1::2]),
-                            np.maximum(grid[:, 1::2, 0::2], grid[:, 1::2, 1::2]))
-        return pooled.reshape(n, -1)
+    ring = np.maximum(*np.abs(np.indices((width, width)) - r)).ravel() == r
+    read = np.array([c for c in (CH_POACHER, CH_LEOPARD, CH_SIGN) if c < channels], dtype=np.int64)
+    maps = np.array([[layout[name][0].start, *layout[name][1]] for name in ("belief", "signs") if name in layout],
+                    dtype=np.int64).reshape(-1, 3)
+    dim = len(read) + 2 + sum(-(-int(h) // 2) * -(-int(w) // 2) for _, h, w in maps)
+    uav = CH_UAV if CH_UAV < channels else -1
 
     def features(obs: np.ndarray) -> np.ndarray:
-        counts = product((obs[:, window_part] > 0.5).astype(np.float32), counting)
-        animals = counts[:, :min(len(read), 2)].sum(axis=1)
-        outer = counts[:, len(read)] / np.maximum(animals, 1.0)
-        return np.concatenate([np.minimum(counts[:, :len(read)], 5.0) / 5.0, outer[:, None],
-                               np.minimum(counts[:, -1:], 5.0) / 5.0,
-                               *[pool(obs[:, part], shape) for part, shape in maps]], axis=1, dtype=np.float32)
+        obs = np.asarray(obs, dtype=np.float32)
+        out = np.empty((len(obs), dim), dtype=np.float32)
+        _reserve_features(obs, window_part.start, width * width, read, uav, ring, maps, out)
+        return out
 
     return features
 
