@@ -39,7 +39,7 @@ KINDS = {
     "dqn": {"buffer_size": "int>=1", "learning_starts": "int>=0", "batch_size": "int>=1", "gamma": "prob",
             "train_freq": "int>=1", "target_update_interval": "int>=1", "exploration_fraction": "prob",
             "exploration_final_eps": "prob", "tau": "prob", "learning_rate": "float>0", "n_envs": "int>=1"},
-    "em_ppo": {"n_components": "int>=1", "e_step_interval": "int>=1", "likelihood_temperature": "float>0",
+    "em_ppo": {"e_step_interval": "int>=1", "likelihood_temperature": "float>0",
                "fusion": "bool", "team_pooling": "bool", "use_latent": "bool", "freeze_e_step": "bool",
                "freeze_m_step": "bool", "n_steps": "int>=1", "gamma": "prob"},
 }
@@ -96,6 +96,17 @@ MUTATIONS = [  # (algo, key, YAML value, valid?, mention)
     ("em_ppo", "e_step_kwargs", "'abc'", False, "e_step_kwargs"),
     ("em_ppo", "e_step_kwargs", "{learning_rate: .nan}", False, "e_step_kwargs"),
     ("em_ppo", "e_step_kwargs", "{window: 2, n_epochs: 1}", True, ""),
+    # n_components must fit em_ppo.yml's count_factors [4, 2] (their product)
+    ("em_ppo", "n_components", "8", True, ""),
+    ("em_ppo", "n_components", "3", False, "count_factors"),
+    ("em_ppo", "n_components", "0", False, "n_components"),
+    ("em_ppo", "n_components", "'abc'", False, "n_components"),
+    ("em_ppo", "count_factors", "null", True, ""),
+    ("em_ppo", "count_factors", "[8, 1]", True, ""),
+    ("em_ppo", "count_factors", "[4, 3]", False, "count_factors"),
+    ("em_ppo", "count_factors", "[4]", False, "count_factors"),
+    ("em_ppo", "count_factors", "'4x2'", False, "count_factors"),
+    ("em_ppo", "count_factors", "[4, 2.5]", False, "count_factors"),
 ]
 # Flags: (flags, valid?, mention)
 FLAGS = [

@@ -274,6 +274,9 @@ RULES: dict[str, Rule] = {
     "estimator": choice("enumerate", "gumbel"),
     "team_pooling": boolean(),
     "reading_counts": boolean(),
+    "count_factors": optional(Rule(lambda n, v: [integer(1, 64)(f"{n}[{i}]", x) for i, x in enumerate(v)]
+                                   if isinstance(v, (list, tuple)) and len(v) == 2 else fail(n, v, "two ints"),
+                                   "two ints in [1, 64] (where x how far)")),
     "e_step_interval": integer(1, 10**4),
     "e_step_kwargs": mapping(E_STEP_RULES, "e_step_kwargs"),
     "use_latent": boolean(),

@@ -44,6 +44,9 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
     :param reading_counts: on the reserve, add the reading-count model (where signs, leopards and poachers were
         read; ``counts.py``) to the latent model; ignored elsewhere
+    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
+        readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
+        matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
     :param e_step_interval: ``train()`` calls between E-steps
     :param e_step_kwargs: overrides of the E-step defaults
     :param use_latent: False is the no-latent ablation
@@ -80,6 +83,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         estimator: str = "enumerate",
         team_pooling: bool = False,
         reading_counts: bool = True,
+        count_factors: tuple[int, int] | None = None,
         e_step_interval: int = 20,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
@@ -97,8 +101,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         e_step_kwargs = {"window": 20, **(e_step_kwargs or {})}
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               reading_counts, e_step_interval, e_step_kwargs, policy_kwargs, verbose,
-                                               loading=not _init_setup_model)
+                                               reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
+                                               verbose, loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
                          batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
                          action_noise=action_noise, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,

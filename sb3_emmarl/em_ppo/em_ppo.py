@@ -48,9 +48,12 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param estimator: the E-step's estimator of the expected log-likelihood, ``"enumerate"`` (exact over ``K``) or
         ``"gumbel"`` (annealed Gumbel-softmax samples, as in the paper)
     :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
+        (centralised training; execution stays decentralised)
     :param reading_counts: on the reserve, add the reading-count model (where signs, leopards and poachers were
         read; ``counts.py``) to the latent model; ignored elsewhere
-        (centralised training; execution stays decentralised)
+    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
+        readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
+        matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
     :param e_step_interval: rollouts between E-steps (every rollout's transitions are kept)
     :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`
     :param use_latent: False is the no-latent ablation (same networks without the belief input, no E-step)
@@ -87,6 +90,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         estimator: str = "enumerate",
         team_pooling: bool = False,
         reading_counts: bool = True,
+        count_factors: tuple[int, int] | None = None,
         e_step_interval: int = 1,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
@@ -102,8 +106,8 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     ) -> None:
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               reading_counts, e_step_interval, e_step_kwargs, policy_kwargs, verbose,
-                                               loading=not _init_setup_model)
+                                               reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
+                                               verbose, loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
                          n_epochs=n_epochs, gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, ent_coef=ent_coef,
                          policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log, verbose=verbose, seed=seed,

@@ -15,6 +15,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
+from sb3_emmarl.common.latent.counts import check_factors
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -49,10 +50,13 @@ class LatentAlgorithmMixin:
 
     def _init_latent(self, env: Any, n_components: int, decoder_hidden: tuple[int, ...], likelihood_temperature: float,
                      fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
-                     team_pooling: bool, reading_counts: bool, e_step_interval: int, e_step_kwargs: dict[str, Any] | None,
-                     policy_kwargs: dict[str, Any] | None, verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
+                     team_pooling: bool, reading_counts: bool, count_factors: tuple[int, int] | None,
+                     e_step_interval: int, e_step_kwargs: dict[str, Any] | None, policy_kwargs: dict[str, Any] | None,
+                     verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
         """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``."""
         n_components = RULES["n_components"]("n_components", n_components)
+        count_factors = RULES["count_factors"]("count_factors", count_factors)
+        self.count_factors = check_factors(count_factors, n_components)
         self.e_step_interval = RULES["e_step_interval"]("e_step_interval", e_step_interval)
         estimator = RULES["estimator"]("estimator", estimator)
         likelihood_temperature = RULES["likelihood_temperature"]("likelihood_temperature", likelihood_temperature)
@@ -93,6 +97,8 @@ class LatentAlgorithmMixin:
             try:
                 self.e_step = EStep(self.policy.latent_model, estimator=self.estimator,
                                     likelihood_temperature=self.likelihood_temperature, seed=self.seed or 0,
+                                    count_factors=self.count_factors if self._counter is not None else None,
+                                    count_rings=self._counter.n_rings if self._counter is not None else 1,
                                     **self.e_step_kwargs)
             except ValueError as error:
                 raise ValueError(f"e_step_kwargs: {error}") from None

@@ -40,7 +40,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, closed_form_rates
+from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, count_rates
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
 
 FIELDS = ("features", "actions", "next_features", "episodes")
@@ -166,12 +166,16 @@ class EStep:
     :param likelihood_temperature: ``beta`` on the log-likelihoods in the responsibilities (as in the beliefs)
     :param starved_share: a component whose prior falls below ``starved_share / K`` is re-seeded (0: never)
     :param seed: seed of the minibatch order and of the re-seeding noise
+    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = K``: the count model's rates factor as where x how far
+        (:func:`~sb3_emmarl.common.latent.counts.factored_rates`); None: every component's every bin its own
+    :param count_rings: rings per block of the count model's bins (with ``count_factors``)
     """
 
     def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 5, batch_size: int = 256,
                  window: int = 2, max_transitions: int = 16384, estimator: str = "enumerate", temperature: float = 1.0,
                  min_temperature: float = 0.1, anneal_rate: float = 0.05, likelihood_temperature: float = 1.0,
-                 starved_share: float = 0.1, seed: int = 0) -> None:
+                 starved_share: float = 0.1, seed: int = 0, count_factors: tuple[int, int] | None = None,
+                 count_rings: int = 1) -> None:
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
         for name, value in (("n_epochs", n_epochs), ("batch_size", batch_size), ("window", window),
@@ -183,6 +187,13 @@ class EStep:
         if not learning_rate > 0 or not likelihood_temperature > 0 or not 0 <= starved_share < 1:
             raise ValueError(f"need learning_rate > 0, likelihood_temperature > 0 and 0 <= starved_share < 1, got "
                              f"{learning_rate}, {likelihood_temperature} and {starved_share}")
+        self.count_factors = check_factors(count_factors, latent_model.n_components)
+        bins = latent_model.count_log_rates.shape[-1] if latent_model.has_counts else 1
+        if isinstance(count_rings, bool) or not isinstance(count_rings, (int, np.integer)) or count_rings < 1 \
+                or bins % count_rings:
+            raise ValueError(f"count_rings must be an int >= 1 that divides the count model's {bins} bins, got "
+                             f"{count_rings!r}")
+        self.count_rings = int(count_rings)
         self.model = latent_model
         self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
         self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
@@ -307,7 +318,8 @@ class EStep:
                 weights = r[index[known]]  # (S, K)
                 counts += weights.T @ part.counts[known].double()
                 exposure += weights.T @ part.exposure[known].double()
-            rates = closed_form_rates(counts.reshape(k, channels, bins).cpu().numpy(), exposure.cpu().numpy(), pooled)
+            rates = count_rates(counts.reshape(k, channels, bins).cpu().numpy(), exposure.cpu().numpy(), pooled,
+                                self.count_factors, self.count_rings)
             self.model.set_count_rates(th.as_tensor(rates, dtype=th.float32, device=ids.device))
         sums["counts"], sums["exposure"] = counts, exposure
         self.count_sums = sums
