@@ -15,7 +15,8 @@ uniformly random actions (no policy, so nothing but the model is measured):
 Beside it, the same two fittings of a model that can say *where* readings are made: the mixture of Poisson models
 of reading counts by (map block, window ring) of :mod:`sb3_emmarl.common.latent.counts` (``counts``), fitted
 by its annealed EM, or told, on the team totals of the same training episodes (``transitions`` is EM-PPO's
-model). EM-PPO does not use the count model yet; this measures what it would bring.
+model), and the same count model with its rates factored as where readings are made (by the poacher strategy) x how
+far from the UAV (by the weather), as ``em_ppo.yml``'s ``count_factors`` fits it inside EM-PPO (``factored``).
 
 Each is scored on held-out episodes (other seeds) by the aligned accuracy of the posterior's argmax over the
 8 modes (components matched to modes by the Hungarian method, as ``evaluate_team`` does) and of the
@@ -45,7 +46,7 @@ from sb3_emmarl.common.latent.counts import PoissonMixture, ReadingCounter
 from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
 
 #: Points of the episode, as fractions of its length.
 POINTS = (0.25, 0.5, 1.0)
@@ -143,10 +144,12 @@ def team_totals(episodes: Episodes, point: int) -> tuple[np.ndarray, np.ndarray,
     return counts, exposure, modes
 
 
-def fit_counts(seed: int, train: Episodes, told: bool) -> PoissonMixture:
-    """The reading-count mixture (K = 8) on the training episodes' team totals: annealed EM, or told the modes."""
+def fit_counts(seed: int, train: Episodes, told: bool, factors: tuple[int, int] | None = None,
+               n_rings: int = 1) -> PoissonMixture:
+    """The reading-count mixture (K = 8) on the training episodes' team totals: annealed EM, or told the modes; with
+    ``factors``, its rates factored as where x how far (``n_rings`` rings per block)."""
     counts, exposure, modes = team_totals(train, len(POINTS) - 1)
-    mixture = PoissonMixture(N_MODES, *counts.shape[1:])
+    mixture = PoissonMixture(N_MODES, *counts.shape[1:], factors=factors, n_rings=n_rings)
     return mixture.fit_told(counts, exposure, modes) if told else mixture.fit(counts, exposure, seed=seed)
 
 
@@ -246,14 +249,19 @@ def main(argv: list[str] | None = None) -> int:
     for fitting in ("em", "told"):
         runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
         rows["transitions", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
-    for fitting in ("em", "told"):
-        runs = [count_accuracies(fit_counts(seed, train, told=fitting == "told"), test) for seed in args.seeds]
-        rows["counts", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
+    factors = tuple(reader.count_factors or (len(STRATEGIES), len(WEATHERS)))  # em_ppo.yml's, or strategy x weather
+    rings = ReadingCounter.from_env(make_vec_env(n_copies=1).unwrapped.prototype).n_rings
+    for family, family_factors in (("counts", None), ("factored", factors)):
+        for fitting in ("em", "told"):
+            runs = [count_accuracies(fit_counts(seed, train, fitting == "told", family_factors, rings), test)
+                    for seed in args.seeds]
+            rows[family, fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
     modes = np.unique(test.team_episode, return_index=True)[1]
     commonest = np.bincount(test.mode[modes], minlength=N_MODES).max() / len(modes)
     strategies = np.bincount(test.mode[modes] // len(WEATHERS)).max() / len(modes)
     print(f"transitions: em_ppo.yml's latent model ({args.e_steps} E-steps); counts: the reading-count mixture (K = 8, "
-          f"annealed EM); the default reserve, uniformly random actions: {len(np.unique(train.team_episode))} training "
+          f"annealed EM); factored: the same with rates factored as where x how far, factors {list(factors)} (em_ppo.yml's "
+          f"count_factors); the default reserve, uniformly random actions: {len(np.unique(train.team_episode))} training "
           f"and {len(modes)} held-out episodes, seeds {args.seeds}; aligned accuracy, mean +- std over seeds; commonest "
           f"mode {commonest:.3f}, commonest strategy {strategies:.3f}")
     print(f"{'model':<12}{'fitting':<8}{'source':<9}{'what':<10}" + "".join(f"{f'{p:.0%}':>15}" for p in POINTS))

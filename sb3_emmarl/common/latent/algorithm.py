@@ -92,6 +92,8 @@ class LatentAlgorithmMixin:
         self._feature_fn = features_from_spec(self.feature_spec)[0]
         self._counter = counter_from_spec(self.feature_spec) if self.latent_layout.count_bins else None
         self._encode_action = encode_actions(self.action_space)[0]
+        # (a loaded model's count_factors come back from SB3's JSON as a list)
+        self.count_factors = check_factors(getattr(self, "count_factors", None), self.latent_layout.n_components)
         self.e_step = None
         if self.policy.latent_model is not None:
             try:
