@@ -95,3 +95,23 @@ def test_team_metrics_callback_counts_each_copy_once(tmp_path):
     # Copies start at indices 0 and 3: the mean is over those two records only.
     assert model.logger.name_to_value["reserve/detection_rate"] == pytest.approx(1.5)
     assert model.logger.name_to_count["reserve/detection_rate"] == 2
+
+
+def test_models_loaded_in_one_thread_leave_another_threads_evaluation_as_it_is_alone(tmp_path):
+    import threading
+
+    from sb3_emmarl.common.evaluation import load_for_evaluation
+
+    model = PPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), n_steps=32, batch_size=48, n_epochs=1, seed=0)
+    model.learn(96)
+    model.save(tmp_path / "model.zip")
+    alone = evaluate_team(model, 3, seed=9, env_kwargs=SMALL)
+    result: list = []
+    evaluation = threading.Thread(target=lambda: result.append(evaluate_team(model, 3, seed=9, env_kwargs=SMALL)))
+    evaluation.start()
+    loads = 0
+    while evaluation.is_alive() or loads == 0:  # as the zoo's comparisons load the next run while one evaluates
+        load_for_evaluation(PPO, tmp_path / "model.zip", device="cpu")
+        loads += 1
+    evaluation.join()
+    assert result == [alone]
