@@ -92,7 +92,7 @@ _TORCH_RNG_LOCK = threading.Lock()
 def load_for_evaluation(algo_class: type, path: str | Path, **kwargs: Any) -> Any:
     """``algo_class.load(path, **kwargs)`` holding the lock :func:`evaluate_team` holds: building a model's networks
     draws from torch's global generator, so a model loaded in one thread while another evaluates changed that
-    evaluation's sampled actions (one EM-PPO run scored 9.1 and 10.2 in two comparisons, its parameters equal).
+    evaluation's sampled actions (tests/test_evaluation.py shows it).
 
     :param algo_class: an SB3 algorithm class
     :param path: the saved model
