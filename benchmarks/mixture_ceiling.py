@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
         rows["transitions", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
     factors = tuple(reader.count_factors or (len(STRATEGIES), len(WEATHERS)))  # em_ppo.yml's, or strategy x weather
-    rings = ReadingCounter.from_env(make_vec_env(n_copies=1).unwrapped.prototype).n_rings
+    rings = find_belief_wrapper(reader.get_env()).counter.n_rings
     for family, family_factors in (("counts", None), ("factored", factors)):
         for fitting in ("em", "told"):
             runs = [count_accuracies(fit_counts(seed, train, fitting == "told", family_factors, rings), test)

@@ -84,6 +84,13 @@ def check_factors(factors: tuple[int, int] | None, n_components: int) -> tuple[i
     return int(factors[0]), int(factors[1])
 
 
+def check_rings(n_rings: int, n_bins: int, name: str = "n_rings") -> int:
+    """``n_rings`` as an int >= 1 that divides ``n_bins`` (bins are blocks x rings), else a ValueError naming ``name``."""
+    if isinstance(n_rings, bool) or not isinstance(n_rings, (int, np.integer)) or n_rings < 1 or n_bins % n_rings:
+        raise ValueError(f"{name} must be an int >= 1 that divides the {n_bins} bins, got {n_rings!r}")
+    return int(n_rings)
+
+
 def factored_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarray, factors: tuple[int, int],
                    n_rings: int, prior_exposure: float = PRIOR_EXPOSURE, rounds: int = FACTOR_ROUNDS) -> np.ndarray:
     """The rates of a *factored* mixture from responsibility-weighted sums: component ``k = i * F2 + j`` has
@@ -233,9 +240,13 @@ class ReadingCounter:
         blocks[self.r:self.r + height, self.r:self.r + width] = rows[:, None] * self.belief_size + cols[None, :]
         offsets = np.indices((w, w)).reshape(2, -1)  # (2, w * w): a window cell's place in the padded table
         ring = np.abs(offsets - self.r).max(axis=0)
-        self._blocks, self._offsets, self._ring = blocks, offsets, ring
+        self._blocks, self._ring = blocks, ring
         self._width_padded = blocks.shape[1]
         self._flat_offsets = offsets[0] * blocks.shape[1] + offsets[1]  # (w * w,)
+        # What the compiled kernels need to place and read every window cell, in their argument order.
+        self._geometry = (self.own_part.start, self.window_part.start, self.occlusion,
+                          np.array(self.channels, dtype=np.int64), height, width, blocks.ravel(), self._width_padded,
+                          self._flat_offsets, ring, self.n_rings)
 
     @classmethod
     def from_env(cls, env) -> ReadingCounter:
@@ -291,10 +302,7 @@ class ReadingCounter:
         n_bins, K)`` table (minus the rates, then each channel's log-rates), summed: the count log-likelihood of one
         step, in one compiled call."""
         observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
-        return _count_log_likelihood(observations, self.own_part.start, self.window_part.start, self.occlusion,
-                                     np.array(self.channels, dtype=np.int64), self.height, self.width,
-                                     self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring,
-                                     self.n_rings, np.ascontiguousarray(table, dtype=np.float64))
+        return _count_log_likelihood(observations, *self._geometry, np.ascontiguousarray(table, dtype=np.float64))
 
     def grouped(self, observations: np.ndarray, groups: np.ndarray, n_groups: int | None = None) -> np.ndarray:
         """The exposures and counts of the observations in each group, by bin: ``(G, 1 + n_channels, n_bins)``, what
@@ -312,10 +320,7 @@ class ReadingCounter:
         n_groups = (int(groups.max()) + 1 if len(groups) else 0) if n_groups is None else int(n_groups)
         if len(groups) and (groups.min() < 0 or groups.max() >= n_groups):
             raise ValueError(f"groups must lie in [0, {n_groups}), got [{groups.min()}, {groups.max()}]")
-        return _grouped_counts(observations, groups, n_groups, self.own_part.start, self.window_part.start,
-                               self.occlusion, np.array(self.channels, dtype=np.int64), self.height, self.width,
-                               self._blocks.ravel(), self._width_padded, self._flat_offsets, self._ring, self.n_rings,
-                               self.n_bins)
+        return _grouped_counts(observations, groups, n_groups, *self._geometry, self.n_bins)
 
     def binned(self, bins: np.ndarray, exposure: np.ndarray, readings: np.ndarray,
                groups: np.ndarray | None = None) -> np.ndarray:
@@ -366,9 +371,7 @@ class PoissonMixture:
         self.n_components, self.n_channels, self.n_bins = int(n_components), int(n_channels), int(n_bins)
         self.prior_exposure = float(prior_exposure)
         self.factors = check_factors(factors, self.n_components)
-        if isinstance(n_rings, bool) or not isinstance(n_rings, (int, np.integer)) or n_rings < 1 or n_bins % n_rings:
-            raise ValueError(f"n_rings must be an int >= 1 that divides n_bins = {n_bins}, got {n_rings!r}")
-        self.n_rings = int(n_rings)
+        self.n_rings = check_rings(n_rings, self.n_bins)
         self.rates = np.ones((self.n_components, self.n_channels, self.n_bins))
         self.log_prior = np.full(self.n_components, -np.log(self.n_components))
 

@@ -40,7 +40,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, count_rates
+from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, check_rings, count_rates
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
 
 FIELDS = ("features", "actions", "next_features", "episodes")
@@ -188,12 +188,8 @@ class EStep:
             raise ValueError(f"need learning_rate > 0, likelihood_temperature > 0 and 0 <= starved_share < 1, got "
                              f"{learning_rate}, {likelihood_temperature} and {starved_share}")
         self.count_factors = check_factors(count_factors, latent_model.n_components)
-        bins = latent_model.count_log_rates.shape[-1] if latent_model.has_counts else 1
-        if isinstance(count_rings, bool) or not isinstance(count_rings, (int, np.integer)) or count_rings < 1 \
-                or bins % count_rings:
-            raise ValueError(f"count_rings must be an int >= 1 that divides the count model's {bins} bins, got "
-                             f"{count_rings!r}")
-        self.count_rings = int(count_rings)
+        self.count_rings = check_rings(count_rings, latent_model.count_log_rates.shape[-1] if latent_model.has_counts
+                                       else 1, "count_rings")
         self.model = latent_model
         self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
         self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
@@ -253,16 +249,22 @@ class EStep:
         log_rates = self.model.count_log_rates
         counts = th.zeros(len(ids), log_rates[0].numel(), device=ids.device)
         exposure = th.zeros(len(ids), log_rates.shape[2], device=ids.device)
+        rows = self._rows(ids, parts)
+        for part, index, known in rows:
+            counts.index_add_(0, index[known], part.counts[known])
+            exposure.index_add_(0, index[known], part.exposure[known])
+        return counts, exposure, rows
+
+    @staticmethod
+    def _rows(ids: th.Tensor, parts: list[EpisodeCounts | None]) -> list[tuple]:
+        """For each part with episodes: ``(part, index of its rows into the sorted ids, whether ids holds them)``."""
         rows = []
         for part in parts:
             if part is None or not len(part.episodes):
                 continue
             index = th.searchsorted(ids, part.episodes).clamp_max(len(ids) - 1)
-            known = ids[index] == part.episodes  # an episode without kept transitions has no responsibility
-            counts.index_add_(0, index[known], part.counts[known])
-            exposure.index_add_(0, index[known], part.exposure[known])
-            rows.append((part, index, known))
-        return counts, exposure, rows
+            rows.append((part, index, ids[index] == part.episodes))  # an episode without kept transitions: no row
+        return rows
 
     def _data(self) -> Transitions:
         return Transitions.cat(list(self.memory))
@@ -290,7 +292,7 @@ class EStep:
         log_rates = self.model.count_log_rates
         k, channels, bins = log_rates.shape
         window_counts, window_exposure, _ = self._episode_counts(ids, list(self.count_memory))
-        fresh = self._episode_counts(ids, list(self.count_memory)[len(self.count_memory) - self.fresh:])[2]
+        fresh = self._rows(ids, list(self.count_memory)[len(self.count_memory) - self.fresh:])
         start = not self.count_sums
         sums = self.count_sums or {"counts": th.zeros(k, channels * bins, dtype=th.float64, device=ids.device),
                                    "exposure": th.zeros(k, bins, dtype=th.float64, device=ids.device),
