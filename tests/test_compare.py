@@ -8,6 +8,7 @@ from sb3_emmarl.zoo.benchmark import (
     DEFAULT_VARIANTS,
     compare_main,
     compare_parser,
+    difference_header,
     difference_rows,
     difference_table,
     oracle_gap_share,
@@ -50,6 +51,9 @@ def test_a_dash_for_the_oracle_share_when_the_oracle_was_not_run():
     assert oracle_gap_share(results, "em_ppo", "ppo", "oracle_ppo") == "-"
     (row,) = [row for row in difference_rows(results, "ppo", "oracle_ppo") if row[1] == "team_reward"]
     assert row[-1] == "-"
+    assert "no oracle variant ('oracle_ppo') was run" in difference_header(results, "ppo", "oracle_ppo")
+    assert "(variant - ppo) / (oracle_ppo - ppo)" in difference_header({**results, "oracle_ppo": constant(5)}, "ppo",
+                                                                       "oracle_ppo")
 
 
 def test_difference_rows_pair_by_seed_with_scipys_p_values_and_higher_on_counts():

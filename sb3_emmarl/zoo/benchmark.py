@@ -203,7 +203,7 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
         raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
     run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
     stats = json.loads((run / "run_stats.json").read_text())
-    model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")
+    model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # other threads evaluate
     config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
     records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
     row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
@@ -343,6 +343,14 @@ def summary_table(results: dict[str, list[dict]], columns: tuple[str, ...]) -> s
     return "\n".join(lines)
 
 
+def difference_header(results: dict[str, list[dict]], baseline: str, oracle: str) -> str:
+    """What :func:`difference_table`'s columns are (the oracle-gap formula only when the oracle was run)."""
+    gap = (f"oracle gap recovered: (variant - {baseline}) / ({oracle} - {baseline}) in mean {GAP_METRIC}"
+           if oracle in results else f"no oracle variant ({oracle!r}) was run, so no oracle gap ('-')")
+    return (f"Against {baseline}, paired by seed: mean difference (variant minus {baseline}), p-value of the paired "
+            f"t-test over seeds, seeds on which the variant is higher; {gap}")
+
+
 def difference_table(results: dict[str, list[dict]], baseline: str, oracle: str) -> str:
     """:func:`difference_rows` as text."""
     rows = difference_rows(results, baseline, oracle)
@@ -367,9 +375,7 @@ def compare_main(argv: list[str] | None = None) -> int:
     print(f"\n{len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; {args.eval_episodes} evaluation "
           f"episodes from seed {args.eval_seed} per run; mean +- std over seeds")
     print(summary_table(results, (*COMPARE_METRICS, "train_seconds", "peak_rss_mib")))
-    print(f"\nAgainst {args.baseline}, paired by seed: mean difference (variant minus {args.baseline}), p-value of the "
-          f"paired t-test over seeds, seeds on which the variant is higher; oracle gap recovered: "
-          f"(variant - {args.baseline}) / ({args.oracle} - {args.baseline}) in mean {GAP_METRIC}")
+    print(f"\n{difference_header(results, args.baseline, args.oracle)}")
     print(difference_table(results, args.baseline, args.oracle))
     a, b = args.ratio
     if a in results and b in results:
