@@ -112,21 +112,40 @@ def test_the_beliefs_lean_decoder_follows_the_model_through_every_change():
     check()
 
 
-def test_fusion_adds_the_own_evidence_last_heard_from_each_teammate_once():
+def test_fusion_keeps_the_newest_evidence_of_each_teammate_once_relayed_one_hop_per_step():
     tracker = BeliefTracker(6, 2, 1, 1, agents_per_copy=3)  # two copies of three agents, no model: set evidence by hand
     tracker.evidence[:] = [[1, 0], [0, 2], [3, 0], [0, 5], [7, 0], [0, 11]]
+
+    def fused():
+        return tracker.evidence + tracker.heard.sum(1)
+
     tracker.fuse([{"heard_from": (1,)}, {"heard_from": (2,)}, {}, {"heard_from": ()}, {"heard_from": (0, 2)}, {}])
-    fused = tracker.evidence + tracker.heard.sum(1)
-    np.testing.assert_array_equal(fused[0], [1, 2])  # its own and agent 1's own, not what 1 heard from 2
-    np.testing.assert_array_equal(fused[1], [3, 2])
-    np.testing.assert_array_equal(fused[2], [3, 0])  # heard nobody
-    np.testing.assert_array_equal(fused[3], [0, 5])
-    np.testing.assert_array_equal(fused[4], [7, 16])  # agents 0 and 2 of the second copy: entries 3 and 5
+    np.testing.assert_array_equal(fused()[0], [1, 2])  # its own and agent 1's: what 1 hears this step comes next step
+    np.testing.assert_array_equal(fused()[1], [3, 2])
+    np.testing.assert_array_equal(fused()[2], [3, 0])  # heard nobody
+    np.testing.assert_array_equal(fused()[3], [0, 5])
+    np.testing.assert_array_equal(fused()[4], [7, 16])  # agents 0 and 2 of the second copy: entries 3 and 5
     tracker.evidence[1] = [0, 4]  # agent 1 learns more; agent 0 keeps what it last heard until it hears again
     tracker.fuse([{}] * 6)
-    np.testing.assert_array_equal((tracker.evidence + tracker.heard.sum(1))[0], [1, 2])
+    np.testing.assert_array_equal(fused()[0], [1, 2])
     tracker.fuse([{"heard_from": (1,)}] + [{}] * 5)
-    np.testing.assert_array_equal((tracker.evidence + tracker.heard.sum(1))[0], [1, 4])  # replaced, not added
+    np.testing.assert_array_equal(fused()[0], [4, 4])  # 1's evidence replaced, not added; 2's relayed by 1, once
+    tracker.evidence[2] = [5, 0]
+    tracker.fuse([{"heard_from": (1, 2)}] + [{}] * 5)  # 2's newest version directly, and again (older) through 1
+    np.testing.assert_array_equal(fused()[0], [6, 4])
+    tracker.fuse([{"heard_from": (1,)}] + [{}] * 5)  # 1 passes on an older version of 2's than 0 holds: kept
+    np.testing.assert_array_equal(fused()[0], [6, 4])
+    tracker.fuse([{}, {"heard_from": (0,)}] + [{}] * 4)  # 1 never takes its own evidence back from a teammate
+    np.testing.assert_array_equal(fused()[1], [6, 4])
+    restored = BeliefTracker(6, 2, 1, 1, agents_per_copy=3)
+    restored.clock = 1000  # the state is relative to the clock
+    restored.set_state(tracker.get_state())
+    tracker.fuse([{"heard_from": (1,)}] * 6)
+    restored.fuse([{"heard_from": (1,)}] * 6)
+    np.testing.assert_array_equal(restored.heard, tracker.heard)
+    tracker.start(np.array([0]), np.zeros((1, 1)))  # a new episode for agent 0 alone: of what 1 passes on, only
+    tracker.fuse([{"heard_from": (1,)}] + [{}] * 5)  # what dates from after it began is taken (1's own, not 2's)
+    np.testing.assert_array_equal(tracker.heard[0].sum(0), tracker.evidence[1])
     off = BeliefTracker(3, 2, 1, 1, agents_per_copy=3, fusion=False)
     off.fuse([{"heard_from": (1, 2)}] * 3)
     assert not off.heard.any()
