@@ -57,3 +57,12 @@ def test_the_dynamics_task_moves_by_the_mode_s_rotation():
         ModeDynamicsEnv(step=0)
     with pytest.raises(ValueError, match="cue_accuracy must be in"):
         ModeCueEnv(cue_accuracy=1.5)
+
+
+@pytest.mark.parametrize("item", ["foo=1000", "dynamics=0", "dynamics=x", "dynamics"])
+def test_the_benchmark_rejects_a_bad_budget_with_a_message(item, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        load_benchmark("latent_tasks").main(["--budgets", item])
+    assert exit_info.value.code == 2
+    assert f"--budgets takes TASK=N with TASK one of ['cue', 'dynamics'] and N an integer >= 1, got {item!r}" in \
+        capsys.readouterr().err
