@@ -285,6 +285,7 @@ VALUES: dict[str, list[tuple[Any, bool]]] = {
     "comm_radius": _floats([0, 0.0, 1, 5.5, 20.0, np.float32(7.5), np.int64(3), 10_000.0, 10_000],
                            [-1, -1e-9, 10_000.5, 1e5, 10**9]),
     "continuous_actions": _bools(),
+    "agent_ids": _bools(),
     "region": _region(),
     "terrain": _terrain(),
     "risk": _risk(),

@@ -35,6 +35,7 @@ BAD = [
     ({"reward_weights": {"bananas": 1.0}}, r"reward_weights keys must be among"),
     ({"reward_weights": {"energy": -1.0}}, r"reward_weights\['energy'\] must be in \[0.0, 1000000.0\], got -1.0"),
     ({"render_mode": "ascii"}, r"render_mode must be None, 'human' or 'rgb_array', got 'ascii'"),
+    ({"agent_ids": "yes"}, r"agent_ids must be a bool \(True or False\), got 'yes' \(str\)"),
 ]
 
 

@@ -291,3 +291,21 @@ def test_a_custom_risk_map_keeps_no_value_below_the_floor():
     assert kept.dtype == np.float32 and not _subnormal(kept).any()
     np.testing.assert_array_equal(kept[0, :5], np.float32([0.0, 0.0, RISK_FLOOR, 0.3, 1.0]))
     assert (kept[1:] == 0).all()
+
+
+def test_agent_ids_end_each_observation_with_the_uavs_one_hot_and_change_nothing_else():
+    kwargs = {"n_uavs": 4, "grid_size": 30, "max_cycles": 40}
+    plain, tagged = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(agent_ids=True, **kwargs)
+    assert tagged.obs_dim == plain.obs_dim + 4
+    assert tagged.observation_layout["agent_id"][0] == slice(plain.obs_dim, plain.obs_dim + 4)
+    rng = np.random.default_rng(0)
+    observed = [plain.reset(seed=3)[0], tagged.reset(seed=3)[0]]
+    for _ in range(60):  # across an episode end: the same episode with and without the ids
+        for (a, base), other in zip(observed[0].items(), observed[1].values()):
+            np.testing.assert_array_equal(other[:plain.obs_dim], base)
+            np.testing.assert_array_equal(other[plain.obs_dim:], np.eye(4)[plain.possible_agents.index(a)])
+        if not plain.agents:
+            observed = [plain.reset(seed=4)[0], tagged.reset(seed=4)[0]]
+            continue
+        actions = {a: int(rng.integers(15)) for a in plain.agents}
+        observed = [plain.step(actions)[0], tagged.step(actions)[0]]

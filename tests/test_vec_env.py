@@ -212,7 +212,8 @@ def record(vec_env_type, env_kwargs, steps, n_copies=2, with_state=False, num_cp
     ({"sensor_noise": 0.5, "max_cycles": 110}, False),
     ({"comm_loss": 0.4, "max_cycles": 130}, False),
     ({"adversarial": True, "max_cycles": 100}, True),
-], ids=["default", "one-uav", "50-uavs-200x200", "continuous", "sensor-noise", "comm-loss", "adversarial"])
+    ({"agent_ids": True, "continuous_actions": True, "max_cycles": 100}, False),
+], ids=["default", "one-uav", "50-uavs-200x200", "continuous", "sensor-noise", "comm-loss", "adversarial", "agent-ids"])
 def test_batched_and_supersuit_paths_give_identical_data(env_kwargs, with_state):
     """500 steps of random actions across several episode ends: observations, rewards, dones and every info
     (terminal observations, truncation flags, the mode, the links, the metrics, the state) are identical."""

@@ -183,6 +183,9 @@ class ReserveConfig:
         wide)
     :param comm_radius: communication radius ``R_c`` in cells, number in [0, 10_000]
     :param continuous_actions: ``Box`` actions (velocity + communication intent) instead of ``Discrete(15)``; a bool
+    :param agent_ids: end every UAV's observation with a one-hot of its index (``n_uavs`` floats), so that a policy
+        shared by the UAVs can tell them apart: a deterministic one otherwise gives two UAVs in one cell the same
+        action, and they stay together; a bool
     :param region: terrain preset, one of :data:`~wildlife_reserve.reserve.terrain.REGIONS` (a str)
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
@@ -221,6 +224,7 @@ class ReserveConfig:
     sensor_radius: int = 3
     comm_radius: float = 20.0
     continuous_actions: bool = False
+    agent_ids: bool = False
     region: str = "mixed"
     terrain: np.ndarray | None = None
     risk: np.ndarray | None = None
@@ -302,6 +306,7 @@ class ReserveConfig:
         self.n_poachers = check_int("n_poachers", self.n_poachers, 0, MAX_ACTORS)
         self.comm_radius = check_float("comm_radius", self.comm_radius, 0.0, MAX_DISTANCE)
         self.continuous_actions = check_bool("continuous_actions", self.continuous_actions)
+        self.agent_ids = check_bool("agent_ids", self.agent_ids)
         if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValueError(f"region must be one of {sorted(REGIONS)}, got {show(self.region, with_type=True)}")
         self.region = str(self.region)

@@ -27,10 +27,12 @@ def observation_layout(config: ReserveConfig) -> dict[str, tuple[slice, tuple[in
     (row, col, d_row, d_col, battery, progress); ``neighbours`` (max_neighbors, 3) as (d_row, d_col,
     present) / ``R_c``; ``block_staleness`` (time since each block was flown over, as far as the UAV
     knows), ``belief`` (poacher activity) and ``signs`` (signs of poacher activity the UAV knows of)
-    maps, each (belief_size, belief_size).
+    maps, each (belief_size, belief_size); with ``agent_ids``, ``agent_id`` (n_uavs,), a one-hot of the UAV's index.
     """
     w, k, b = 2 * config.sensor_radius + 1, config.max_neighbors, config.belief_size
     shapes = {"window": (N_CHANNELS, w, w), "own": (N_OWN,), "neighbours": (k, 3)} | dict.fromkeys(MAP_NAMES, (b, b))
+    if config.agent_ids:
+        shapes["agent_id"] = (config.n_uavs,)
     layout, start = {}, 0
     for name, shape in shapes.items():
         size = int(np.prod(shape))
@@ -64,6 +66,8 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.nda
                       cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
                       float(env.t), team.sign_counts, SIGN_VALUES, layout["own"][0].start,
                       layout["neighbours"][0].start, layout[MAP_NAMES[0]][0].start)
+    if "agent_id" in layout:  # the kernel writes the parts before it
+        obs[:, layout["agent_id"][0]] = np.eye(env.n, dtype=np.float32)
     return obs
 
 
