@@ -22,6 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from sb3_emmarl.zoo.benchmark import paired_p_value
+from sb3_emmarl.zoo.cli import KeyValues
 
 #: Budget (agent-steps) of each task's runs: where EM-PPO's defaults reach the targets in our runs (on the dynamics
 #: task one seed of three fell short at 300k in two releases, 0.83 and 0.84 of the told return; at 500k none did).
@@ -111,17 +112,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--eval-episodes", type=int, default=50)
     parser.add_argument("--n-jobs", type=int, default=2, help="runs at once, each in its own process")
-    parser.add_argument("--budgets", nargs="+", default=[], metavar="TASK=N",
+    parser.add_argument("--budgets", nargs="+", action=KeyValues, default={}, metavar="TASK:N",
                         help=f"agent-steps per run of a task, for every variant alike (default {BUDGETS})")
     args = parser.parse_args(argv)
     if args.eval_episodes < 1 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds):
         parser.error("--eval-episodes and --n-jobs must be >= 1 and --seeds distinct")
-    budgets = dict(BUDGETS)
-    for item in args.budgets:
-        task, _, steps = item.partition("=")
-        if task not in BUDGETS or not steps.isdigit() or int(steps) < 1:
-            parser.error(f"--budgets takes TASK=N with TASK one of {list(BUDGETS)} and N an integer >= 1, got {item!r}")
-        budgets[task] = int(steps)
+    for task, steps in args.budgets.items():
+        if task not in BUDGETS or isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            parser.error(f"--budgets takes TASK:N with TASK one of {list(BUDGETS)} and N an integer >= 1, "
+                         f"got {task}:{steps!r}")
+    budgets = {**BUDGETS, **args.budgets}
     tasks = [(t, v, s, budgets[t], args.eval_episodes) for t in args.tasks for s in args.seeds for v in VARIANTS]
     with ProcessPoolExecutor(max_workers=args.n_jobs) as pool:
         records = []

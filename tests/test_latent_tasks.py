@@ -59,10 +59,17 @@ def test_the_dynamics_task_moves_by_the_mode_s_rotation():
         ModeCueEnv(cue_accuracy=1.5)
 
 
-@pytest.mark.parametrize("item", ["foo=1000", "dynamics=0", "dynamics=x", "dynamics"])
-def test_the_benchmark_rejects_a_bad_budget_with_a_message(item, capsys):
+@pytest.mark.parametrize("item, shown", [("foo:1000", "foo:1000"), ("dynamics:0", "dynamics:0"),
+                                         ("dynamics:'x'", "dynamics:'x'"), ("dynamics:2.5", "dynamics:2.5")])
+def test_the_benchmark_rejects_a_bad_budget_with_a_message(item, shown, capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_benchmark("latent_tasks").main(["--budgets", item])
     assert exit_info.value.code == 2
-    assert f"--budgets takes TASK=N with TASK one of ['cue', 'dynamics'] and N an integer >= 1, got {item!r}" in \
+    assert f"--budgets takes TASK:N with TASK one of ['cue', 'dynamics'] and N an integer >= 1, got {shown}" in \
         capsys.readouterr().err
+
+
+def test_a_budget_without_a_colon_is_refused_by_the_zoos_key_value_parser(capsys):
+    with pytest.raises(SystemExit):
+        load_benchmark("latent_tasks").main(["--budgets", "dynamics"])
+    assert "--budgets expects key:value pairs, got 'dynamics'" in capsys.readouterr().err

@@ -76,7 +76,7 @@ def benchmark_main(argv: list[str] | None = None) -> int:
                 return 2
             wall = time.perf_counter() - start
             run = Path(args.log_folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(args.log_folder) / algo), ENV_ID)}"
-            model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # other threads evaluate
+            model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # no threads here; harmless
             config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
             run_env_kwargs = dict(config.get("env_kwargs") or {})
             trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=run_env_kwargs)
