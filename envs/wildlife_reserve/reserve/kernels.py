@@ -598,7 +598,7 @@ def poacher_targets(poachers: np.ndarray, leopards: np.ndarray, alive: np.ndarra
 def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, pos: np.ndarray, born: np.ndarray,
                 kind: np.ndarray, lifetime: np.ndarray, t: float, start: int, record_pos: np.ndarray,
                 record_born: np.ndarray, record_expires: np.ndarray, record_kind: np.ndarray,
-                record_block: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+                record_block: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """Signs made at cells ``pos`` at times ``born`` (the first of repeated cells counts), in ascending cell order: a
     cell whose sign is live keeps it, with the later expiry; any other gets a new record ``start, start + 1, ...``
     (the record arrays must have room for all of them).
@@ -606,7 +606,7 @@ def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, po
     :param grid: flat padded grid of record indices (-1: none), updated in place
     :param block_of: ``(height, width)`` block of each cell
     :param lifetime: lifetime of each kind of sign
-    :return: for each input sign its new record or -1
+    :return: for each input sign its new record or -1, and the records in use after them
     """
     k = len(pos)
     flat = np.empty(k, dtype=np.int64)
@@ -631,7 +631,7 @@ def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, po
             record_born[m], record_expires[m], record_kind[m] = born[i], expires, kind[i]
             record_block[m] = block_of[pos[i, 0], pos[i, 1]]
             m += 1
-    return index
+    return index, m
 
 
 @njit(cache=True)

@@ -481,8 +481,9 @@ class ReserveParallelEnv(ParallelEnv):
         if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
             phantom = signs.add(f_where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
             self.team.learn_signs(f_uav, phantom, signs.block[phantom])
-        signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
-        signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
+        if cfg.sensor_noise > 0:  # (without noise the readings are the signals: no copy)
+            signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
+            signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
         return signals, seen, int(n_caught), readings, found
 
     def _poach(self) -> int:

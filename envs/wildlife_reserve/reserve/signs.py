@@ -185,9 +185,8 @@ class Signs:
             self._grow(max(2 * self.capacity, self.count + k))
         start = self.count
         if on_grid:
-            index = place_signs(self._flat, self.pad, self.width, self._block_of, pos, born, kind, LIFETIME, t, start,
-                                self.pos, self.born, self.expires, self.kind, self.block)
-            self.count = start + int((index >= 0).sum())
+            index, self.count = place_signs(self._flat, self.pad, self.width, self._block_of, pos, born, kind, LIFETIME,
+                                            t, start, self.pos, self.born, self.expires, self.kind, self.block)
             return index
         ids = np.arange(start, start + k)
         self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos, born, born + LIFETIME[kind], kind
