@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         results = run_variants(VARIANTS, args)
-    except RuntimeError as error:
+    except (RuntimeError, ValueError) as error:
         print(error, file=sys.stderr)
         return 2
     print(f"\nPPO told the mode or not: ppo.yml settings for both; {len(args.seeds)} seeds x {args.n_timesteps:,} "

@@ -1,7 +1,11 @@
-"""The method comparison (``zoo/compare.py``): its paired tables on hand-built records, its flags and variants."""
+"""The method comparison (``zoo/compare.py``): its paired tables on hand-built records, its flags and variants, and
+the evaluation of finished runs again (``--reuse-runs``)."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from scipy import stats
 
 from sb3_emmarl.zoo.benchmark import (
@@ -11,6 +15,7 @@ from sb3_emmarl.zoo.benchmark import (
     difference_header,
     difference_rows,
     difference_table,
+    finished_run,
     oracle_gap_share,
     paired_over_seeds,
     parse_variant,
@@ -131,3 +136,54 @@ def test_the_parser_rejects_bad_flags_before_training(flags, message, capsys):
         compare_main(flags)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+TINY_RUN = ["-n", "256", "--seeds", "0", "--eval-episodes", "1", "--variants", "ppo=ppo:n_steps=32,batch_size=64",
+            "--oracle", "-", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
+
+
+def test_reuse_runs_evaluates_the_finished_runs_again_and_refuses_runs_trained_otherwise(tmp_path, capsys):
+    folder = ["-f", str(tmp_path)]
+    assert compare_main([*TINY_RUN, *folder]) == 0
+    trained = capsys.readouterr().out
+    runs = sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*"))
+    assert [run.name for run in runs] == ["WildlifeReserve-v0_1"]
+
+    # Evaluated again, not trained again: no new run folder, the same evaluation to the digit.
+    assert compare_main([*TINY_RUN, *folder, "--reuse-runs"]) == 0
+    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*")) == runs
+    row = next(line for line in trained.splitlines() if line.startswith("ppo seed 0:"))
+    assert row.split(", ", 1)[1] in capsys.readouterr().out
+
+    # Another budget: refused before anything trains, naming the setting.
+    flags = [*TINY_RUN, *folder, "--reuse-runs"]
+    flags[1] = "512"
+    assert compare_main(flags) == 2
+    assert "was trained with n_timesteps 256, not 512" in capsys.readouterr().err
+    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*")) == runs
+
+
+def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_path):
+    assert finished_run(tmp_path, "ppo", 0, 256, [], None) is None  # no run at all
+    run = tmp_path / "ppo" / "WildlifeReserve-v0_1"
+    params = run / "WildlifeReserve-v0"
+    params.mkdir(parents=True)
+    ppo_yaml = yaml.safe_load((Path(__file__).parents[1] / "sb3_emmarl/zoo/hyperparams/ppo.yml").read_text())
+    config = {**ppo_yaml["WildlifeReserve-v0"], "gamma": 0.9, "env_kwargs": {"n_uavs": 2}}
+    (params / "config.yml").write_text(yaml.safe_dump(config))
+    (params / "args.yml").write_text(yaml.safe_dump({"algo": "ppo", "seed": 3, "n_timesteps": 256,
+                                                     "hyperparams": {"gamma": 0.9}, "env_kwargs": {"n_uavs": 2}}))
+    (run / "run_stats.json").write_text("{}")
+    assert finished_run(tmp_path, "ppo", 3, 256, ["gamma:0.9"], {"n_uavs": 2}) is None  # no final model: unfinished
+    (run / "WildlifeReserve-v0.zip").write_bytes(b"")
+    assert finished_run(tmp_path, "ppo", 3, 256, ["gamma:0.9"], {"n_uavs": 2}) == run
+    with pytest.raises(ValueError, match="trained with seed 3, not 4"):
+        finished_run(tmp_path, "ppo", 4, 256, ["gamma:0.9"], {"n_uavs": 2})
+    with pytest.raises(ValueError, match=r"trained with env_kwargs \{'n_uavs': 2\}, not None"):
+        finished_run(tmp_path, "ppo", 3, 256, ["gamma:0.9"], None)
+    # The flags agree but the YAML has changed since (here: the run's config says 0.9 where the YAML now says
+    # another discount): refused, naming the hyperparameter.
+    (params / "args.yml").write_text(yaml.safe_dump({"algo": "ppo", "seed": 3, "n_timesteps": 256,
+                                                     "env_kwargs": {"n_uavs": 2}}))
+    with pytest.raises(ValueError, match=f"trained with gamma 0.9, not {ppo_yaml['WildlifeReserve-v0']['gamma']!r}"):
+        finished_run(tmp_path, "ppo", 3, 256, [], {"n_uavs": 2})

@@ -6,16 +6,16 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
 
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation
-from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.cli import KeyValues, train_main
-from sb3_emmarl.zoo.exp_manager import read_yaml
+from sb3_emmarl.zoo.algos import SHARED_HYPERPARAMS, ZOO_ALGOS
+from sb3_emmarl.zoo.cli import KeyValues, parse_key_values, train_main
+from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR, plain, read_yaml
 
 #: Metrics in the comparison table.
 TABLE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "poaching_events", "collisions")
@@ -172,6 +172,11 @@ def add_run_arguments(parser: argparse.ArgumentParser, n_timesteps: int, seeds: 
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
     parser.add_argument("--n-jobs", type=int, default=1,
                         help="runs trained at once, each in its own process with one torch thread")
+    parser.add_argument("--reuse-runs", action="store_true",
+                        help="evaluate the runs already finished in the log folder instead of training them again "
+                             "(each checked to have been trained with these settings; runs missing or stopped early "
+                             "are trained): to evaluate a comparison again with more episodes, or finish one that "
+                             "was interrupted")
 
 
 def check_run_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -186,22 +191,64 @@ def check_run_arguments(parser: argparse.ArgumentParser, args: argparse.Namespac
         parser.error(f"--seeds must be distinct, got {args.seeds}")
 
 
+def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, params: list[str],
+                 env_kwargs: dict[str, Any] | None) -> Path | None:
+    """The newest run of ``algo`` in ``folder`` if it finished (final model and ``run_stats.json`` saved) and was
+    trained with these settings: the zoo's flags (seed, budget, ``-params``, ``--env-kwargs``, in its ``args.yml``)
+    and the hyperparameters its YAML gives today with those overrides (its ``config.yml``).
+
+    :param folder: the zoo's ``-f`` folder of the run
+    :param params: ``-params`` items, ``key:value``
+    :return: the run's folder, or None if there is no finished run (a run stopped early is not one)
+    :raise ValueError: naming the first setting the finished run was trained with differently
+    """
+    from rl_zoo3.utils import get_latest_run_id
+
+    algo_folder = Path(folder) / algo
+    run = algo_folder / f"{ENV_ID}_{get_latest_run_id(str(algo_folder), ENV_ID)}"
+    if not ((run / f"{ENV_ID}.zip").is_file() and (run / "run_stats.json").is_file()):
+        return None
+    overrides = parse_key_values(params, "-params") if params else {}
+    saved = read_yaml(run / ENV_ID / "args.yml", "the run's arguments")
+    flags = {"algo": algo, "seed": seed, "n_timesteps": n_timesteps, "hyperparams": overrides or None,
+             "env_kwargs": env_kwargs or None}
+    given = {key: saved.get(key) or None if isinstance(saved.get(key), dict) else saved.get(key) for key in flags}
+    differences = [(key, given[key], value) for key, value in flags.items() if given[key] != value]
+    if not differences:  # the YAML may have changed since: compare the run's hyperparameters with today's
+        content = read_yaml(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml", "a hyperparameter file")
+        today = plain({**content.get(ENV_ID, content.get("default", {})), **overrides})
+        today["env_kwargs"] = {**(today.get("env_kwargs") or {}), **(env_kwargs or {})}
+        config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
+        differences = [(key, config.get(key), value) for key, value in today.items()
+                       if key != "n_timesteps" and config.get(key) != value]
+    if differences:
+        key, was, wanted = differences[0]
+        raise ValueError(f"{run} was trained with {key} {was!r}, not {wanted!r}: give another -f/--log-folder, or "
+                         "leave out --reuse-runs")
+    return run
+
+
 def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args: argparse.Namespace) -> dict:
-    """Train one run in a fresh process, then evaluate it; returns its metrics and run statistics."""
+    """Train one run in a fresh process (or take it from the folder, with ``--reuse-runs``), then evaluate it;
+    returns its metrics and run statistics."""
     import json
     import subprocess
 
     from rl_zoo3.utils import get_latest_run_id
 
     folder = str(Path(args.log_folder) / name / f"seed_{seed}")
-    env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] if args.env_kwargs else []
-    command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
-               "--seed", str(seed), "-f", folder, "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0",
-               *env_flags, *(["-params", *params] if params else [])]
-    done = subprocess.run(command, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
-    run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
+    run = finished_run(folder, algo, seed, args.n_timesteps, params, args.env_kwargs) \
+        if args.reuse_runs else None
+    if run is None:
+        env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] \
+            if args.env_kwargs else []
+        command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
+                   "--seed", str(seed), "-f", folder, "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose",
+                   "0", *env_flags, *(["-params", *params] if params else [])]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
+        run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
     stats = json.loads((run / "run_stats.json").read_text())
     model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # other threads evaluate
     config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
@@ -227,6 +274,10 @@ def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Name
 
     th.set_num_threads(1)  # evaluation runs here, beside the training processes
     tasks = [(name, algo, params, seed) for seed in args.seeds for name, algo, params in variants]
+    if args.reuse_runs:  # every finished run checked before anything trains (raises ValueError)
+        for name, algo, params, seed in tasks:
+            finished_run(Path(args.log_folder) / name / f"seed_{seed}", algo, seed, args.n_timesteps, params,
+                         args.env_kwargs)
     with ThreadPoolExecutor(max_workers=args.n_jobs) as pool:
         futures = [(task[0], pool.submit(_train_and_evaluate, *task, args)) for task in tasks]
         results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
@@ -369,7 +420,7 @@ def compare_main(argv: list[str] | None = None) -> int:
     variants = check_compare_arguments(parser, args)
     try:
         results = run_variants(variants, args)
-    except RuntimeError as error:
+    except (RuntimeError, ValueError) as error:
         print(error, file=sys.stderr)
         return 2
     print(f"\n{len(args.seeds)} seeds x {args.n_timesteps:,} agent-steps per run; {args.eval_episodes} evaluation "
