@@ -50,7 +50,7 @@ benchmark-ppo: install
 # EM-PPO, PPO, RecurrentPPO (memory without EM), PPO told the mode (the upper bound) and EM-PPO's no-latent and
 # frozen-E-step ablations, 3 seeds at the same budget, paired against PPO (about 50 minutes, estimated).
 benchmark-em: install
-	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2 --eval-episodes 10
+	$(PYTHON) zoo/compare.py -n 500000 --seeds 0 1 2
 
 # Wall time of EM-PPO against PPO and RecurrentPPO at equal agent-steps, taking turns in one process (about 15 minutes).
 benchmark-em-speed: install

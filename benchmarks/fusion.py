@@ -19,7 +19,7 @@ import torch as th
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import paired_p_value
+from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value
 from sb3_emmarl.zoo.exp_manager import read_yaml
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
@@ -38,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", default="em_ppo", help="the variant whose runs to evaluate")
     parser.add_argument("--algo", default="em_ppo", choices=["em_ppo", "em_ddpg"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
-    parser.add_argument("--eval-episodes", type=int, default=20)
+    parser.add_argument("--eval-episodes", type=int, default=COMPARISON_EVAL_EPISODES,
+                        help="evaluation episodes per model and setting")
     parser.add_argument("--eval-seed", type=int, default=50_000)
     args = parser.parse_args(argv)
     th.set_num_threads(1)

@@ -22,7 +22,13 @@ import shlex
 import sys
 import time
 
-from sb3_emmarl.zoo.benchmark import add_run_arguments, check_run_arguments, paired_over_seeds, run_variants
+from sb3_emmarl.zoo.benchmark import (
+    COMPARISON_EVAL_EPISODES,
+    add_run_arguments,
+    check_run_arguments,
+    paired_over_seeds,
+    run_variants,
+)
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol, run_patrol
 
@@ -68,7 +74,8 @@ def patrol_comparison(episodes: int, seed: int, env_kwargs: dict | None = None) 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=50, log_folder="logs/mode_value")
+    add_run_arguments(parser, n_timesteps=500_000, seeds=[0, 1, 2, 3, 4], eval_episodes=COMPARISON_EVAL_EPISODES,
+                      log_folder="logs/mode_value")
     parser.set_defaults(n_jobs=2)
     parser.add_argument("--patrol-episodes", type=int, default=300,
                         help="episodes of the scripted comparison (told the strategy or not); 0 skips it")
