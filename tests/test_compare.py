@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import yaml
 from scipy import stats
+from scripts import load_benchmark
 
+from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
 from sb3_emmarl.zoo.benchmark import (
     DEFAULT_VARIANTS,
     compare_main,
@@ -187,3 +189,15 @@ def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_pa
                                                      "env_kwargs": {"n_uavs": 2}}))
     with pytest.raises(ValueError, match=f"trained with gamma 0.9, not {ppo_yaml['WildlifeReserve-v0']['gamma']!r}"):
         finished_run(tmp_path, "ppo", 3, 256, [], {"n_uavs": 2})
+
+
+def test_the_fusion_benchmarks_all_links_lists_every_teammate_of_the_copy_and_nobody_else():
+    fusion = load_benchmark("fusion")
+    venv = fusion.AllLinks(make_vec_env(2, seed=0, env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 5}))
+    try:
+        venv.reset()
+        for _ in range(6):  # across an episode end
+            _, _, _, infos = venv.step(np.zeros(venv.num_envs, dtype=np.int64))
+            assert [info[LINKS_KEY] for info in infos] == [(1, 2), (0, 2), (0, 1), (4, 5), (3, 5), (3, 4)]
+    finally:
+        venv.close()
