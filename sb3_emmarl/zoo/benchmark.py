@@ -236,9 +236,28 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     return run
 
 
-def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args: argparse.Namespace) -> dict:
-    """Train one run in a fresh process (or take it from the folder, with ``--reuse-runs``), then evaluate it;
-    returns its metrics and run statistics."""
+def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int) -> list[dict]:
+    """``evaluate_team`` of a finished zoo run on its own reserve arguments: ``n_episodes`` episodes from ``seed``.
+
+    :param algo: the run's zoo algorithm
+    :param run: the run's folder (``<log-folder>/<algo>/<env>_<n>``)
+    :return: one record per episode
+    """
+    model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
+    config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
+    return evaluate_team(model, n_episodes, seed=seed, env_kwargs=config.get("env_kwargs"))
+
+
+def _one_torch_thread() -> None:
+    import torch as th
+
+    th.set_num_threads(1)
+
+
+def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args: argparse.Namespace,
+                        evaluators: Any = None) -> dict:
+    """Train one run in a fresh process (or take it from the folder, with ``--reuse-runs``), then evaluate it
+    (in ``evaluators``, a process pool, if given; else here); returns its metrics and run statistics."""
     import json
     import subprocess
 
@@ -258,9 +277,8 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
             raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
         run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
     stats = json.loads((run / "run_stats.json").read_text())
-    model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # other threads evaluate
-    config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
-    records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=config.get("env_kwargs"))
+    evaluation = (algo, run, args.eval_episodes, args.eval_seed)
+    records = evaluators.submit(evaluate_run, *evaluation).result() if evaluators else evaluate_run(*evaluation)
     row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
     print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()),
           flush=True)
@@ -276,18 +294,20 @@ def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Name
     :param args: the flags of :func:`add_run_arguments`
     :return: ``{name: [one record per seed, in the order of args.seeds]}``
     """
-    from concurrent.futures import ThreadPoolExecutor
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
-    import torch as th
-
-    th.set_num_threads(1)  # evaluation runs here, beside the training processes
     tasks = [(name, algo, params, seed) for seed in args.seeds for name, algo, params in variants]
     if args.reuse_runs:  # every finished run checked before anything trains (raises ValueError)
         for name, algo, params, seed in tasks:
             finished_run(Path(args.log_folder) / name / f"seed_{seed}", algo, seed, args.n_timesteps, params,
                          args.env_kwargs)
-    with ThreadPoolExecutor(max_workers=args.n_jobs) as pool:
-        futures = [(task[0], pool.submit(_train_and_evaluate, *task, args)) for task in tasks]
+    # Threads wait for the training processes; the evaluations run in worker processes (one torch thread each), so
+    # that n_jobs of them use n_jobs cores (threads of one process would share its interpreter lock).
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.n_jobs, mp_context=spawn, initializer=_one_torch_thread) as evaluators, \
+            ThreadPoolExecutor(max_workers=args.n_jobs) as pool:
+        futures = [(task[0], pool.submit(_train_and_evaluate, *task, args, evaluators)) for task in tasks]
         results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
         for name, future in futures:
             results[name].append(future.result())
