@@ -24,16 +24,10 @@ from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value
+from sb3_emmarl.zoo.cli import latest_run
 from sb3_emmarl.zoo.exp_manager import read_yaml
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
-
-
-def latest_run(folder: Path, algo: str) -> Path:
-    runs = sorted((folder / algo).glob(f"{ENV_ID}_*"), key=lambda p: int(p.name.rsplit("_", 1)[1]))
-    if not runs:
-        raise FileNotFoundError(f"no {algo} run in {folder / algo}")
-    return runs[-1]
 
 
 class AllLinks(VecEnvWrapper):
@@ -46,9 +40,8 @@ class AllLinks(VecEnvWrapper):
     def step_wait(self):
         observations, rewards, dones, infos = self.venv.step_wait()
         per_copy = self.venv.unwrapped.agents_per_copy
-        infos = [{**info, LINKS_KEY: tuple(c * per_copy + j for j in range(per_copy) if c * per_copy + j != i)}
-                 for i, info in enumerate(infos) for c in [i // per_copy]]
-        return observations, rewards, dones, infos
+        teammates = [tuple(i - i % per_copy + j for j in range(per_copy) if j != i % per_copy) for i in range(len(infos))]
+        return observations, rewards, dones, [{**info, LINKS_KEY: heard} for info, heard in zip(infos, teammates)]
 
 
 def table(title: str, a_name: str, b_name: str, a: list[dict], b: list[dict]) -> str:
@@ -80,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, list[dict]] = {name: [] for name in settings}
     for seed in args.seeds:
         run = latest_run(Path(args.folder) / args.variant / f"seed_{seed}", args.algo)
+        if not run.is_dir():
+            parser.error(f"no {args.algo} run in {run.parent}")
         env_kwargs = read_yaml(run / ENV_ID / "config.yml", "the run's config").get("env_kwargs")
         model = ZOO_ALGOS[args.algo].load(run / f"{ENV_ID}.zip", device="cpu")
         for name in settings:

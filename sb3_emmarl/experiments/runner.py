@@ -67,10 +67,7 @@ def _flags(pairs: dict[str, Any]) -> list[str]:
 def _train(algo: str, n_timesteps: int, seed: int, folder: Path, env_kwargs: dict, hyperparams: dict,
            trained_agent: Path | None = None) -> tuple[Path, dict]:
     """One zoo training run; returns its run folder and run_stats.json."""
-    from rl_zoo3.utils import get_latest_run_id
-
-    from sb3_emmarl.common.centralized import ENV_ID
-    from sb3_emmarl.zoo.cli import train_main
+    from sb3_emmarl.zoo.cli import latest_run, train_main
 
     flags = ["--algo", algo, "-n", str(n_timesteps), "--seed", str(seed), "-f", str(folder), "--eval-freq", "-1",
              "--team-eval-episodes", "0", "--verbose", "0", "-tb", str(folder / "tensorboard")]
@@ -83,7 +80,7 @@ def _train(algo: str, n_timesteps: int, seed: int, folder: Path, env_kwargs: dic
     code = train_main(flags)
     if code != 0:
         raise RuntimeError(f"zoo training failed with exit code {code}: {' '.join(flags)}")
-    run = folder / algo / f"{ENV_ID}_{get_latest_run_id(str(folder / algo), ENV_ID)}"
+    run = latest_run(folder, algo)
     return run, json.loads((run / "run_stats.json").read_text())
 
 

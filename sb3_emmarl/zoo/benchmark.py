@@ -14,7 +14,7 @@ from scipy import stats
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation
 from sb3_emmarl.zoo.algos import SHARED_HYPERPARAMS, ZOO_ALGOS
-from sb3_emmarl.zoo.cli import KeyValues, parse_key_values, train_main
+from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR, plain, read_yaml
 
 #: Metrics in the comparison table.
@@ -55,8 +55,6 @@ def benchmark_parser() -> argparse.ArgumentParser:
 
 def benchmark_main(argv: list[str] | None = None) -> int:
     """Train, evaluate trained and random teams on the same episodes, print the table."""
-    from rl_zoo3.utils import get_latest_run_id
-
     parser = benchmark_parser()
     args = parser.parse_args(argv)
     if args.n_timesteps < 1 or args.eval_episodes < 2:
@@ -75,7 +73,7 @@ def benchmark_main(argv: list[str] | None = None) -> int:
             if train_main(flags) != 0:
                 return 2
             wall = time.perf_counter() - start
-            run = Path(args.log_folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(args.log_folder) / algo), ENV_ID)}"
+            run = latest_run(args.log_folder, algo)
             model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # no threads here; harmless
             config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
             run_env_kwargs = dict(config.get("env_kwargs") or {})
@@ -210,17 +208,14 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     :return: the run's folder, or None if there is no finished run (a run stopped early is not one)
     :raise ValueError: naming the first setting the finished run was trained with differently
     """
-    from rl_zoo3.utils import get_latest_run_id
-
-    algo_folder = Path(folder) / algo
-    run = algo_folder / f"{ENV_ID}_{get_latest_run_id(str(algo_folder), ENV_ID)}"
+    run = latest_run(folder, algo)
     if not ((run / f"{ENV_ID}.zip").is_file() and (run / "run_stats.json").is_file()):
         return None
     overrides = parse_key_values(params, "-params") if params else {}
     saved = read_yaml(run / ENV_ID / "args.yml", "the run's arguments")
     flags = {"algo": algo, "seed": seed, "n_timesteps": n_timesteps, "hyperparams": overrides or None,
              "env_kwargs": env_kwargs or None}
-    given = {key: saved.get(key) or None if isinstance(saved.get(key), dict) else saved.get(key) for key in flags}
+    given = {key: (saved.get(key) or None) if isinstance(saved.get(key), dict) else saved.get(key) for key in flags}
     differences = [(key, given[key], value) for key, value in flags.items() if given[key] != value]
     if not differences:  # the YAML may have changed since: compare the run's hyperparameters with today's
         content = read_yaml(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml", "a hyperparameter file")
@@ -254,18 +249,19 @@ def _one_torch_thread() -> None:
     th.set_num_threads(1)
 
 
+def _run_folder(args: argparse.Namespace, name: str, seed: int) -> Path:
+    """Where a comparison keeps variant ``name``'s run of ``seed`` (the zoo's ``-f``)."""
+    return Path(args.log_folder) / name / f"seed_{seed}"
+
+
 def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args: argparse.Namespace,
-                        evaluators: Any = None) -> dict:
-    """Train one run in a fresh process (or take it from the folder, with ``--reuse-runs``), then evaluate it
-    (in ``evaluators``, a process pool, if given; else here); returns its metrics and run statistics."""
+                        run: Path | None, evaluators: Any) -> dict:
+    """Train one run in a fresh process unless ``run`` (a finished run, see :func:`finished_run`) is given, then
+    evaluate it in ``evaluators`` (a process pool); returns its metrics and run statistics."""
     import json
     import subprocess
 
-    from rl_zoo3.utils import get_latest_run_id
-
-    folder = str(Path(args.log_folder) / name / f"seed_{seed}")
-    run = finished_run(folder, algo, seed, args.n_timesteps, params, args.env_kwargs) \
-        if args.reuse_runs else None
+    folder = str(_run_folder(args, name, seed))
     if run is None:
         env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] \
             if args.env_kwargs else []
@@ -275,10 +271,9 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
         done = subprocess.run(command, capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
-        run = Path(folder) / algo / f"{ENV_ID}_{get_latest_run_id(str(Path(folder) / algo), ENV_ID)}"
+        run = latest_run(folder, algo)
     stats = json.loads((run / "run_stats.json").read_text())
-    evaluation = (algo, run, args.eval_episodes, args.eval_seed)
-    records = evaluators.submit(evaluate_run, *evaluation).result() if evaluators else evaluate_run(*evaluation)
+    records = evaluators.submit(evaluate_run, algo, run, args.eval_episodes, args.eval_seed).result()
     row = {m: float(np.mean([r[m] for r in records])) for m in COMPARE_METRICS if m in records[0]}
     print(f"{name} seed {seed}: {stats['train_seconds']:.0f} s, " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()),
           flush=True)
@@ -298,16 +293,16 @@ def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Name
     from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
     tasks = [(name, algo, params, seed) for seed in args.seeds for name, algo, params in variants]
-    if args.reuse_runs:  # every finished run checked before anything trains (raises ValueError)
-        for name, algo, params, seed in tasks:
-            finished_run(Path(args.log_folder) / name / f"seed_{seed}", algo, seed, args.n_timesteps, params,
-                         args.env_kwargs)
+    # With --reuse-runs every finished run is found and checked before anything trains (a mismatch raises ValueError).
+    runs = [finished_run(_run_folder(args, name, seed), algo, seed, args.n_timesteps, params, args.env_kwargs)
+            if args.reuse_runs else None for name, algo, params, seed in tasks]
     # Threads wait for the training processes; the evaluations run in worker processes (one torch thread each), so
     # that n_jobs of them use n_jobs cores (threads of one process would share its interpreter lock).
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.n_jobs, mp_context=spawn, initializer=_one_torch_thread) as evaluators, \
             ThreadPoolExecutor(max_workers=args.n_jobs) as pool:
-        futures = [(task[0], pool.submit(_train_and_evaluate, *task, args, evaluators)) for task in tasks]
+        futures = [(task[0], pool.submit(_train_and_evaluate, *task, args, run, evaluators))
+                   for task, run in zip(tasks, runs)]
         results: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
         for name, future in futures:
             results[name].append(future.result())

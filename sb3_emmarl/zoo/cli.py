@@ -77,6 +77,15 @@ def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
     return result
 
 
+def latest_run(log_folder: str | Path, algo: str) -> Path:
+    """The folder of the newest run of ``algo`` in the zoo's ``log_folder`` (rl-zoo's ``<log>/<algo>/<env>_<n>``,
+    highest ``n``); ``<env>_0``, which does not exist, when there is none."""
+    from rl_zoo3.utils import get_latest_run_id
+
+    algo_folder = Path(log_folder) / algo
+    return algo_folder / f"{ENV_ID}_{get_latest_run_id(str(algo_folder), ENV_ID)}"
+
+
 class KeyValues(argparse.Action):
     """argparse action storing ``key:value`` pairs as a dict (see :func:`parse_key_values`)."""
 
