@@ -12,6 +12,11 @@ the stalest-block patrol told the strategy (``ToldModePatrol``: it holds station
 poachers come from until their entry window closes) against the same patrol not told, on the same
 ``--patrol-episodes`` episodes, paired over episodes.
 
+``--hide PART ...`` trains and evaluates both variants with those parts of the observation zeroed
+(``sb3_emmarl.common.masking.HideObservationParts`` as the zoo's ``vec_env_wrapper``), for example
+``--hide signs window.sign``: what knowing the mode pays to a team that cannot see the signs, where the
+strategy shows. Give it its own ``-f``.
+
 Example: ``python benchmarks/mode_value.py`` (or ``make benchmark-mode-value``; 5 seeds x 500k agent-steps)
 """
 
@@ -22,6 +27,7 @@ import shlex
 import sys
 import time
 
+from sb3_emmarl.common.masking import hidden_indices
 from sb3_emmarl.zoo.benchmark import (
     COMPARISON_EVAL_EPISODES,
     add_run_arguments,
@@ -79,8 +85,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.set_defaults(n_jobs=2)
     parser.add_argument("--patrol-episodes", type=int, default=300,
                         help="episodes of the scripted comparison (told the strategy or not); 0 skips it")
+    parser.add_argument("--hide", nargs="+", metavar="PART", default=None,
+                        help="observation parts both variants train and play without (zeroed): names of the "
+                             "reserve's observation_layout or window.<channel>, e.g. signs window.sign")
     args = parser.parse_args(argv)
     check_run_arguments(parser, args)
+    variants = VARIANTS
+    if args.hide:
+        env = reserve_v0.parallel_env(**dict(args.env_kwargs or {}))
+        try:
+            hidden_indices(env.observation_layout, args.hide)
+        except ValueError as error:
+            parser.error(f"--hide: {error}")
+        wrapper = {"sb3_emmarl.common.masking.HideObservationParts": {"parts": list(args.hide)}}
+        variants = [(name, algo, [*params, f"vec_env_wrapper:{wrapper!r}"]) for name, algo, params in VARIANTS]
     if len(args.seeds) < 2:
         parser.error(f"--seeds must name at least 2 seeds for a paired test, got {args.seeds}")
     if args.patrol_episodes == 1 or args.patrol_episodes < 0:
@@ -94,12 +112,13 @@ def main(argv: list[str] | None = None) -> int:
         print(paired_table(patrols, METRICS + ("poaching_events",)).split("\n\nseed")[0], flush=True)
     start = time.perf_counter()
     try:
-        results = run_variants(VARIANTS, args)
+        results = run_variants(variants, args)
     except (RuntimeError, ValueError) as error:
         print(error, file=sys.stderr)
         return 2
-    print(f"\nPPO told the mode or not: ppo.yml settings for both; {len(args.seeds)} seeds x {args.n_timesteps:,} "
-          "agent-steps per run; "
+    hidden = f" without {' '.join(args.hide)} in the observation" if args.hide else ""
+    print(f"\nPPO told the mode or not{hidden}: ppo.yml settings for both; {len(args.seeds)} seeds x "
+          f"{args.n_timesteps:,} agent-steps per run; "
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
     print(paired_table({name: results[name] for name, _, _ in VARIANTS}))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -47,7 +48,8 @@ class RandomPolicy:
 
 
 def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centralized: bool = False,
-                  vec_normalize_path: str | None = None, model: Any = None) -> VecEnv:
+                  vec_normalize_path: str | None = None, model: Any = None,
+                  vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None) -> VecEnv:
     """One reserve for evaluation: the parameter-sharing view, or the centralised one.
 
     :param seed: seed of the first episode (later episodes follow from it)
@@ -55,15 +57,19 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
     :param centralized: the single-agent view over the global state and the joint action
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training (applied frozen)
     :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG, oracle PPO) gets its wrapper on top
+    :param vec_env_wrapper: the wrapper the model was trained under (rl-zoo's ``vec_env_wrapper``, e.g.
+        ``HideObservationParts``), applied where training applied it: on the plain parameter-sharing view
     """
     env_kwargs = dict(env_kwargs or {})
+    if centralized and vec_env_wrapper is not None:
+        raise ValueError("vec_env_wrapper applies to the parameter-sharing view, not to the centralised one")
     if centralized:
         from sb3_emmarl.common.centralized import CentralizedReserveEnv
 
         venv: VecEnv = VecMonitor(DummyVecEnv([lambda: CentralizedReserveEnv(**env_kwargs)]))
         venv.seed(seed)
     else:
-        venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs)
+        venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs, vec_env_wrapper=vec_env_wrapper)
     if vec_normalize_path is not None:
         venv = VecNormalize.load(vec_normalize_path, venv)
         venv.training = False
@@ -110,6 +116,7 @@ def evaluate_team(
     deterministic: bool = False,
     vec_env: VecEnv | None = None,
     vec_normalize_path: str | None = None,
+    vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,
 ) -> list[dict[str, Any]]:
     """Play ``n_episodes`` evaluation episodes and return each one's team metrics and true mode.
 
@@ -131,13 +138,15 @@ def evaluate_team(
     :param vec_env: evaluate on this vector environment instead (one reserve copy; its seed is yours); a model with
         ``wrap_env`` (EM, oracle and message models) gets its wrapper on top, as on its own environment
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training, if the model used them
+    :param vec_env_wrapper: the ``vec_env_wrapper`` the model was trained under, if any (see :func:`make_eval_env`)
     :return: one dict per episode: every metric of the episode, ``mode``, ``episode`` and ``seed``
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     own_env = vec_env is None
     if own_env:
-        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model)
+        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model,
+                                vec_env_wrapper)
     elif hasattr(model, "wrap_env"):  # kept when it is already there
         vec_env = model.wrap_env(vec_env)
     per_copy = int(getattr(vec_env, "agents_per_copy", 1))

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from rl_zoo3.utils import get_wrapper_class
 from scipy import stats
 
 from sb3_emmarl.common.centralized import ENV_ID
@@ -77,7 +78,8 @@ def benchmark_main(argv: list[str] | None = None) -> int:
             model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # no threads here; harmless
             config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
             run_env_kwargs = dict(config.get("env_kwargs") or {})
-            trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=run_env_kwargs)
+            trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=run_env_kwargs,
+                                    vec_env_wrapper=get_wrapper_class(config, "vec_env_wrapper"))
             # The random team acts in the model's action space (per UAV, or joint for a centralised model).
             reference = evaluate_team(RandomPolicy(model.action_space, seed=seed), args.eval_episodes, seed=args.eval_seed,
                                       env_kwargs=run_env_kwargs)
@@ -240,7 +242,8 @@ def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int) -> list
     """
     model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
     config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
-    return evaluate_team(model, n_episodes, seed=seed, env_kwargs=config.get("env_kwargs"))
+    return evaluate_team(model, n_episodes, seed=seed, env_kwargs=config.get("env_kwargs"),
+                         vec_env_wrapper=get_wrapper_class(config, "vec_env_wrapper"))
 
 
 def _one_torch_thread() -> None:

@@ -291,7 +291,8 @@ def train_main(argv: list[str] | None = None) -> int:
         vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
                                 env_kwargs=manager.eval_env_kwargs,
-                                vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None)
+                                vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None,
+                                vec_env_wrapper=manager.vec_env_wrapper)
         write_text(Path(manager.save_path) / "team_eval.json", json.dumps(records, indent=1))
         eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
         title = f"{args.algo} on {ENV_ID}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
@@ -322,7 +323,7 @@ def enjoy_parser() -> argparse.ArgumentParser:
 
 def enjoy_main(argv: list[str] | None = None) -> int:
     """Load a saved run, print its team metrics on evaluation episodes and record one episode."""
-    from rl_zoo3.utils import EnvironmentName, get_model_path
+    from rl_zoo3.utils import EnvironmentName, get_model_path, get_wrapper_class
 
     from sb3_emmarl.common.recording import record_episode
 
@@ -348,16 +349,19 @@ def enjoy_main(argv: list[str] | None = None) -> int:
         reserve_v0.parallel_env(**env_kwargs).close()  # checked before anything runs
         vec_normalize = params_path / "vecnormalize.pkl"
         vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
+        vec_env_wrapper = get_wrapper_class(config, "vec_env_wrapper")  # what the run was trained under
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
     except (AssertionError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     records = evaluate_team(model, n_episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
-                            deterministic=args.deterministic, vec_normalize_path=vec_normalize_path)
+                            deterministic=args.deterministic, vec_normalize_path=vec_normalize_path,
+                            vec_env_wrapper=vec_env_wrapper)
     print(format_summary(summarize(records), f"{model_path}: {len(records)} episodes from seed {args.seed} (mean +- std)"))
     if not args.no_record:
         output = Path(args.output) if args.output else Path(log_path) / "patrol.gif"
         record_episode(model, output, seed=args.seed, env_kwargs=env_kwargs, deterministic=args.deterministic,
-                       vec_normalize_path=vec_normalize_path, fps=args.fps, frame_skip=args.frame_skip)
+                       vec_normalize_path=vec_normalize_path, fps=args.fps, frame_skip=args.frame_skip,
+                       vec_env_wrapper=vec_env_wrapper)
         print(f"Recorded one episode to {output}")
     return 0
