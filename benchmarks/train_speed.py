@@ -2,7 +2,8 @@
 
 Three parts, all printed as figures measured in this run:
 
-1. **Training**: PPO and EM-PPO with their zoo YAMLs (4 copies x 10 UAVs, one torch thread) train ``-n``
+1. **Training**: PPO and EM-PPO with their zoo YAMLs (4 copies x 10 UAVs, one torch thread unless
+   ``--num-threads`` says otherwise) train ``-n``
    agent-steps on the reserve through the batched path (``ReserveVecEnv``), through SuperSuit
    (``SharedPolicyVecEnv``) and on a zero-cost vector environment with the same spaces, entries and episode length
    (constant observations, zero rewards: only the networks and SB3 cost anything). The configurations take turns,
@@ -116,8 +117,10 @@ def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None)
                 model.get_env().close()
                 print(f"  round {round_} {algo:<7} {path:<10} {seconds[algo, path][-1]:6.1f} s", flush=True)
     copies = f", {n_copies} copies" if n_copies else ""
-    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings{copies}, one torch "
-          f"thread (subproc: the batched path's copies split over this process and one worker)")
+    threads = th.get_num_threads()
+    print(f"\nTraining: {n:,} agent-steps per turn, {rounds} turns each (median), zoo YAML settings{copies}, "
+          f"{'one torch thread' if threads == 1 else f'{threads} torch threads'} (subproc: the batched path's copies "
+          "split over this process and one worker)")
     print(f"{'algo':<8}{'path':<11}{'seconds':>9}{'agent-steps/s':>15}{'outside networks':>18}")
     for algo in algos:
         zero = np.median(seconds[algo, "zero-cost"])
@@ -168,8 +171,9 @@ def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> Non
               flush=True)
 
 
-def team_sizes(n: int, sizes: list[int], vec_env: str) -> None:
-    print(f"\nTeam size through the zoo: zoo/train.py --algo ppo -n {n:,} --vec-env {vec_env} (ppo.yml: 4 copies), "
+def team_sizes(n: int, sizes: list[int], vec_env: str, threads: int = 1) -> None:
+    print(f"\nTeam size through the zoo: zoo/train.py --algo ppo -n {n:,} --vec-env {vec_env} --num-threads {threads} "
+          "(ppo.yml: 4 copies), "
           "each in its own process; the training time and peak memory the zoo writes in run_stats.json")
     print(f"{'UAVs':>6}{'seconds':>9}{'us/agent-step':>15}{'x 10 UAVs':>11}{'peak RSS MiB':>14}")
     first = None
@@ -177,9 +181,9 @@ def team_sizes(n: int, sizes: list[int], vec_env: str) -> None:
         for uavs in sizes:
             cmd = [sys.executable, "zoo/train.py", "--algo", "ppo", "-n", str(n), "--seed", "0", "-f", folder,
                    "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--vec-env", vec_env,
-                   "--env-kwargs", f"n_uavs:{uavs}"]
+                   "--num-threads", str(threads), "--env-kwargs", f"n_uavs:{uavs}"]
             out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
-                                 env={**os.environ, "OMP_NUM_THREADS": "1"})
+                                 env={**os.environ, "OMP_NUM_THREADS": str(threads)})
             if out.returncode:
                 raise RuntimeError(f"zoo run with {uavs} UAVs failed:\n{out.stderr[-2000:]}")
             stats = json.loads(max(Path(folder).glob("ppo/*/run_stats.json"), key=os.path.getmtime).read_text())
@@ -206,6 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vec-env", default="batched", choices=["batched", "subproc", "supersuit"],
                         help="path of the zoo runs")
     parser.add_argument("--skip", nargs="*", default=[], choices=["training", "stepping"], help="parts to skip")
+    parser.add_argument("--num-threads", type=int, default=1,
+                        help="torch threads of the training part and the zoo runs (the zoo's --num-threads; default 1)")
     args = parser.parse_args(argv)
     for name in ("n_timesteps", "rounds", "step_agent_steps", "team_n"):
         if getattr(args, name) < 1:
@@ -215,13 +221,15 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.n_copies is not None and args.n_copies < 1:
         parser.error(f"--n-copies must be >= 1, got {args.n_copies}")
-    th.set_num_threads(1)
+    if args.num_threads < 1:
+        parser.error(f"--num-threads must be >= 1, got {args.num_threads}")
+    th.set_num_threads(args.num_threads)
     if "training" not in args.skip:
         training(args.algos, args.n_timesteps, args.rounds, args.n_copies)
     if "stepping" not in args.skip:
         stepping(args.step_agent_steps, args.copies, args.large_teams)
     if args.team_sizes:
-        team_sizes(args.team_n, args.team_sizes, args.vec_env)
+        team_sizes(args.team_n, args.team_sizes, args.vec_env, args.num_threads)
     return 0
 
 

@@ -370,6 +370,14 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
     assert any(row[:1] == ["2"] and row[3] == "1.00" for row in rows)  # the zoo run, against itself
 
 
+def test_the_train_speed_benchmark_rejects_a_bad_thread_count(capsys):
+    from scripts import load_benchmark
+
+    with pytest.raises(SystemExit) as exit_info:
+        load_benchmark("train_speed").main(["--num-threads", "0"])
+    assert exit_info.value.code == 2 and "--num-threads must be >= 1, got 0" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("algo", ["em_ppo", "mappo", "qmix"])
 def test_what_is_built_on_the_vector_environment_gives_the_same_on_both_paths(algo):
     """EM beliefs, MAPPO's state (switched on after construction), QMIX's joint buffer, team evaluation: trained on
