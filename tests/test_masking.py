@@ -108,7 +108,7 @@ def test_a_zoo_run_trained_without_a_part_is_played_without_it_everywhere(tmp_pa
     assert seen == [("signs",)] * 4
 
 
-def test_mode_value_hides_the_parts_in_both_variants(tmp_path):
+def test_mode_value_hides_the_parts_in_both_variants(tmp_path, capsys):
     mode_value = load_benchmark("mode_value")
     assert mode_value.main(["-n", "64", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path),
                             "--patrol-episodes", "0", "--hide", "signs", "window.sign", "--env-kwargs", "n_uavs:2",
@@ -116,9 +116,24 @@ def test_mode_value_hides_the_parts_in_both_variants(tmp_path):
     for variant, algo in (("told_mode", "oracle_ppo"), ("ppo", "ppo")):
         config = (latest_run(tmp_path / variant / "seed_1", algo) / "WildlifeReserve-v0" / "config.yml").read_text()
         assert "HideObservationParts" in config and "window.sign" in config
+    runs = sorted(tmp_path.glob("*/seed_*/*/*"))
+    # The finished runs are evaluated again with the same --hide, and refused without it (another observation).
+    flags = ["-n", "64", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path), "--patrol-episodes", "0",
+             "--reuse-runs", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"]
+    assert mode_value.main([*flags, "--hide", "signs", "window.sign"]) == 0
+    assert sorted(tmp_path.glob("*/seed_*/*/*")) == runs
+    assert mode_value.main(flags) == 2
+    assert "vec_env_wrapper" in capsys.readouterr().err
 
 
 def test_mode_value_rejects_an_unknown_part(capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_benchmark("mode_value").main(["--hide", "sign", "-n", "10"])
     assert exit_info.value.code == 2 and "unknown observation part 'sign'" in capsys.readouterr().err
+
+
+def test_the_centralised_view_refuses_a_vec_env_wrapper():
+    from sb3_emmarl.common.evaluation import make_eval_env
+
+    with pytest.raises(ValueError, match="vec_env_wrapper applies to the parameter-sharing view"):
+        make_eval_env(0, SMALL, centralized=True, vec_env_wrapper=lambda venv: venv)
