@@ -23,9 +23,8 @@ from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value
+from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value, run_settings
 from sb3_emmarl.zoo.cli import latest_run
-from sb3_emmarl.zoo.exp_manager import read_yaml
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
 
@@ -75,15 +74,14 @@ def main(argv: list[str] | None = None) -> int:
         run = latest_run(Path(args.folder) / args.variant / f"seed_{seed}", args.algo)
         if not run.is_dir():
             parser.error(f"no {args.algo} run in {run.parent}")
-        env_kwargs = read_yaml(run / ENV_ID / "config.yml", "the run's config").get("env_kwargs")
+        run_kwargs = run_settings(run)  # the run's reserve arguments and vec_env_wrapper
         model = ZOO_ALGOS[args.algo].load(run / f"{ENV_ID}.zip", device="cpu")
         for name in settings:
             model.fusion = name != "fusion off"
             # The same episodes as evaluate_team's own reserve (make_eval_env), with every link up.
-            vec_env = AllLinks(make_vec_env(1, seed=args.eval_seed, env_kwargs=env_kwargs)) if name == "all links" \
-                else None
-            records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=env_kwargs,
-                                    vec_env=vec_env)
+            vec_env = AllLinks(make_vec_env(1, seed=args.eval_seed, **run_kwargs)) if name == "all links" else None
+            records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed,
+                                    **(run_kwargs if vec_env is None else {}), vec_env=vec_env)
             if vec_env is not None:
                 vec_env.close()
             results[name].append({m: float(np.mean([r[m] for r in records])) for m in METRICS})

@@ -93,8 +93,10 @@ def main(argv: list[str] | None = None) -> int:
     variants = VARIANTS
     if args.hide:
         env = reserve_v0.parallel_env(**dict(args.env_kwargs or {}))
+        layout = env.observation_layout
+        env.close()
         try:
-            hidden_indices(env.observation_layout, args.hide)
+            hidden_indices(layout, args.hide)
         except ValueError as error:
             parser.error(f"--hide: {error}")
         wrapper = {"sb3_emmarl.common.masking.HideObservationParts": {"parts": list(args.hide)}}

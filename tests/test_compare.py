@@ -201,3 +201,15 @@ def test_the_fusion_benchmarks_all_links_lists_every_teammate_of_the_copy_and_no
             assert [info[LINKS_KEY] for info in infos] == [(1, 2), (0, 2), (0, 1), (4, 5), (3, 5), (3, 4)]
     finally:
         venv.close()
+
+
+def test_the_fusion_benchmark_runs_end_to_end_on_tiny_em_ppo_runs(tmp_path, capsys):
+    flags = ["-n", "128", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path), "--env-kwargs", "n_uavs:2",
+             "grid_size:20", "max_cycles:8"]
+    assert compare_main(["--variants", "em_ppo", "ppo", "--oracle", "ppo", *flags]) == 0
+    capsys.readouterr()
+    assert load_benchmark("fusion").main(["-f", str(tmp_path), "--seeds", "0", "1", "--eval-episodes", "1",
+                                          "--all-links"]) == 0
+    out = capsys.readouterr().out
+    assert "fusion on / off" in out and "with every link up" in out
+    assert len([line for line in out.splitlines() if line.startswith("latent_accuracy_50")]) == 2

@@ -137,3 +137,9 @@ def test_the_centralised_view_refuses_a_vec_env_wrapper():
 
     with pytest.raises(ValueError, match="vec_env_wrapper applies to the parameter-sharing view"):
         make_eval_env(0, SMALL, centralized=True, vec_env_wrapper=lambda venv: venv)
+
+
+def test_evaluate_team_refuses_a_wrapper_beside_a_vec_env_of_its_own():
+    with pytest.raises(ValueError, match="give vec_env_wrapper or vec_env, not both"):
+        evaluate_team(RandomPolicy(spaces.Discrete(15), seed=0), 1, vec_env=make_vec_env(1, seed=0, env_kwargs=SMALL),
+                      vec_env_wrapper=lambda venv: venv)

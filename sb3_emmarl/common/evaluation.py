@@ -138,11 +138,14 @@ def evaluate_team(
     :param vec_env: evaluate on this vector environment instead (one reserve copy; its seed is yours); a model with
         ``wrap_env`` (EM, oracle and message models) gets its wrapper on top, as on its own environment
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training, if the model used them
-    :param vec_env_wrapper: the ``vec_env_wrapper`` the model was trained under, if any (see :func:`make_eval_env`)
+    :param vec_env_wrapper: the ``vec_env_wrapper`` the model was trained under, if any (see :func:`make_eval_env`);
+        not with ``vec_env``
     :return: one dict per episode: every metric of the episode, ``mode``, ``episode`` and ``seed``
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    if vec_env is not None and vec_env_wrapper is not None:
+        raise ValueError("give vec_env_wrapper or vec_env, not both: a vec_env you build carries its own wrappers")
     own_env = vec_env is None
     if own_env:
         vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model,

@@ -50,9 +50,8 @@ class HideObservationParts(VecEnvWrapper):
     """
 
     def __init__(self, venv: VecEnv, parts: Sequence[str]) -> None:
-        layout = venv.get_attr("observation_layout", [0])[0]
-        self.parts = tuple(parts) if not isinstance(parts, str) else parts
-        self.hidden = hidden_indices(layout, self.parts)
+        self.hidden = hidden_indices(venv.get_attr("observation_layout", [0])[0], parts)
+        self.parts = tuple(parts)
         super().__init__(venv)
 
     def reset(self) -> VecEnvObs:

@@ -76,10 +76,9 @@ def benchmark_main(argv: list[str] | None = None) -> int:
             wall = time.perf_counter() - start
             run = latest_run(args.log_folder, algo)
             model = load_for_evaluation(ZOO_ALGOS[algo], run / f"{ENV_ID}.zip", device="cpu")  # no threads here; harmless
-            config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
-            run_env_kwargs = dict(config.get("env_kwargs") or {})
-            trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, env_kwargs=run_env_kwargs,
-                                    vec_env_wrapper=get_wrapper_class(config, "vec_env_wrapper"))
+            settings = run_settings(run)
+            run_env_kwargs = settings["env_kwargs"]
+            trained = evaluate_team(model, args.eval_episodes, seed=args.eval_seed, **settings)
             # The random team acts in the model's action space (per UAV, or joint for a centralised model).
             reference = evaluate_team(RandomPolicy(model.action_space, seed=seed), args.eval_episodes, seed=args.eval_seed,
                                       env_kwargs=run_env_kwargs)
@@ -241,9 +240,18 @@ def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int) -> list
     :return: one record per episode
     """
     model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
+    return evaluate_team(model, n_episodes, seed=seed, **run_settings(run))
+
+
+def run_settings(run: str | Path) -> dict[str, Any]:
+    """What a finished zoo run's evaluation must reproduce of its training, from its ``config.yml``: the reserve's
+    arguments and the ``vec_env_wrapper`` (None if it had none), as keyword arguments of ``evaluate_team``.
+
+    :param run: the run's folder (``<log-folder>/<algo>/<env>_<n>``)
+    """
     config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
-    return evaluate_team(model, n_episodes, seed=seed, env_kwargs=config.get("env_kwargs"),
-                         vec_env_wrapper=get_wrapper_class(config, "vec_env_wrapper"))
+    return {"env_kwargs": dict(config.get("env_kwargs") or {}),
+            "vec_env_wrapper": get_wrapper_class(config, "vec_env_wrapper")}
 
 
 def _one_torch_thread() -> None:
