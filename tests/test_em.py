@@ -381,11 +381,35 @@ def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
         ({"decoder_hidden": "64"}, "decoder_hidden must be a list of layer sizes"),
         ({"decoder_hidden": [64, -1]}, r"decoder_hidden\[1\] must be an int in \[1, 4096\], got -1"),
         ({"e_step_interval": 0}, r"e_step_interval must be an int in \[1, 10000\], got 0"),
+        ({"zero_belief_weights": 1}, "zero_belief_weights must be true or false, got 1"),
     ],
 )
 def test_bad_em_settings_are_rejected(kwargs, message):
     with pytest.raises(ValueError, match=message):
         EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), **kwargs)
+
+
+def test_zero_belief_weights_starts_em_ppo_as_the_same_function_of_every_belief(tmp_path):
+    venv = make_vec_env(env_kwargs=SMALL)
+    model = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, n_components=4, seed=0, zero_belief_weights=True)
+    obs = th.as_tensor(model.get_env().reset())
+    outputs = []
+    for belief in th.eye(4):
+        with th.no_grad():
+            seen = th.cat([obs[:, :-4], belief.expand(len(obs), 4)], dim=1)
+            outputs.append((model.policy.get_distribution(seen).distribution.probs, model.policy.predict_values(seen)))
+    for probs, values in outputs[1:]:
+        th.testing.assert_close(probs, outputs[0][0])
+        th.testing.assert_close(values, outputs[0][1])
+    model.learn(48)
+    learned = model.policy.mlp_extractor.value_net[0].weight[:, -4:]
+    assert (learned != 0).any()  # the gradient reaches them
+    model.save(tmp_path / "model")
+    loaded = EMPPO.load(tmp_path / "model", device="cpu")
+    assert loaded.zero_belief_weights
+    th.testing.assert_close(loaded.policy.mlp_extractor.value_net[0].weight[:, -4:], learned)  # loading keeps them
+    orthogonal = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, n_components=4, seed=0)  # the default
+    assert (orthogonal.policy.mlp_extractor.policy_net[0].weight[:, -4:] != 0).any(dim=1).all()
 
 
 def test_evaluate_team_reports_latent_metrics_over_the_episode():

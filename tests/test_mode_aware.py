@@ -2,11 +2,13 @@
 
 import numpy as np
 import pytest
+import torch as th
 from scripts import load_benchmark
 from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import OraclePPO
+from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve.reserve.modes import N_MODES
@@ -55,6 +57,47 @@ def test_oracle_ppo_learns_saves_loads_and_evaluates_on_the_plain_environment(tm
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
     mean, _ = evaluate_policy(loaded, env, n_eval_episodes=2)
     assert np.isfinite(mean)
+
+
+def test_oracle_ppo_starts_as_the_same_function_of_every_mode_and_learns_the_mode_s_weights():
+    venv = make_vec_env(2, seed=0, env_kwargs=SMALL)
+    model = OraclePPO("MlpPolicy", venv, n_steps=16, batch_size=32, seed=0)
+    obs = th.as_tensor(model.get_env().reset())
+    outputs = []
+    for mode in range(N_MODES):
+        told = obs.clone()
+        told[:, -N_MODES:] = th.nn.functional.one_hot(th.tensor(mode), N_MODES)
+        with th.no_grad():
+            outputs.append((model.policy.get_distribution(told).distribution.probs, model.policy.predict_values(told)))
+    for probs, values in outputs[1:]:  # the same actions' probabilities and values, whatever the mode
+        th.testing.assert_close(probs, outputs[0][0])
+        th.testing.assert_close(values, outputs[0][1])
+    first = model.policy.mlp_extractor.policy_net[0].weight
+    assert (first[:, -N_MODES:] == 0).all() and (first[:, :-N_MODES] != 0).any()
+    model.learn(64)
+    assert (model.policy.mlp_extractor.policy_net[0].weight[:, -N_MODES:] != 0).any()  # the gradient reaches them
+    random = OraclePPO("MlpPolicy", venv, n_steps=16, batch_size=32, seed=0, zero_mode_weights=False)
+    assert (random.policy.mlp_extractor.value_net[0].weight[:, -N_MODES:] != 0).all(dim=1).any()
+    with pytest.raises(ValueError, match="zero_mode_weights must be true or false"):
+        OraclePPO("MlpPolicy", venv, zero_mode_weights="yes")
+
+
+def test_zero_tail_weights_through_the_split_extractor_and_not_where_the_tail_is_not_passed_through():
+    from sb3_emmarl.common.extractors import SplitFeaturesExtractor
+
+    venv = wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL))
+    head = venv.observation_space.shape[0] - N_MODES
+    for keep, zeroed in ((None, True), (head, False), (head + N_MODES - 1, False)):
+        extractor_kwargs = {"head_dim": head - 2, "keep": keep}  # keep=head drops the one-hot; head + 7 a part of it
+        policy_kwargs = {"features_extractor_class": SplitFeaturesExtractor, "features_extractor_kwargs": extractor_kwargs}
+        model = PPO("MlpPolicy", venv, policy_kwargs=policy_kwargs, seed=0)
+        weights = [model.policy.mlp_extractor.policy_net[0].weight, model.policy.mlp_extractor.value_net[0].weight]
+        before = [w.clone() for w in weights]
+        assert zero_tail_weights(model.policy, N_MODES) is zeroed
+        for w, b in zip(weights, before):
+            th.testing.assert_close(w[:, :-N_MODES], b[:, :-N_MODES])  # the other inputs' weights never change
+            assert (w[:, -N_MODES:] == 0).all() if zeroed else th.equal(w, b)
+    assert not zero_tail_weights(model.policy, 0)
 
 
 def load_mode_value():

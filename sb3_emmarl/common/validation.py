@@ -282,6 +282,9 @@ RULES: dict[str, Rule] = {
     "use_latent": boolean(),
     "freeze_e_step": boolean(),
     "freeze_m_step": boolean(),
+    # the weights that read what an algorithm appends to the observation (sb3_emmarl.common.initialization)
+    "zero_mode_weights": boolean(),
+    "zero_belief_weights": boolean(),
     # MAPPO (and QMIX / VDN: the agent's one-hot index as an input)
     "agent_id": boolean(),
     "use_value_norm": boolean(),

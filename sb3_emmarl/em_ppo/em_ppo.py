@@ -9,7 +9,9 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
+from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
+from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.em_ppo.policies import MlpPolicy
 
 SelfEMPPO = TypeVar("SelfEMPPO", bound="EMPPO")
@@ -60,6 +62,10 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param freeze_e_step: ablation: the transition models and the prior keep their initial values (the belief is
         still computed, from an unfitted model)
     :param freeze_m_step: ablation: the policy and value networks never change (the paper's "disabling the M-step")
+    :param zero_belief_weights: start at zero the weights with which the policy's and the value's first layers read
+        the belief, so that the networks start as PPO's (as ``OraclePPO`` does for the told mode; see
+        :mod:`sb3_emmarl.common.initialization`); off by default: on the reserve it changed neither team reward nor
+        the belief's accuracy beyond the seeds' spread (docs/results.md)
     :param policy_kwargs: policy arguments (``net_arch``, ...)
     :param tensorboard_log: tensorboard folder
     :param verbose: verbosity
@@ -96,6 +102,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         use_latent: bool = True,
         freeze_e_step: bool = False,
         freeze_m_step: bool = False,
+        zero_belief_weights: bool = False,
         policy_kwargs: dict[str, Any] | None = None,
         tensorboard_log: str | None = None,
         verbose: int = 0,
@@ -104,6 +111,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ) -> None:
+        self.zero_belief_weights = RULES["zero_belief_weights"]("zero_belief_weights", zero_belief_weights)
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
@@ -118,6 +126,8 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     def _setup_model(self) -> None:
         super()._setup_model()
         self._setup_latent()
+        if self.zero_belief_weights and self.policy.latent_model is not None:
+            zero_tail_weights(self.policy, self.latent_layout.n_components)
 
     def _rollout_transitions(self):
         """The E-step's data from the rollout just collected: every step whose successor is in the same episode

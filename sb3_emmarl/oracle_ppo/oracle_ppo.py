@@ -8,7 +8,10 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.mode_aware import wrap_with_mode
+from sb3_emmarl.common.initialization import zero_tail_weights
+from sb3_emmarl.common.mode_aware import find_mode_wrapper, wrap_with_mode
+from sb3_emmarl.common.validation import RULES
+from wildlife_reserve.reserve.modes import N_MODES
 
 
 class OraclePPO(PPO):
@@ -21,12 +24,27 @@ class OraclePPO(PPO):
     Unlike the other algorithms it cannot act through ``predict`` on the plain environment's observations
     alone; evaluate it on ``model.wrap_env(env)`` (``evaluate_team`` does).
 
-    Every argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
+    The weights with which the first layers read the one-hot start at zero (``zero_mode_weights``): the
+    networks start as plain PPO's, and learn what the mode is worth from there (see
+    :mod:`sb3_emmarl.common.initialization` for why).
+
+    :param zero_mode_weights: start the weights that read the mode at zero (with SB3's ``FlattenExtractor``;
+        another features extractor reads the one-hot as it reads the rest); False keeps SB3's orthogonal
+        initialisation for them
+    Every other argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
     """
 
-    def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, zero_mode_weights: bool = True,
+                 **kwargs: Any) -> None:
+        self.zero_mode_weights = RULES["zero_mode_weights"]("zero_mode_weights", zero_mode_weights)
         env = wrap_with_mode(env, kwargs.get("verbose", 0)) if env is not None and not isinstance(env, str) else env
         super().__init__(policy, env, *args, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        if self.zero_mode_weights:
+            wrapper = find_mode_wrapper(self.env) if self.env is not None else None
+            zero_tail_weights(self.policy, wrapper.n_modes if wrapper is not None else N_MODES)
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:
         """``venv`` with the true mode appended to its observations (for evaluation and recording)."""
