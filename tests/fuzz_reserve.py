@@ -286,6 +286,7 @@ VALUES: dict[str, list[tuple[Any, bool]]] = {
                            [-1, -1e-9, 10_000.5, 1e5, 10**9]),
     "continuous_actions": _bools(),
     "agent_ids": _bools(),
+    "compass": _bools(),
     "region": _region(),
     "terrain": _terrain(),
     "risk": _risk(),

@@ -14,6 +14,7 @@ COMBINATIONS = {
     "fifty_uavs_200": {"n_uavs": 50, "grid_size": 200},
     "continuous": {"continuous_actions": True},
     "agent_ids_continuous": {"agent_ids": True, "continuous_actions": True},
+    "compass_agent_ids": {"compass": True, "agent_ids": True},
     "sensor_noise": {"sensor_noise": 0.5},
     "comm_loss": {"comm_loss": 0.5},
     "adversarial": {"adversarial": True},

@@ -36,6 +36,7 @@ BAD = [
     ({"reward_weights": {"energy": -1.0}}, r"reward_weights\['energy'\] must be in \[0.0, 1000000.0\], got -1.0"),
     ({"render_mode": "ascii"}, r"render_mode must be None, 'human' or 'rgb_array', got 'ascii'"),
     ({"agent_ids": "yes"}, r"agent_ids must be a bool \(True or False\), got 'yes' \(str\)"),
+    ({"compass": 1}, r"compass must be a bool \(True or False\), got 1 \(int\)"),
 ]
 
 

@@ -309,3 +309,46 @@ def test_agent_ids_end_each_observation_with_the_uavs_one_hot_and_change_nothing
             continue
         actions = {a: int(rng.integers(15)) for a in plain.agents}
         observed = [plain.step(actions)[0], tagged.step(actions)[0]]
+
+
+def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_else():
+    kwargs = {"n_uavs": 4, "grid_size": 30, "max_cycles": 40}
+    plain, guided = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(compass=True, agent_ids=True, **kwargs)
+    assert guided.obs_dim == plain.obs_dim + 4 + 4
+    assert guided.observation_layout["compass"] == (slice(plain.obs_dim, plain.obs_dim + 4), (2, 2))
+    rng = np.random.default_rng(0)
+    observed = [plain.reset(seed=3)[0], guided.reset(seed=3)[0]]
+    dens, entries = guided.hotspots.dens, guided.hotspots.road_entries
+    assert len(dens) and len(entries)
+    for _ in range(60):  # across an episode end: the same episode, the compass appended
+        for index, (a, base) in enumerate(observed[0].items()):
+            other = observed[1][a]
+            np.testing.assert_array_equal(other[:plain.obs_dim], base)
+            cell = guided._cells[index]
+            for row, points in zip(guided.split_observation(other)["compass"], (dens, entries)):
+                distance = np.abs(points - cell).max(axis=1)  # Chebyshev, as everything on the grid
+                target = cell + row * 29  # (side - 1) = 29
+                np.testing.assert_allclose(target, np.round(target), atol=1e-4)
+                assert np.abs(np.round(target) - cell).max() == distance.min()
+                assert any((np.round(target) == p).all() for p in points[distance == distance.min()])
+        if not plain.agents:
+            observed = [plain.reset(seed=4)[0], guided.reset(seed=4)[0]]
+            continue
+        actions = {a: int(rng.integers(15)) for a in plain.agents}
+        observed = [plain.step(actions)[0], guided.step(actions)[0]]
+
+
+def test_compass_on_hand_built_cells_and_without_roads():
+    from wildlife_reserve.reserve.observation import compass
+
+    cells = np.array([[0, 0], [10, 10], [5, 9]])
+    dens = np.array([[2, 9], [10, 4]])
+    inv = np.array([0.1, 0.05])
+    out = compass(cells, (dens, np.zeros((0, 2), dtype=np.int64)), inv)
+    # [0, 0]: den (2, 9) is 9 away, (10, 4) 10 away; [10, 10]: 8 and 6; [5, 9]: 3 and 5.
+    np.testing.assert_allclose(out[:, 0], [[0.2, 0.45], [0.0, -0.3], [-0.3, 0.0]])
+    assert (out[:, 1] == 0).all()  # no road entry on the map: zeros
+    env = reserve_v0.parallel_env(n_uavs=2, grid_size=20, compass=True, risk=np.eye(20))  # a custom map has no roads
+    obs, _ = env.reset(seed=0)
+    assert len(env.hotspots.road_entries) == 0
+    assert (env.split_observation(obs["uav_0"])["compass"][1] == 0).all()

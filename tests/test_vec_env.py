@@ -213,7 +213,9 @@ def record(vec_env_type, env_kwargs, steps, n_copies=2, with_state=False, num_cp
     ({"comm_loss": 0.4, "max_cycles": 130}, False),
     ({"adversarial": True, "max_cycles": 100}, True),
     ({"agent_ids": True, "continuous_actions": True, "max_cycles": 100}, False),
-], ids=["default", "one-uav", "50-uavs-200x200", "continuous", "sensor-noise", "comm-loss", "adversarial", "agent-ids"])
+    ({"compass": True, "terrain_seed": None, "max_cycles": 100}, False),
+], ids=["default", "one-uav", "50-uavs-200x200", "continuous", "sensor-noise", "comm-loss", "adversarial", "agent-ids",
+        "compass-new-maps"])
 def test_batched_and_supersuit_paths_give_identical_data(env_kwargs, with_state):
     """500 steps of random actions across several episode ends: observations, rewards, dones and every info
     (terminal observations, truncation flags, the mode, the links, the metrics, the state) are identical."""

@@ -186,6 +186,9 @@ class ReserveConfig:
     :param agent_ids: end every UAV's observation with a one-hot of its index (``n_uavs`` floats), so that a policy
         shared by the UAVs can tell them apart: a deterministic one otherwise gives two UAVs in one cell the same
         action, and they stay together; a bool
+    :param compass: add each UAV's offset to the nearest den and to the nearest road entry (4 floats, the map a
+        ranger carries): where each poacher strategy strikes, in the UAV's own frame, so that a policy that knows or
+        infers the strategy can head there; a bool
     :param region: terrain preset, one of :data:`~wildlife_reserve.reserve.terrain.REGIONS` (a str)
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
@@ -225,6 +228,7 @@ class ReserveConfig:
     comm_radius: float = 20.0
     continuous_actions: bool = False
     agent_ids: bool = False
+    compass: bool = False
     region: str = "mixed"
     terrain: np.ndarray | None = None
     risk: np.ndarray | None = None
@@ -307,6 +311,7 @@ class ReserveConfig:
         self.comm_radius = check_float("comm_radius", self.comm_radius, 0.0, MAX_DISTANCE)
         self.continuous_actions = check_bool("continuous_actions", self.continuous_actions)
         self.agent_ids = check_bool("agent_ids", self.agent_ids)
+        self.compass = check_bool("compass", self.compass)
         if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValueError(f"region must be one of {sorted(REGIONS)}, got {show(self.region, with_type=True)}")
         self.region = str(self.region)

@@ -18,6 +18,8 @@ if TYPE_CHECKING:
 N_OWN = 6
 #: Coarse maps at the end of the observation, in order.
 MAP_NAMES = ("block_staleness", "belief", "signs")
+#: What the compass points at, in order (its rows): the nearest den and the nearest road entry.
+COMPASS_TARGETS = ("den", "road_entry")
 
 
 def observation_layout(config: ReserveConfig) -> dict[str, tuple[slice, tuple[int, ...]]]:
@@ -27,10 +29,15 @@ def observation_layout(config: ReserveConfig) -> dict[str, tuple[slice, tuple[in
     (row, col, d_row, d_col, battery, progress); ``neighbours`` (max_neighbors, 3) as (d_row, d_col,
     present) / ``R_c``; ``block_staleness`` (time since each block was flown over, as far as the UAV
     knows), ``belief`` (poacher activity) and ``signs`` (signs of poacher activity the UAV knows of)
-    maps, each (belief_size, belief_size); with ``agent_ids``, ``agent_id`` (n_uavs,), a one-hot of the UAV's index.
+    maps, each (belief_size, belief_size); with ``compass``, ``compass`` (2, 2), the offset ``(d_row, d_col) /
+    (side - 1)`` from the UAV's cell to the nearest den and to the nearest road entry (rows in
+    :data:`COMPASS_TARGETS`; zeros where the map has none); with ``agent_ids``, ``agent_id`` (n_uavs,), a one-hot of
+    the UAV's index.
     """
     w, k, b = 2 * config.sensor_radius + 1, config.max_neighbors, config.belief_size
     shapes = {"window": (N_CHANNELS, w, w), "own": (N_OWN,), "neighbours": (k, 3)} | dict.fromkeys(MAP_NAMES, (b, b))
+    if config.compass:
+        shapes["compass"] = (len(COMPASS_TARGETS), 2)
     if config.agent_ids:
         shapes["agent_id"] = (config.n_uavs,)
     layout, start = {}, 0
@@ -66,9 +73,28 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.nda
                       cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
                       float(env.t), team.sign_counts, SIGN_VALUES, layout["own"][0].start,
                       layout["neighbours"][0].start, layout[MAP_NAMES[0]][0].start)
-    if "agent_id" in layout:  # the kernel writes the parts before it
+    if "compass" in layout:  # the kernel writes the parts before it
+        obs[:, layout["compass"][0]] = compass(env._cells, (env.hotspots.dens, env.hotspots.road_entries),
+                                               env._inv_scale).reshape(env.n, -1)
+    if "agent_id" in layout:
         obs[:, layout["agent_id"][0]] = np.eye(env.n, dtype=np.float32)
     return obs
+
+
+def compass(cells: np.ndarray, targets: tuple[np.ndarray, ...], inv_scale: np.ndarray) -> np.ndarray:
+    """``(n, len(targets), 2)`` offsets from each of ``n`` cells to the nearest (Chebyshev) point of each target set.
+
+    :param cells: ``(n, 2)`` int cells
+    :param targets: ``(k, 2)`` int arrays of points; an empty one gives zeros
+    :param inv_scale: ``(2,)`` factors of the offsets (``1 / (side - 1)``)
+    """
+    out = np.zeros((len(cells), len(targets), 2))
+    for index, points in enumerate(targets):
+        if len(points):
+            offsets = points[None, :, :] - cells[:, None, :]  # (n, k, 2)
+            nearest = np.abs(offsets).max(axis=2).argmin(axis=1)
+            out[:, index] = offsets[np.arange(len(cells)), nearest] * inv_scale
+    return out
 
 
 def global_state(env: ReserveParallelEnv) -> np.ndarray:

@@ -10,6 +10,7 @@
 | Agents             | `n_uavs` (default 10, 1 to 1000; see the bounds in env.md) |
 | Action shape       | `Discrete(15)` or `Box(-1, 1, (3,))`                       |
 | Observation shape  | `(7 * (2r + 1)^2 + 6 + 3 * max_neighbors + 3 * belief_size^2,)`; 553 by default |
+| With `compass`     | 4 more floats (offsets to the nearest den and road entry)  |
 | With `agent_ids`   | `n_uavs` more floats (a one-hot of the UAV's index)        |
 | Observation values | [-1, 1]                                                    |
 | State shape        | `(4 n_uavs + 4 n_poachers + 3 n_leopards + 2 belief_size^2 + 1,)` |
@@ -27,7 +28,8 @@ poacher signals, leopard signals, other UAVs, signs of poacher activity), then o
 velocity, battery, episode progress, the relative positions of up to `max_neighbors` UAVs within
 `R_c` (padded, with a presence flag), and three `belief_size x belief_size` maps built from what
 this UAV knows (its own history and what was shared with it): time since each block was flown
-over, poacher activity, and the signs of poacher activity found there; with `agent_ids=True`, a
+over, poacher activity, and the signs of poacher activity found there; with `compass=True`, the
+offsets from the UAV to the nearest den and the nearest road entry; with `agent_ids=True`, a
 one-hot of the UAV's index last.
 `env.split_observation(obs)` names the parts.
 
