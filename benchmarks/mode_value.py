@@ -5,7 +5,9 @@ seeds, each run in a fresh process with one torch thread, then play the same eva
 (actions sampled, as ``evaluate_team`` does). The table gives mean +- std over seeds of each metric, the
 paired difference (told minus plain) with its mean +- std, and the p-value of the paired t-test over seeds
 (``scipy.stats.ttest_rel``), then the per-seed rows. The told-the-mode team is the upper bound every
-latent method is measured against; the difference is what inferring the mode can win at most.
+latent method is measured against; the difference is what inferring the mode can win at most. Last, how
+strongly each told run's networks read the one-hot (``tail_weight_norms``): a policy whose weights on it
+stay far below its weights on the other inputs has barely learned to act on the mode.
 
 Whether the mode *can* pay, whatever a learner makes of it, is measured first and without training:
 the stalest-block patrol told the strategy (``ToldModePatrol``: it holds stations where the strategy's
@@ -27,15 +29,20 @@ import shlex
 import sys
 import time
 
+from sb3_emmarl import OraclePPO
+from sb3_emmarl.common.initialization import tail_weight_norms
 from sb3_emmarl.common.masking import hidden_indices
 from sb3_emmarl.zoo.benchmark import (
     COMPARISON_EVAL_EPISODES,
     add_run_arguments,
     check_run_arguments,
     paired_over_seeds,
+    run_folder,
     run_variants,
 )
+from sb3_emmarl.zoo.cli import ENV_ID, latest_run
 from wildlife_reserve import reserve_v0
+from wildlife_reserve.reserve.modes import N_MODES
 from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol, run_patrol
 
 #: The two variants: (table name, zoo algorithm, hyperparameter overrides).
@@ -124,7 +131,22 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
     print(paired_table({name: results[name] for name, _, _ in VARIANTS}))
+    print(mode_weight_table(args))
     return 0
+
+
+def mode_weight_table(args: argparse.Namespace) -> str:
+    """How strongly each told run's networks read the one-hot: the mean norm of a first-layer weight column on the
+    mode against the other inputs' (:func:`~sb3_emmarl.common.initialization.tail_weight_norms`), per seed."""
+    lines = ["\nHow strongly the told runs read the mode: mean norm of a first-layer weight column on the one-hot / on "
+             "the other inputs (the policy's and the value's networks)",
+             f"{'seed':<6}{'policy: mode':>14}{'other':>8}{'value: mode':>14}{'other':>8}"]
+    for seed in args.seeds:
+        run = latest_run(run_folder(args, VARIANTS[0][0], seed), VARIANTS[0][1])
+        norms = tail_weight_norms(OraclePPO.load(run / f"{ENV_ID}.zip", device="cpu").policy, N_MODES)
+        lines.append(f"{seed:<6}{norms['policy'][0]:>14.3f}{norms['policy'][1]:>8.3f}"
+                     f"{norms['value'][0]:>14.3f}{norms['value'][1]:>8.3f}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -126,7 +126,10 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     scripted, trained = out.split("PPO told the mode or not")
     assert "not_told" in scripted and "poaching_events" in scripted and "p (paired t)" in scripted
     assert "told_mode" in trained and "p (paired t)" in trained and "team_reward" in trained
+    trained, weights = trained.split("How strongly the told runs read the mode")
     assert len([line for line in trained.splitlines() if line.startswith(("0 ", "1 "))]) == 2
+    rows = [line.split() for line in weights.splitlines() if line.startswith(("0 ", "1 "))]
+    assert [row[0] for row in rows] == ["0", "1"] and all(float(x) > 0 for row in rows for x in row[2:])
 
 
 @pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"), (["-n", "0"], "n-timesteps must be >= 1"),
@@ -158,3 +161,18 @@ def test_the_told_mode_patrol_holds_stations_where_the_strategy_s_poachers_come_
     # A dispersed evasion gives no place to guard: the told patrol acts as the stalest-block patrol.
     obs, _ = env.reset(seed=0, options={"mode": 3 * len(WEATHERS)})
     assert ToldModePatrol(env)(obs) == StalestBlockPatrol(env)(obs)
+
+
+def test_tail_weight_norms_on_hand_set_weights():
+    from sb3_emmarl.common.initialization import first_layers, tail_weight_norms
+
+    model = PPO("MlpPolicy", wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL)), seed=0)
+    for layer in first_layers(model.policy).values():
+        with th.no_grad():
+            layer.weight.fill_(0.5)  # every column's norm: 0.5 * sqrt(64 rows)
+            layer.weight[:, -N_MODES:] = 0.0
+            layer.weight[0, -N_MODES:] = 3.0
+    norms = tail_weight_norms(model.policy, N_MODES)
+    assert norms == {"policy": (3.0, 4.0), "value": (3.0, 4.0)}
+    with pytest.raises(ValueError, match="n_tail must be in"):
+        tail_weight_norms(model.policy, 0)

@@ -44,9 +44,36 @@ def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:
     extractors = {id(e): e for e in (policy.features_extractor, policy.pi_features_extractor, policy.vf_features_extractor)}
     if n_tail <= 0 or not all(features_end_with_observation_tail(e, obs_dim, n_tail) for e in extractors.values()):
         return False
-    mlp = policy.mlp_extractor
-    for net, head in ((mlp.policy_net, policy.action_net), (mlp.value_net, policy.value_net)):
-        first = next((m for m in net.modules() if isinstance(m, th.nn.Linear)), head)
+    for first in first_layers(policy).values():
         with th.no_grad():
             first.weight[:, -n_tail:] = 0.0
     return True
+
+
+def first_layers(policy: ActorCriticPolicy) -> dict[str, th.nn.Linear]:
+    """The layers that read the features first: ``{"policy": ..., "value": ...}`` (the first ``Linear`` of each
+    network of SB3's ``mlp_extractor``, or the action and value heads where that network has no layer)."""
+    mlp = policy.mlp_extractor
+    return {name: next((m for m in net.modules() if isinstance(m, th.nn.Linear)), head)
+            for name, net, head in (("policy", mlp.policy_net, policy.action_net),
+                                    ("value", mlp.value_net, policy.value_net))}
+
+
+def tail_weight_norms(policy: ActorCriticPolicy, n_tail: int) -> dict[str, tuple[float, float]]:
+    """How strongly the first layers read the last ``n_tail`` features: per network (``"policy"``, ``"value"``), the
+    mean norm of a weight column on those features and the mean over the other features' columns.
+
+    A diagnostic for what an algorithm appends (the told mode, the belief): a policy whose column norms on it stay
+    far below the others' has barely learned to act on it.
+
+    :param policy: an SB3 actor-critic policy whose features end with the ``n_tail`` values (see
+        :func:`features_end_with_observation_tail`)
+    :param n_tail: features at the end, at least 1 and fewer than all
+    """
+    norms = {}
+    for name, layer in first_layers(policy).items():
+        columns = layer.weight.detach().norm(dim=0)
+        if not 0 < n_tail < len(columns):
+            raise ValueError(f"n_tail must be in [1, {len(columns) - 1}], got {n_tail}")
+        norms[name] = (float(columns[-n_tail:].mean()), float(columns[:-n_tail].mean()))
+    return norms

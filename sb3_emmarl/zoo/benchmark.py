@@ -260,7 +260,7 @@ def _one_torch_thread() -> None:
     th.set_num_threads(1)
 
 
-def _run_folder(args: argparse.Namespace, name: str, seed: int) -> Path:
+def run_folder(args: argparse.Namespace, name: str, seed: int) -> Path:
     """Where a comparison keeps variant ``name``'s run of ``seed`` (the zoo's ``-f``)."""
     return Path(args.log_folder) / name / f"seed_{seed}"
 
@@ -272,7 +272,7 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
     import json
     import subprocess
 
-    folder = str(_run_folder(args, name, seed))
+    folder = str(run_folder(args, name, seed))
     if run is None:
         env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] \
             if args.env_kwargs else []
@@ -305,7 +305,7 @@ def run_variants(variants: list[tuple[str, str, list[str]]], args: argparse.Name
 
     tasks = [(name, algo, params, seed) for seed in args.seeds for name, algo, params in variants]
     # With --reuse-runs every finished run is found and checked before anything trains (a mismatch raises ValueError).
-    runs = [finished_run(_run_folder(args, name, seed), algo, seed, args.n_timesteps, params, args.env_kwargs)
+    runs = [finished_run(run_folder(args, name, seed), algo, seed, args.n_timesteps, params, args.env_kwargs)
             if args.reuse_runs else None for name, algo, params, seed in tasks]
     # Threads wait for the training processes; the evaluations run in worker processes (one torch thread each), so
     # that n_jobs of them use n_jobs cores (threads of one process would share its interpreter lock).
