@@ -298,17 +298,24 @@ def test_agent_ids_end_each_observation_with_the_uavs_one_hot_and_change_nothing
     plain, tagged = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(agent_ids=True, **kwargs)
     assert tagged.obs_dim == plain.obs_dim + 4
     assert tagged.observation_layout["agent_id"][0] == slice(plain.obs_dim, plain.obs_dim + 4)
-    rng = np.random.default_rng(0)
-    observed = [plain.reset(seed=3)[0], tagged.reset(seed=3)[0]]
-    for _ in range(60):  # across an episode end: the same episode with and without the ids
+    for observed in side_by_side(plain, tagged):  # the same episodes with and without the ids
         for (a, base), other in zip(observed[0].items(), observed[1].values()):
             np.testing.assert_array_equal(other[:plain.obs_dim], base)
             np.testing.assert_array_equal(other[plain.obs_dim:], np.eye(4)[plain.possible_agents.index(a)])
+
+
+def side_by_side(plain, other, steps=60):
+    """The observations of two reserves stepped with the same random actions, ``steps`` times across an episode end
+    (reset with seed 3, then 4)."""
+    rng = np.random.default_rng(0)
+    observed = [plain.reset(seed=3)[0], other.reset(seed=3)[0]]
+    for _ in range(steps):
+        yield observed
         if not plain.agents:
-            observed = [plain.reset(seed=4)[0], tagged.reset(seed=4)[0]]
+            observed = [plain.reset(seed=4)[0], other.reset(seed=4)[0]]
             continue
         actions = {a: int(rng.integers(15)) for a in plain.agents}
-        observed = [plain.step(actions)[0], tagged.step(actions)[0]]
+        observed = [plain.step(actions)[0], other.step(actions)[0]]
 
 
 def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_else():
@@ -316,11 +323,9 @@ def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_el
     plain, guided = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(compass=True, agent_ids=True, **kwargs)
     assert guided.obs_dim == plain.obs_dim + 4 + 4
     assert guided.observation_layout["compass"] == (slice(plain.obs_dim, plain.obs_dim + 4), (2, 2))
-    rng = np.random.default_rng(0)
-    observed = [plain.reset(seed=3)[0], guided.reset(seed=3)[0]]
-    dens, entries = guided.hotspots.dens, guided.hotspots.road_entries
-    assert len(dens) and len(entries)
-    for _ in range(60):  # across an episode end: the same episode, the compass appended
+    for observed in side_by_side(plain, guided):  # the same episodes, the compass appended
+        dens, entries = guided.hotspots.dens, guided.hotspots.road_entries
+        assert len(dens) and len(entries)
         for index, (a, base) in enumerate(observed[0].items()):
             other = observed[1][a]
             np.testing.assert_array_equal(other[:plain.obs_dim], base)
@@ -331,11 +336,6 @@ def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_el
                 np.testing.assert_allclose(target, np.round(target), atol=1e-4)
                 assert np.abs(np.round(target) - cell).max() == distance.min()
                 assert any((np.round(target) == p).all() for p in points[distance == distance.min()])
-        if not plain.agents:
-            observed = [plain.reset(seed=4)[0], guided.reset(seed=4)[0]]
-            continue
-        actions = {a: int(rng.integers(15)) for a in plain.agents}
-        observed = [plain.step(actions)[0], guided.step(actions)[0]]
 
 
 def test_compass_on_hand_built_cells_and_without_roads():
