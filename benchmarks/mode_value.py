@@ -9,17 +9,27 @@ latent method is measured against; the difference is what inferring the mode can
 strongly each told run's networks read the one-hot (``tail_weight_norms``): a policy whose weights on it
 stay far below its weights on the other inputs has barely learned to act on the mode.
 
-Whether the mode *can* pay, whatever a learner makes of it, is measured first and without training:
-the stalest-block patrol told the strategy (``ToldModePatrol``: it holds stations where the strategy's
-poachers come from until their entry window closes) against the same patrol not told, on the same
-``--patrol-episodes`` episodes, paired over episodes.
+Whether the mode *can* pay, whatever a learner makes of it, is measured first and without training, on
+station patrols (``StationPatrol``: hold stations around the dens or the roads' entry points until a point of
+the episode, then sweep as the stalest-block patrol does; the plans of ``STATION_PLANS``). Every plan plays
+``--patrol-episodes`` fitting episodes (seeds ``FIT_SEED, FIT_SEED + 1, ...``); the best plan per poacher strategy
+there is the team told the strategy, the best single plan the team not told. Both then play the same held-out
+episodes (from ``--eval-seed``), paired over episodes: the difference is what knowing the strategy pays to
+this family of teams, measured on episodes the choice did not see. The plain told-or-not comparison (the
+told patrol, ``ToldModePatrol``, against the stalest-block patrol) credits the mode with what holding
+stations pays in every mode; this one does not. Last, how many seeds a paired test of PPO would need to find a
+gain of that size at PPO's spread over seeds (``seeds_needed``).
 
 ``--hide PART ...`` trains and evaluates both variants with those parts of the observation zeroed
 (``sb3_emmarl.common.masking.HideObservationParts`` as the zoo's ``vec_env_wrapper``), for example
 ``--hide signs window.sign``: what knowing the mode pays to a team that cannot see the signs, where the
 strategy shows. Give it its own ``-f``.
 
-Example: ``python benchmarks/mode_value.py`` (or ``make benchmark-mode-value``; 5 seeds x 500k agent-steps)
+``--scripted-only`` stops after the scripted part: with ``--env-kwargs`` it tells in a few minutes how much a
+candidate reserve's mode can pay, before any training on it.
+
+Example: ``python benchmarks/mode_value.py`` (or ``make benchmark-mode-value``; 5 seeds x 500k agent-steps);
+``python benchmarks/mode_value.py --scripted-only --env-kwargs n_poachers:8``
 """
 
 from __future__ import annotations
@@ -28,6 +38,9 @@ import argparse
 import shlex
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
 
 from sb3_emmarl import OraclePPO
 from sb3_emmarl.common.initialization import tail_weight_norms
@@ -39,16 +52,23 @@ from sb3_emmarl.zoo.benchmark import (
     paired_over_seeds,
     run_folder,
     run_variants,
+    seeds_needed,
 )
 from sb3_emmarl.zoo.cli import ENV_ID, latest_run
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.modes import N_MODES
-from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol, run_patrol
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
+from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
 
 #: The two variants: (table name, zoo algorithm, hyperparameter overrides).
 VARIANTS = [("told_mode", "oracle_ppo", []), ("ppo", "ppo", [])]
 #: Metrics of the table.
 METRICS = ("team_reward", "detection_rate", "coverage_efficiency")
+#: The station plans the scripted part chooses among: sweep all along, or guard the dens or the roads' entry points
+#: until a quarter, half, three quarters or all of the episode.
+STATION_PLANS: tuple[StationPlan, ...] = (StationPlan(None),) + tuple(
+    StationPlan(spots, until) for spots in STATION_SPOTS for until in (0.25, 0.5, 0.75, 1.0))
+#: First seed of the episodes on which the scripted part chooses its plans (the held-out ones start at --eval-seed).
+FIT_SEED = 0
 
 
 def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METRICS) -> str:
@@ -72,17 +92,59 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
     return "\n".join(lines)
 
 
-def patrol_comparison(episodes: int, seed: int, env_kwargs: dict | None = None) -> dict[str, list[dict]]:
-    """The stalest-block patrol told the strategy and not told, on the same episodes (seeds ``seed, seed + 1, ...``).
+def strategy_of(record: dict) -> str:
+    """The poacher strategy of an episode's metrics record."""
+    return STRATEGIES[record["mode"] // len(WEATHERS)].name
 
-    :return: ``{"told_mode": [metrics per episode], "not_told": [...]}``, each record with its episode's ``seed``
+
+def choose_plans(fitted: dict[str, list[dict]]) -> tuple[str, dict[str, str]]:
+    """The plan with the highest mean team reward over all fitting episodes, and over each strategy's.
+
+    :param fitted: ``{plan name: [metrics per episode]}``, every plan on the same episodes
+    :return: the best single plan's name and ``{strategy name: best plan's name}`` (a strategy no episode drew gets
+        the best single plan)
     """
-    env = reserve_v0.parallel_env(**dict(env_kwargs or {}))
-    results = {}
-    for name, patrol in (("told_mode", ToldModePatrol), ("not_told", StalestBlockPatrol)):
-        records = run_patrol(env, patrol(env), episodes, seed=seed)
-        results[name] = [{**record, "seed": seed + i} for i, record in enumerate(records)]
-    return results
+    def mean(name: str, strategy: str | None = None) -> float:
+        rewards = [r["team_reward"] for r in fitted[name] if strategy is None or strategy_of(r) == strategy]
+        return float(np.mean(rewards)) if rewards else -np.inf
+
+    single = max(fitted, key=mean)
+    per_strategy = {}
+    for strategy in STRATEGIES:
+        best = max(fitted, key=lambda name, s=strategy.name: mean(name, s))
+        per_strategy[strategy.name] = best if np.isfinite(mean(best, strategy.name)) else single
+    return single, per_strategy
+
+
+def station_value(episodes: int, eval_seed: int, env_kwargs: dict | None = None, n_jobs: int = 1,
+                  plans: tuple[StationPlan, ...] = STATION_PLANS) -> tuple[dict, str, dict[str, str], dict]:
+    """What knowing the strategy pays to the station patrols: every plan on ``episodes`` fitting episodes (from
+    :data:`FIT_SEED`) and as many held-out ones (from ``eval_seed``); the best plan per strategy and the best single
+    plan chosen on the first, compared on the second.
+
+    :return: the fitting episodes' records per plan, the best single plan, the best plan per strategy, and
+        ``{"told": [held-out record per episode], "not_told": [...]}`` (told: the plan of the episode's strategy)
+    """
+    with ProcessPoolExecutor(max_workers=n_jobs) as pool:
+        fitting = {plan.name: pool.submit(play_station_plan, plan, episodes, FIT_SEED, env_kwargs) for plan in plans}
+        held_out = {plan.name: pool.submit(play_station_plan, plan, episodes, eval_seed, env_kwargs) for plan in plans}
+        fitted = {name: job.result() for name, job in fitting.items()}
+        played = {name: job.result() for name, job in held_out.items()}
+    single, per_strategy = choose_plans(fitted)
+    told = [played[per_strategy[strategy_of(record)]][i] for i, record in enumerate(played[single])]
+    return fitted, single, per_strategy, {"told": told, "not_told": played[single]}
+
+
+def plan_table(fitted: dict[str, list[dict]]) -> str:
+    """Mean team reward of every plan per strategy and over all episodes (and how many episodes drew each)."""
+    records = next(iter(fitted.values()))
+    counts = {s.name: sum(strategy_of(r) == s.name for r in records) for s in STRATEGIES}
+    lines = [f"{'plan':<12}" + "".join(f"{f'{name} ({counts[name]})':>26}" for name in counts) + f"{'all':>10}"]
+    for name, runs in fitted.items():
+        means = [np.mean([r["team_reward"] for r in runs if strategy_of(r) == s]) if counts[s] else np.nan for s in counts]
+        lines.append(f"{name:<12}" + "".join(f"{m:>26.2f}" for m in means)
+                     + f"{np.mean([r['team_reward'] for r in runs]):>10.2f}")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.set_defaults(n_jobs=2)
     parser.add_argument("--patrol-episodes", type=int, default=300,
                         help="episodes of the scripted comparison (told the strategy or not); 0 skips it")
+    parser.add_argument("--scripted-only", action="store_true",
+                        help="stop after the scripted part (what knowing the strategy pays to the station patrols): "
+                             "a candidate reserve's value of information in minutes, before training on it")
     parser.add_argument("--hide", nargs="+", metavar="PART", default=None,
                         help="observation parts both variants train and play without (zeroed): names of the "
                              "reserve's observation_layout or window.<channel>, e.g. signs window.sign")
@@ -112,13 +177,29 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds must name at least 2 seeds for a paired test, got {args.seeds}")
     if args.patrol_episodes == 1 or args.patrol_episodes < 0:
         parser.error(f"--patrol-episodes must be 0 or >= 2 (a paired test), got {args.patrol_episodes}")
+    if args.scripted_only and not args.patrol_episodes:
+        parser.error("--scripted-only needs --patrol-episodes >= 2 (it runs only the scripted part)")
+    episodes = args.patrol_episodes
+    if episodes and FIT_SEED < args.eval_seed + episodes and args.eval_seed < FIT_SEED + episodes:
+        parser.error(f"--eval-seed {args.eval_seed}: the held-out episodes must not overlap the fitting episodes "
+                     f"(seeds {FIT_SEED} to {FIT_SEED + args.patrol_episodes - 1})")
     command = shlex.join(["python", "benchmarks/mode_value.py", *(sys.argv[1:] if argv is None else argv)])
     print(f"$ {command}", flush=True)
+    scripted = None
     if args.patrol_episodes:
-        patrols = patrol_comparison(args.patrol_episodes, args.eval_seed, args.env_kwargs)
-        print(f"\nScripted: the stalest-block patrol told the strategy or not, {args.patrol_episodes} episodes from seed "
-              f"{args.eval_seed}; mean +- std over episodes; p: paired t-test over episodes")
-        print(paired_table(patrols, METRICS + ("poaching_events",)).split("\n\nseed")[0], flush=True)
+        fitted, single, per_strategy, scripted = station_value(args.patrol_episodes, args.eval_seed, args.env_kwargs,
+                                                               args.n_jobs)
+        print(f"\nScripted: station patrols (hold stations at the dens or the roads' entry points until a point of the "
+              f"episode, then sweep); mean team reward per strategy (episodes) on {args.patrol_episodes} fitting "
+              f"episodes from seed {FIT_SEED}")
+        print(plan_table(fitted))
+        print(f"Not told: the best single plan, {single}. Told the strategy: the best plan per strategy, "
+              + ", ".join(f"{name} {plan}" for name, plan in per_strategy.items()) + ".")
+        print(f"\nThe two on {args.patrol_episodes} held-out episodes from seed {args.eval_seed}; mean +- std over "
+              f"episodes; p: paired t-test over episodes")
+        print(paired_table(scripted, METRICS + ("poaching_events", "collisions")).split("\n\nseed")[0], flush=True)
+        if args.scripted_only:
+            return 0
     start = time.perf_counter()
     try:
         results = run_variants(variants, args)
@@ -131,8 +212,23 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
     print(paired_table({name: results[name] for name, _, _ in VARIANTS}))
+    if scripted is not None:
+        print(power_line(scripted, results))
     print(mode_weight_table(args))
     return 0
+
+
+def power_line(scripted: dict[str, list[dict]], results: dict[str, list[dict]]) -> str:
+    """How many seeds a paired test of told PPO against PPO needs to find the scripted teams' gain in team reward
+    with 80% power at p < 0.05, if the differences spread over seeds as they did here."""
+    gain = paired_over_seeds(scripted, "told", "not_told", "team_reward").difference.mean()
+    spread = paired_over_seeds(results, VARIANTS[0][0], VARIANTS[1][0], "team_reward").difference.std(ddof=1)
+    if not gain > 0 or not spread > 0:
+        return f"\nPower: the scripted gain ({gain:.3f}) or the spread of PPO's differences ({spread:.3f}) is not > 0."
+    n = seeds_needed(gain, spread)
+    return (f"\nPower: a paired t-test over seeds finds a gain of {gain:.3f} (the scripted teams') in team reward with 80% "
+            f"power at p < 0.05 from {n if n is not None else 'more than 100,000'} seeds, if told minus plain PPO spreads "
+            f"over seeds as here (std {spread:.3f}).")
 
 
 def mode_weight_table(args: argparse.Namespace) -> str:

@@ -125,6 +125,8 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     assert code == 0
     scripted, trained = out.split("PPO told the mode or not")
     assert "not_told" in scripted and "poaching_events" in scripted and "p (paired t)" in scripted
+    assert "Not told: the best single plan" in scripted and "roads<0.75" in scripted
+    assert "Power: " in trained
     assert "told_mode" in trained and "p (paired t)" in trained and "team_reward" in trained
     trained, weights = trained.split("How strongly the told runs read the mode")
     assert len([line for line in trained.splitlines() if line.startswith(("0 ", "1 "))]) == 2
@@ -135,7 +137,9 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
 @pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"), (["-n", "0"], "n-timesteps must be >= 1"),
                                             (["--n-jobs", "0"], "n-jobs must be >= 1"),
                                             (["--seeds", "1", "1"], "must be distinct"),
-                                            (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2")])
+                                            (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2"),
+                                            (["--eval-seed", "299"], "must not overlap the fitting episodes"),
+                                            (["--scripted-only", "--patrol-episodes", "0"], "needs --patrol-episodes")])
 def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_mode_value().main(flags)
@@ -161,6 +165,88 @@ def test_the_told_mode_patrol_holds_stations_where_the_strategy_s_poachers_come_
     # A dispersed evasion gives no place to guard: the told patrol acts as the stalest-block patrol.
     obs, _ = env.reset(seed=0, options={"mode": 3 * len(WEATHERS)})
     assert ToldModePatrol(env)(obs) == StalestBlockPatrol(env)(obs)
+
+
+def test_a_station_plan_rejects_bad_values_and_a_plan_per_strategy_must_name_every_strategy():
+    from wildlife_reserve import reserve_v0
+    from wildlife_reserve.reserve.scripted import StationPatrol, StationPlan
+
+    with pytest.raises(ValueError, match="spots must be None or one of"):
+        StationPlan("waterholes", 0.5)
+    with pytest.raises(ValueError, match=r"until must be a fraction of the episode in \[0, 1\], got 1.5"):
+        StationPlan("dens", 1.5)
+    with pytest.raises(ValueError, match="one per strategy"):
+        StationPatrol(reserve_v0.parallel_env(), {"hotspot_raid": StationPlan("dens", 0.5)})
+    assert StationPlan(None).name == "sweep" and StationPlan("roads", 0.75).name == "roads<0.75"
+
+
+def test_a_station_plan_guards_its_spots_in_every_mode_until_its_time_then_sweeps():
+    from wildlife_reserve import reserve_v0
+    from wildlife_reserve.reserve.scripted import StalestBlockPatrol, StationPatrol, StationPlan
+
+    env = reserve_v0.parallel_env(n_poachers=0)
+    plan = StationPlan("dens", 0.5)
+    for mode in (0, 2 * 2 + 1, 3 * 2):  # a hotspot raid, a coordinated group in fog, a dispersed evasion
+        obs, _ = env.reset(seed=1, options={"mode": mode})
+        patrol = StationPatrol(env, plan)
+        for _ in range(int(plan.until * env.max_cycles) - 2):
+            obs, *_ = env.step(patrol(obs))
+        distance = np.abs(env.uav_pos[:, None, :] - env.hotspots.dens[None] - 0.5).max(-1).min(axis=1)
+        assert np.mean(distance <= 2 * patrol.spread + 2) >= 0.8, (mode, distance)
+        for _ in range(3):  # past its time it is the stalest-block patrol
+            obs, *_ = env.step(patrol(obs))
+        assert patrol(obs) == StalestBlockPatrol(env)(obs)
+
+
+def test_the_scripted_plans_are_chosen_on_hand_built_records():
+    mode_value = load_mode_value()
+
+    def records(rewards_by_mode):
+        return [{"seed": i, "mode": mode, "team_reward": reward} for i, (mode, reward) in enumerate(rewards_by_mode)]
+
+    # Modes 0/1 are hotspot raids, 2/3 edge infiltrations, 4/5 coordinated groups; no dispersed evasion drawn.
+    fitted = {"a": records([(0, 10), (1, 10), (2, 0), (4, 0)]),   # mean 5: best single plan
+              "b": records([(0, 0), (1, 0), (2, 12), (4, 1)]),    # mean 3.25: best on edge infiltrations
+              "c": records([(0, 0), (1, 0), (2, 0), (5, 15)])}    # mean 3.75: best on coordinated groups
+    single, per_strategy = mode_value.choose_plans(fitted)
+    assert single == "a"
+    assert per_strategy == {"hotspot_raid": "a", "edge_infiltration": "b", "coordinated_group": "c",
+                            "dispersed_evasion": "a"}
+    table = mode_value.plan_table(fitted).splitlines()
+    assert table[0].split()[1:4] == ["hotspot_raid", "(2)", "edge_infiltration"]
+    assert table[1].split() == ["a", "10.00", "0.00", "0.00", "nan", "5.00"]
+
+
+def test_scripted_only_stops_before_training(tmp_path, capsys):
+    code = load_mode_value().main(["--scripted-only", "--patrol-episodes", "2", "-f", str(tmp_path), "--n-jobs", "1",
+                                   "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
+    out = capsys.readouterr().out
+    assert code == 0 and "Not told: the best single plan" in out and "held-out episodes" in out
+    assert "PPO told the mode or not" not in out and not list(tmp_path.iterdir())
+
+
+def test_the_told_station_team_plays_its_strategy_s_plan_on_the_held_out_episodes():
+    from wildlife_reserve.reserve.scripted import StationPlan, play_station_plan
+
+    mode_value = load_mode_value()
+    tiny, plans = {"n_uavs": 2, "grid_size": 20, "max_cycles": 10}, (StationPlan(None), StationPlan("dens", 1.0))
+    fitted, single, per_strategy, held_out = mode_value.station_value(4, 100, tiny, n_jobs=1, plans=plans)
+    assert set(fitted) == {"sweep", "dens<1"} and [r["seed"] for r in fitted["sweep"]] == [0, 1, 2, 3]
+    assert (single, per_strategy) == mode_value.choose_plans(fitted)
+    by_plan = {plan.name: play_station_plan(plan, 4, 100, tiny) for plan in plans}
+    assert held_out["not_told"] == by_plan[single]
+    assert held_out["told"] == [by_plan[per_strategy[mode_value.strategy_of(r)]][i] for i, r in enumerate(by_plan[single])]
+
+
+def test_seeds_needed_matches_the_paired_t_test_s_power_tables():
+    from sb3_emmarl.zoo.benchmark import seeds_needed
+
+    # Cohen's tables, two-sided paired t-test at 0.05 and power 0.8: d = 1 needs 10 pairs, d = 0.5 needs 34.
+    assert seeds_needed(1.0, 1.0) == 10 and seeds_needed(-2.5, 5.0) == 34
+    assert seeds_needed(0.0, 1.0) is None and seeds_needed(0.001, 1.0, max_n=1000) is None
+    assert seeds_needed(100.0, 1.0) == 2 and seeds_needed(10.0, 1.0) == 3  # 2 pairs: critical t 12.7
+    with pytest.raises(ValueError, match="sd must be > 0"):
+        seeds_needed(1.0, 0.0)
 
 
 def test_tail_weight_norms_on_hand_set_weights():

@@ -1,24 +1,31 @@
 """Scripted patrols: reference behaviours that need no training.
 
-The first two act on observations only (execution stays decentralised); the third is told the hidden
-mode. All return PettingZoo action dicts for the discrete action mode.
+They act on observations only (execution stays decentralised), except a station patrol given a plan per
+strategy, which is told the hidden mode. All return PettingZoo action dicts for the discrete action mode.
 
 - :class:`RandomPatrol`: uniform random actions.
 - :class:`StalestBlockPatrol`: each UAV flies toward the coarse block it believes was flown over
   longest ago (ties to the nearest, leaving blocks to closer neighbours), heads for fresh poacher
   activity in its belief map when there is any, and broadcasts every ``broadcast_every`` steps.
-- :class:`ToldModePatrol`: the stalest-block patrol told the episode's poacher strategy (an oracle,
-  not a deployable team): it shows whether knowing the mode *can* pay, whatever a learner makes of it.
+- :class:`StationPatrol`: the stalest-block patrol that first holds stations around the dens or the roads'
+  entry points until a given point of the episode (a :class:`StationPlan`), the same plan in every episode or,
+  told the mode, a plan per poacher strategy (an oracle, not a deployable team). The best plan per strategy
+  against the best single plan measures what knowing the mode *can* pay, whatever a learner makes of it
+  (``benchmarks/mode_value.py``).
+- :class:`ToldModePatrol`: the station patrol told the strategy, guarding where its poachers come from until
+  their entry window closes (:data:`TOLD_PLANS`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from wildlife_reserve.reserve.actors import STEPS
 from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES
+from wildlife_reserve.reserve.modes import STRATEGIES
 
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.reserve import ReserveParallelEnv
@@ -86,37 +93,78 @@ class StalestBlockPatrol:
         return dict(zip(agents, (move + N_MOVES * comm).tolist()))
 
 
-class ToldModePatrol(StalestBlockPatrol):
-    """The stalest-block patrol, told the episode's poacher strategy (read from the environment).
+#: Where a station patrol can hold its stations: the reserve's dens or the roads' entry points.
+STATION_SPOTS: tuple[str, ...] = ("dens", "roads")
 
-    Until the strategy's entry window closes, each UAV holds a station near where that strategy's
-    poachers come from: the dens for a hotspot raid, the roads' entry points for an edge infiltration or a
-    coordinated group. The UAVs of one spot hold stations on a ring of radius ``spread`` around it (moved
-    inside the map when the spot is on its edge), and UAVs
-    of even and odd index fly row-first and column-first, so that the team neither piles up nor flies in
-    lockstep. After that, and throughout a dispersed evasion, it sweeps as :class:`StalestBlockPatrol` does;
-    it communicates as that patrol does all along.
+
+@dataclass(frozen=True)
+class StationPlan:
+    """Hold stations around ``spots`` until ``until`` x ``max_cycles`` steps, then sweep (``spots=None``: sweep all along).
+
+    :param spots: ``"dens"``, ``"roads"`` (the roads' entry points) or ``None``
+    :param until: fraction of the episode in [0, 1] after which the team sweeps
+    """
+
+    spots: str | None
+    until: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.spots is not None and self.spots not in STATION_SPOTS:
+            raise ValueError(f"spots must be None or one of {STATION_SPOTS}, got {self.spots!r}")
+        if not 0.0 <= self.until <= 1.0:
+            raise ValueError(f"until must be a fraction of the episode in [0, 1], got {self.until!r}")
+
+    @property
+    def name(self) -> str:
+        return "sweep" if self.spots is None else f"{self.spots}<{self.until:g}"
+
+
+#: What the told patrol does under each strategy: guard where its poachers come from until its entry window
+#: closes (a dispersed evasion, from anywhere on the perimeter, gives no place to guard).
+TOLD_PLANS: dict[str, StationPlan] = {
+    strategy.name: StationPlan({"near_den": "dens", "one_side": "roads", "group": "roads"}.get(strategy.entry),
+                               strategy.entry_window[1])
+    for strategy in STRATEGIES
+}
+
+
+class StationPatrol(StalestBlockPatrol):
+    """The stalest-block patrol that first holds stations around the dens or the roads' entry points.
+
+    Until ``plan.until`` of the episode, each UAV holds a station near one of the plan's spots: the UAVs of one spot
+    hold stations on a ring of radius ``spread`` around it (moved inside the map when the spot is on its edge), and
+    UAVs of even and odd index fly row-first and column-first, so that the team neither piles up nor flies in
+    lockstep. After that it sweeps as :class:`StalestBlockPatrol` does; it communicates as that patrol does all
+    along. With one plan it is a deployable team (it reads the map, not the mode); with a plan per poacher strategy it
+    is told the episode's strategy (read from the environment), an oracle.
 
     :param env: the (parallel) reserve, discrete actions
+    :param plan: one :class:`StationPlan` for every episode, or a plan per strategy name (``modes.STRATEGIES``)
     :param spread: radius in cells of the ring of stations around each spot
     :param kwargs: see :class:`StalestBlockPatrol`
     """
 
-    def __init__(self, env: ReserveParallelEnv, spread: int = 6, **kwargs) -> None:
+    def __init__(self, env: ReserveParallelEnv, plan: StationPlan | dict[str, StationPlan], spread: int = 6,
+                 **kwargs) -> None:
         super().__init__(env, **kwargs)
+        if isinstance(plan, dict) and set(plan) != {s.name for s in STRATEGIES}:
+            raise ValueError(f"plan must be a StationPlan or a dict with one per strategy "
+                             f"{[s.name for s in STRATEGIES]}, got keys {sorted(plan)}")
+        self.plan = plan
         self.spread = spread
+
+    def current_plan(self) -> StationPlan:
+        """The plan of this episode (the strategy's, when told)."""
+        return self.plan[self.env.strategy.name] if isinstance(self.plan, dict) else self.plan
 
     def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, int]:
         env = self.env
         actions = super().__call__(observations)
-        strategy = env.strategy
-        if strategy.entry == "near_den":
-            spots = env.hotspots.dens
-        elif strategy.entry in ("one_side", "group"):
-            spots = env.hotspots.road_entries
-        else:
+        plan = self.current_plan()
+        if plan.spots is None:
             return actions
-        if not len(spots) or env.t >= strategy.entry_window[1] * env.max_cycles:
+        spots = env.hotspots.dens if plan.spots == "dens" else env.hotspots.road_entries
+        if not len(spots) or env.t >= plan.until * env.max_cycles:
             return actions
         index = np.array([env.possible_agents.index(agent) for agent in observations])
         spot, place = index % len(spots), index // len(spots)
@@ -133,6 +181,20 @@ class ToldModePatrol(StalestBlockPatrol):
         move = np.where(np.abs(heading).max(-1) <= near, 0, move)
         comm = np.array([actions[agent] for agent in observations]) // N_MOVES
         return dict(zip(observations, (move + N_MOVES * comm).tolist()))
+
+
+class ToldModePatrol(StationPatrol):
+    """The station patrol told the episode's poacher strategy, with :data:`TOLD_PLANS`: until the strategy's entry
+    window closes it guards where that strategy's poachers come from (the dens for a hotspot raid, the roads' entry
+    points for an edge infiltration or a coordinated group); throughout a dispersed evasion it sweeps.
+
+    :param env: the (parallel) reserve, discrete actions
+    :param spread: radius in cells of the ring of stations around each spot
+    :param kwargs: see :class:`StalestBlockPatrol`
+    """
+
+    def __init__(self, env: ReserveParallelEnv, spread: int = 6, **kwargs) -> None:
+        super().__init__(env, TOLD_PLANS, spread=spread, **kwargs)
 
 
 SCRIPTED_PATROLS = {"random": RandomPatrol, "stalest_block": StalestBlockPatrol, "told_mode": ToldModePatrol}
@@ -153,3 +215,21 @@ def run_patrol(env: ReserveParallelEnv, policy, episodes: int, seed: int = 0) ->
             observations, _, _, _, infos = env.step(policy(observations))
         records.append(next(iter(infos.values()))["metrics"])
     return records
+
+
+def play_station_plan(plan: StationPlan | dict[str, StationPlan], episodes: int, seed: int = 0,
+                      env_kwargs: dict | None = None) -> list[dict[str, float]]:
+    """The station patrol with ``plan`` on a new reserve: each episode's metrics and its ``seed`` (a module-level
+    function, so that a process pool can run plans side by side).
+
+    :param plan: see :class:`StationPatrol`
+    :param episodes: number of episodes
+    :param seed: seed of the first episode
+    :param env_kwargs: arguments of ``reserve_v0.parallel_env``
+    """
+    from wildlife_reserve.reserve.reserve import parallel_env  # the environment module imports this one's constants' users
+
+    env = parallel_env(**dict(env_kwargs or {}))
+    records = run_patrol(env, StationPatrol(env, plan), episodes, seed=seed)
+    env.close()
+    return [{**record, "seed": seed + i} for i, record in enumerate(records)]
