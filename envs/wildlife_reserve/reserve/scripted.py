@@ -19,16 +19,13 @@ strategy, which is told the hidden mode. All return PettingZoo action dicts for 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from wildlife_reserve.reserve.actors import STEPS
 from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES
 from wildlife_reserve.reserve.modes import STRATEGIES
-
-if TYPE_CHECKING:
-    from wildlife_reserve.reserve.reserve import ReserveParallelEnv
+from wildlife_reserve.reserve.reserve import ReserveParallelEnv, parallel_env
 
 
 class RandomPatrol:
@@ -116,6 +113,7 @@ class StationPlan:
 
     @property
     def name(self) -> str:
+        """Short label for tables: ``sweep`` or ``<spots><<until>``, e.g. ``dens<0.75``."""
         return "sweep" if self.spots is None else f"{self.spots}<{self.until:g}"
 
 
@@ -227,8 +225,6 @@ def play_station_plan(plan: StationPlan | dict[str, StationPlan], episodes: int,
     :param seed: seed of the first episode
     :param env_kwargs: arguments of ``reserve_v0.parallel_env``
     """
-    from wildlife_reserve.reserve.reserve import parallel_env  # the environment module imports this one's constants' users
-
     env = parallel_env(**dict(env_kwargs or {}))
     records = run_patrol(env, StationPatrol(env, plan), episodes, seed=seed)
     env.close()
