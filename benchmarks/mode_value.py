@@ -56,7 +56,7 @@ from sb3_emmarl.zoo.benchmark import (
 )
 from sb3_emmarl.zoo.cli import ENV_ID, latest_run
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode
 from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
 
 #: The two variants: (table name, zoo algorithm, hyperparameter overrides).
@@ -94,7 +94,7 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
 
 def strategy_of(record: dict) -> str:
     """The poacher strategy of an episode's metrics record."""
-    return STRATEGIES[record["mode"] // len(WEATHERS)].name
+    return decode_mode(record["mode"])[0].name
 
 
 def choose_plans(fitted: dict[str, list[dict]]) -> tuple[str, dict[str, str]]:
