@@ -20,8 +20,8 @@ import torch as th
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.evaluation import evaluate_team
-from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
+from sb3_emmarl.common.evaluation import evaluate_team, make_eval_env
+from sb3_emmarl.common.vec_env import LINKS_KEY
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value, run_settings
 from sb3_emmarl.zoo.cli import latest_run
@@ -74,12 +74,14 @@ def main(argv: list[str] | None = None) -> int:
         run = latest_run(Path(args.folder) / args.variant / f"seed_{seed}", args.algo)
         if not run.is_dir():
             parser.error(f"no {args.algo} run in {run.parent}")
-        run_kwargs = run_settings(run)  # the run's reserve arguments and vec_env_wrapper
+        run_kwargs = run_settings(run)  # the run's reserve arguments, vec_env_wrapper, VecNormalize
         model = ZOO_ALGOS[args.algo].load(run / f"{ENV_ID}.zip", device="cpu")
         for name in settings:
             model.fusion = name != "fusion off"
             # The same episodes as evaluate_team's own reserve (make_eval_env), with every link up.
-            vec_env = AllLinks(make_vec_env(1, seed=args.eval_seed, **run_kwargs)) if name == "all links" else None
+            vec_env = AllLinks(make_eval_env(args.eval_seed, run_kwargs["env_kwargs"], False,
+                                             run_kwargs["vec_normalize_path"], None, run_kwargs["vec_env_wrapper"])) \
+                if name == "all links" else None
             records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed,
                                     **(run_kwargs if vec_env is None else {}), vec_env=vec_env)
             if vec_env is not None:

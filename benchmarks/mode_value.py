@@ -25,6 +25,15 @@ gain of that size at PPO's spread over seeds (``seeds_needed``).
 ``--hide signs window.sign``: what knowing the mode pays to a team that cannot see the signs, where the
 strategy shows. Give it its own ``-f``.
 
+Whether told PPO acts on what it is told, run by run: every told run plays the evaluation episodes again told a
+wrong strategy (the next one, cyclically, in the same weather: ``next_strategy``), and the mode-use table pairs the two
+over seeds. A policy that acts on the mode scores less when told a wrong one; one that ignores it scores the same.
+Unlike told against plain PPO, this compares one trained network with itself, so the seeds' spread in what they
+learned drops out of the difference.
+
+``-params key:value ...`` gives both variants the same hyperparameter overrides of ``ppo.yml`` (the zoo's
+``-params``), for example ``-params n_epochs:10 ent_coef:0.03``. Give it its own ``-f``.
+
 ``--scripted-only`` stops after the scripted part: with ``--env-kwargs`` it tells in a few minutes how much a
 candidate reserve's mode can pay, before any training on it.
 
@@ -41,6 +50,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+import torch as th
 
 from sb3_emmarl import OraclePPO
 from sb3_emmarl.common.initialization import tail_weight_norms
@@ -49,14 +59,15 @@ from sb3_emmarl.zoo.benchmark import (
     COMPARISON_EVAL_EPISODES,
     add_run_arguments,
     check_run_arguments,
+    evaluate_run,
     paired_over_seeds,
     run_folder,
     run_variants,
     seeds_needed,
 )
-from sb3_emmarl.zoo.cli import ENV_ID, latest_run
+from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
 from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode, next_strategy
 from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
 
 #: The two variants: (table name, zoo algorithm, hyperparameter overrides).
@@ -69,6 +80,8 @@ STATION_PLANS: tuple[StationPlan, ...] = (StationPlan(None),) + tuple(
     StationPlan(spots, until) for spots in STATION_SPOTS for until in (0.25, 0.5, 0.75, 1.0))
 #: First seed of the episodes on which the scripted part chooses its plans (the held-out ones start at --eval-seed).
 FIT_SEED = 0
+#: The mode the mode-use table tells each told run instead of the true one: the next strategy, the same weather.
+WRONG_STRATEGY: tuple[int, ...] = tuple(next_strategy(mode) for mode in range(N_MODES))
 
 
 def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METRICS) -> str:
@@ -86,9 +99,11 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
         lines.append(f"{metric:<22}{a.mean():>11.3f} +- {a.std():<5.3f}{b.mean():>11.3f} +- {b.std():<5.3f}"
                      f"{diff.mean():>11.3f} +- {diff.std():<5.3f}{test.p_value:>14.3g}{test.higher_on:>11}")
     lines.append("")
-    lines.append(f"{'seed':<6}" + "".join(f"{f'{name} {metric}':>34}" for name in (a_name, b_name) for metric in metrics))
+    width = max(34, *(len(f"{name} {metric}") + 2 for name in (a_name, b_name) for metric in metrics))
+    lines.append(f"{'seed':<6}" + "".join(f"{f'{name} {metric}':>{width}}" for name in (a_name, b_name) for metric in metrics))
     for a_run, b_run in zip(a_runs, b_runs):
-        lines.append(f"{a_run['seed']:<6}" + "".join(f"{run[metric]:>34.3f}" for run in (a_run, b_run) for metric in metrics))
+        lines.append(f"{a_run['seed']:<6}" + "".join(f"{run[metric]:>{width}.3f}" for run in (a_run, b_run)
+                                                    for metric in metrics))
     return "\n".join(lines)
 
 
@@ -160,9 +175,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hide", nargs="+", metavar="PART", default=None,
                         help="observation parts both variants train and play without (zeroed): names of the "
                              "reserve's observation_layout or window.<channel>, e.g. signs window.sign")
+    parser.add_argument("-params", "--hyperparams", nargs="+", metavar="KEY:VALUE", default=None,
+                        help="hyperparameter overrides of ppo.yml for both variants (the zoo's -params)")
     args = parser.parse_args(argv)
     check_run_arguments(parser, args)
     variants = VARIANTS
+    if args.hyperparams:
+        try:
+            parse_key_values(args.hyperparams, "-params")
+        except ValueError as error:
+            parser.error(str(error))
+        variants = [(name, algo, [*params, *args.hyperparams]) for name, algo, params in VARIANTS]
     if args.hide:
         env = reserve_v0.parallel_env(**dict(args.env_kwargs or {}))
         layout = env.observation_layout
@@ -172,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:
             parser.error(f"--hide: {error}")
         wrapper = {"sb3_emmarl.common.masking.HideObservationParts": {"parts": list(args.hide)}}
-        variants = [(name, algo, [*params, f"vec_env_wrapper:{wrapper!r}"]) for name, algo, params in VARIANTS]
+        variants = [(name, algo, [*params, f"vec_env_wrapper:{wrapper!r}"]) for name, algo, params in variants]
     if len(args.seeds) < 2:
         parser.error(f"--seeds must name at least 2 seeds for a paired test, got {args.seeds}")
     if args.patrol_episodes == 1 or args.patrol_episodes < 0:
@@ -207,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
         print(error, file=sys.stderr)
         return 2
     hidden = f" without {' '.join(args.hide)} in the observation" if args.hide else ""
-    print(f"\nPPO told the mode or not{hidden}: ppo.yml settings for both; {len(args.seeds)} seeds x "
+    overrides = f" with {' '.join(args.hyperparams)}" if args.hyperparams else ""
+    print(f"\nPPO told the mode or not{hidden}: ppo.yml settings{overrides} for both; {len(args.seeds)} seeds x "
           f"{args.n_timesteps:,} agent-steps per run; "
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
@@ -215,7 +239,23 @@ def main(argv: list[str] | None = None) -> int:
     if scripted is not None:
         print(power_line(scripted, results))
     print(mode_weight_table(args))
+    print(mode_use_table(args, results[VARIANTS[0][0]]))
     return 0
+
+
+def mode_use_table(args: argparse.Namespace, told: list[dict]) -> str:
+    """Told PPO told the true mode (``told``: its records per seed) against the same runs told a wrong strategy, on
+    the same evaluation episodes, paired over seeds: what each told run's team loses when it is told wrong."""
+    name, algo, _ = VARIANTS[0]
+    with ProcessPoolExecutor(max_workers=args.n_jobs, initializer=th.set_num_threads, initargs=(1,)) as pool:
+        jobs = [pool.submit(evaluate_run, algo, latest_run(run_folder(args, name, seed), algo), args.eval_episodes,
+                            args.eval_seed, WRONG_STRATEGY) for seed in args.seeds]
+        played = [job.result() for job in jobs]
+    wrong = [{**{m: float(np.mean([r[m] for r in records])) for m in METRICS}, "seed": seed}
+             for seed, records in zip(args.seeds, played)]
+    return ("\nDoes told PPO act on the mode? The told runs on the same episodes told the true mode or the next strategy "
+            "(same weather); mean +- std over seeds; p: paired t-test over seeds\n"
+            + paired_table({"true_mode": told, "wrong_strategy": wrong}))
 
 
 def power_line(scripted: dict[str, list[dict]], results: dict[str, list[dict]]) -> str:

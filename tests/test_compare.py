@@ -213,3 +213,12 @@ def test_the_fusion_benchmark_runs_end_to_end_on_tiny_em_ppo_runs(tmp_path, caps
     out = capsys.readouterr().out
     assert "fusion on / off" in out and "with every link up" in out
     assert len([line for line in out.splitlines() if line.startswith("latent_accuracy_50")]) == 2
+
+
+def test_parse_variant_keeps_commas_inside_brackets_and_quotes():
+    name, algo, items = parse_variant("norm=ppo:normalize=dict(norm_obs=False, norm_reward=True),ent_coef=0.03")
+    assert (name, algo) == ("norm", "ppo")
+    assert items == ["normalize:dict(norm_obs=False, norm_reward=True)", "ent_coef:0.03"]
+    assert parse_variant("x=ppo:policy_kwargs=dict(net_arch=[64, 64]),gamma=0.9")[2] == [
+        "policy_kwargs:dict(net_arch=[64, 64])", "gamma:0.9"]
+    assert parse_variant("x=ppo:a='1,2',b=3")[2] == ["a:'1,2'", "b:3"]

@@ -1,5 +1,7 @@
 """The true mode in the observation (ModeObservationWrapper, OraclePPO) and the value-of-information benchmark."""
 
+import argparse
+
 import numpy as np
 import pytest
 import torch as th
@@ -11,7 +13,7 @@ from sb3_emmarl import OraclePPO
 from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
 from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve.reserve.modes import N_MODES
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS, decode_mode, encode_mode, next_strategy
 
 SMALL = {"n_uavs": 2, "grid_size": 20, "max_cycles": 5}
 
@@ -36,6 +38,31 @@ def test_the_one_hot_is_the_true_mode_at_reset_after_steps_and_across_episode_en
             assert terminal.shape == obs[i].shape
             assert terminal[-N_MODES:].argmax() == infos[i]["metrics"]["mode"]  # the finished episode's mode
     assert len(seen_modes) > 1  # the modes change from episode to episode, and the one-hot follows
+
+
+def test_relabel_tells_another_mode_and_bad_relabels_are_rejected():
+    wrong = [next_strategy(mode) for mode in range(N_MODES)]
+    venv = ModeObservationWrapper(make_vec_env(3, seed=0, env_kwargs=SMALL), relabel=wrong)
+    obs = venv.reset()
+    for step in range(12):  # crosses episode ends
+        np.testing.assert_array_equal(obs[:, -N_MODES:].argmax(axis=1), np.array(wrong)[true_modes(venv)])
+        obs, _, dones, infos = venv.step(np.random.default_rng(step).integers(0, 15, venv.num_envs))
+        for i in np.flatnonzero(dones):
+            assert infos[i]["terminal_observation"][-N_MODES:].argmax() == wrong[infos[i]["metrics"]["mode"]]
+    for bad in ([0] * (N_MODES - 1), [N_MODES] * N_MODES, [0.5] * N_MODES, [True] * N_MODES, "01234567"):
+        with pytest.raises(ValueError, match=f"relabel must be {N_MODES} ints"):
+            ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), relabel=bad)
+
+
+def test_next_strategy_keeps_the_weather_and_changes_the_strategy_and_encode_inverts_decode():
+    for mode in range(N_MODES):
+        strategy, weather = decode_mode(mode)
+        assert encode_mode(STRATEGIES.index(strategy), WEATHERS.index(weather)) == mode
+        other, same_weather = decode_mode(next_strategy(mode))
+        assert other != strategy and same_weather == weather
+    assert sorted(next_strategy(mode) for mode in range(N_MODES)) == list(range(N_MODES))  # a permutation
+    with pytest.raises(ValueError, match="strategy must be in"):
+        encode_mode(len(STRATEGIES), 0)
 
 
 def test_wrap_with_mode_wraps_once_and_rejects_what_it_cannot_read():
@@ -120,9 +147,20 @@ def test_the_paired_table_on_hand_built_records():
 def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     mode_value = load_mode_value()
     code = mode_value.main(["-n", "200", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path),
-                            "--patrol-episodes", "3", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10"])
+                            "--patrol-episodes", "3", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:10",
+                            "-params", "n_epochs:2"])
     out = capsys.readouterr().out
     assert code == 0
+    assert "ppo.yml settings with n_epochs:2 for both" in out
+    for variant in ("told_mode", "ppo"):  # the overrides reached the training of both
+        run = mode_value.latest_run(mode_value.run_folder(argparse.Namespace(log_folder=str(tmp_path)), variant, 0),
+                                    "oracle_ppo" if variant == "told_mode" else "ppo")
+        assert "n_epochs: 2" in (run / "WildlifeReserve-v0" / "config.yml").read_text()
+    with pytest.raises(ValueError, match="needs a run told the mode .oracle_ppo., not ppo"):
+        mode_value.evaluate_run("ppo", run, 1, 0, mode_value.WRONG_STRATEGY)  # run: the last one, plain PPO's
+    out, mode_use = out.split("Does told PPO act on the mode?")
+    assert "true_mode" in mode_use and "wrong_strategy" in mode_use and "p (paired t)" in mode_use
+    assert len([line for line in mode_use.splitlines() if line.startswith(("0 ", "1 "))]) == 2
     scripted, trained = out.split("PPO told the mode or not")
     assert "not_told" in scripted and "poaching_events" in scripted and "p (paired t)" in scripted
     assert "Not told: the best single plan" in scripted and "roads<0.75" in scripted
@@ -139,7 +177,8 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
                                             (["--seeds", "1", "1"], "must be distinct"),
                                             (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2"),
                                             (["--eval-seed", "299"], "must not overlap the fitting episodes"),
-                                            (["--scripted-only", "--patrol-episodes", "0"], "needs --patrol-episodes")])
+                                            (["--scripted-only", "--patrol-episodes", "0"], "needs --patrol-episodes"),
+                                            (["-params", "nope"], "-params expects key:value pairs, got 'nope'")])
 def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_mode_value().main(flags)

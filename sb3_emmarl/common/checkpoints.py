@@ -51,6 +51,8 @@ CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
 TRAINING_STATE = "training_state"
 REPLAY_BUFFER = "replay_buffer"
 VEC_NORMALIZE = "vecnormalize"
+#: The file in which a run keeps its final ``VecNormalize`` statistics (rl_zoo3's name).
+VEC_NORMALIZE_FILE = f"{VEC_NORMALIZE}.pkl"
 
 
 # ---------------------------------------------------------------------------------------------- pickling
@@ -390,7 +392,7 @@ class SaveVecNormalize(BaseCallback):
     def _on_step(self) -> bool:
         vec_normalize = self.model.get_vec_normalize_env()
         if vec_normalize is not None:
-            save_pickle(Path(self.folder) / "vecnormalize.pkl", vec_normalize)
+            save_pickle(Path(self.folder) / VEC_NORMALIZE_FILE, vec_normalize)
         return True
 
 

@@ -7,6 +7,7 @@ entry's observation, read from the reserve's infos (``infos[i]["mode"]``), which
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -26,26 +27,43 @@ class ModeObservationWrapper(VecEnvWrapper):
     merges the reset's infos into the last step's). The terminal observation of a finished episode gets
     that episode's mode, from ``infos[i]["metrics"]["mode"]``.
 
+    With ``relabel``, the one-hot is that of ``relabel[mode]`` instead: a policy told a wrong mode. A policy that
+    acts on the mode scores less when told a wrong one, and one that ignores it scores the same; this tells whether
+    a told policy uses what it is told, run by run (``benchmarks/mode_value.py``'s mode-use table).
+
     :param venv: a parameter-sharing vector environment of the reserve (flat ``Box`` observations)
     :param n_modes: number of modes (the one-hot's length)
+    :param relabel: the mode told for each true mode (``n_modes`` ints in ``[0, n_modes)``, e.g.
+        ``[next_strategy(m) for m in range(N_MODES)]``); None tells the true mode
     """
 
-    def __init__(self, venv: VecEnv, n_modes: int = N_MODES) -> None:
+    def __init__(self, venv: VecEnv, n_modes: int = N_MODES, relabel: Sequence[int] | None = None) -> None:
         space = venv.observation_space
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"ModeObservationWrapper needs flat Box observations, got {space}")
         if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
             raise ValueError(f"n_modes must be an int >= 1, got {n_modes!r}")
         self.n_modes = int(n_modes)
+        self.relabel = None if relabel is None else self._check_relabel(relabel)
         low = np.concatenate([space.low, np.zeros(self.n_modes, dtype=space.dtype)])
         high = np.concatenate([space.high, np.ones(self.n_modes, dtype=space.dtype)])
         super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
         self.modes = np.zeros(venv.num_envs, dtype=np.int64)
 
+    def _check_relabel(self, relabel: Sequence[int]) -> np.ndarray:
+        values = list(relabel) if not isinstance(relabel, (str, bytes, dict)) else None
+        if (values is None or len(values) != self.n_modes
+                or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values)
+                or not all(0 <= v < self.n_modes for v in values)):
+            raise ValueError(f"relabel must be {self.n_modes} ints in [0, {self.n_modes - 1}] (the mode told for each "
+                             f"true mode), got {relabel!r}")
+        return np.asarray(values, dtype=np.int64)
+
     def _one_hot(self, modes: np.ndarray) -> np.ndarray:
         if modes.min() < 0 or modes.max() >= self.n_modes:
             raise ValueError(f"modes must be in [0, {self.n_modes - 1}], got {modes}")
-        return np.eye(self.n_modes, dtype=self.observation_space.dtype)[modes]
+        told = modes if self.relabel is None else self.relabel[modes]
+        return np.eye(self.n_modes, dtype=self.observation_space.dtype)[told]
 
     def _read_modes(self, infos: list[dict[str, Any]]) -> np.ndarray:
         try:

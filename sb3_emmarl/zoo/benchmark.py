@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -13,7 +14,10 @@ from rl_zoo3.utils import get_wrapper_class
 from scipy import stats
 
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation
+from sb3_emmarl.common.checkpoints import VEC_NORMALIZE_FILE
+from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
+from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import SHARED_HYPERPARAMS, ZOO_ALGOS
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR, plain, read_yaml
@@ -166,13 +170,34 @@ DEFAULT_VARIANTS = ("em_ppo", "ppo", "ppo_lstm", "oracle_ppo", "no_latent=em_ppo
                     "frozen_e_step=em_ppo:freeze_e_step=True")
 
 
+def _top_level_split(text: str, separator: str = ",") -> list[str]:
+    """``text`` split at the ``separator`` characters outside brackets and quotes (a value such as
+    ``dict(norm_obs=False, norm_reward=True)`` stays whole); written by hand because ``shlex`` and ``csv`` know
+    quotes but not brackets."""
+    parts, depth, quote, start = [], 0, "", 0
+    for i, char in enumerate(text):
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "'\"":
+            quote = char
+        elif char in "([{":
+            depth += 1
+        elif char in ")]}":
+            depth -= 1
+        elif char == separator and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    return parts + [text[start:]]
+
+
 def parse_variant(text: str) -> tuple[str, str, list[str]]:
-    """``NAME=ALGO:key=value,key=value`` (or just ``ALGO``) -> (name, algo, ``-params`` items)."""
+    """``NAME=ALGO:key=value,key=value`` (or just ``ALGO``) -> (name, algo, ``-params`` items). Commas inside brackets
+    or quotes belong to the value: ``norm=ppo:normalize=dict(norm_obs=False, norm_reward=True)``."""
     name, _, spec = text.partition("=") if "=" in text.split(":")[0] else (text.split(":")[0], "", text)
     algo, _, params = spec.partition(":")
     if algo not in ZOO_ALGOS:
         raise ValueError(f"variant {text!r}: unknown algorithm {algo!r}; the zoo trains {sorted(ZOO_ALGOS)}")
-    items = [p.replace("=", ":", 1) for p in params.split(",") if p]
+    items = [p.strip().replace("=", ":", 1) for p in _top_level_split(params) if p.strip()]
     return name, algo, items
 
 
@@ -273,26 +298,42 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     return run
 
 
-def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int) -> list[dict]:
+def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int, relabel: Sequence[int] | None = None
+                 ) -> list[dict]:
     """``evaluate_team`` of a finished zoo run on its own reserve arguments: ``n_episodes`` episodes from ``seed``.
 
     :param algo: the run's zoo algorithm
     :param run: the run's folder (``<log-folder>/<algo>/<env>_<n>``)
+    :param relabel: for a run told the mode (``oracle_ppo``), the mode told for each true mode instead of it (see
+        :class:`~sb3_emmarl.common.mode_aware.ModeObservationWrapper`); None tells the truth
     :return: one record per episode
     """
     model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
-    return evaluate_team(model, n_episodes, seed=seed, **run_settings(run))
+    settings = run_settings(run)
+    if relabel is None:
+        return evaluate_team(model, n_episodes, seed=seed, **settings)
+    if not issubclass(ZOO_ALGOS[algo], OraclePPO):
+        raise ValueError(f"relabel tells a run a wrong mode: it needs a run told the mode (oracle_ppo), not {algo}")
+    venv = ModeObservationWrapper(make_eval_env(seed, settings["env_kwargs"], False, settings["vec_normalize_path"],
+                                                None, settings["vec_env_wrapper"]), relabel=relabel)
+    try:
+        return evaluate_team(model, n_episodes, seed=seed, vec_env=venv)
+    finally:
+        venv.close()
 
 
 def run_settings(run: str | Path) -> dict[str, Any]:
     """What a finished zoo run's evaluation must reproduce of its training, from its ``config.yml``: the reserve's
-    arguments and the ``vec_env_wrapper`` (None if it had none), as keyword arguments of ``evaluate_team``.
+    arguments, the ``vec_env_wrapper`` (None if it had none) and its ``VecNormalize`` statistics (None if it was not
+    normalised), as keyword arguments of ``evaluate_team``.
 
     :param run: the run's folder (``<log-folder>/<algo>/<env>_<n>``)
     """
     config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
+    vec_normalize = Path(run) / ENV_ID / VEC_NORMALIZE_FILE
     return {"env_kwargs": dict(config.get("env_kwargs") or {}),
-            "vec_env_wrapper": get_wrapper_class(config, "vec_env_wrapper")}
+            "vec_env_wrapper": get_wrapper_class(config, "vec_env_wrapper"),
+            "vec_normalize_path": str(vec_normalize) if vec_normalize.is_file() else None}
 
 
 def _one_torch_thread() -> None:

@@ -26,6 +26,7 @@ import yaml
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
+    VEC_NORMALIZE_FILE,
     check_model_file,
     check_saved_algorithm,
     companion,
@@ -288,7 +289,7 @@ def train_main(argv: list[str] | None = None) -> int:
              "peak_rss_mib": peak_rss_mib()}
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:
-        vec_normalize = Path(manager.params_path) / "vecnormalize.pkl"
+        vec_normalize = Path(manager.params_path) / VEC_NORMALIZE_FILE
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
                                 env_kwargs=manager.eval_env_kwargs,
                                 vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None,
@@ -347,7 +348,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
             raise ValueError(f"{config_file} must hold a mapping of hyperparameters, got {type(config).__name__}")
         env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
         reserve_v0.parallel_env(**env_kwargs).close()  # checked before anything runs
-        vec_normalize = params_path / "vecnormalize.pkl"
+        vec_normalize = params_path / VEC_NORMALIZE_FILE
         vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
         vec_env_wrapper = get_wrapper_class(config, "vec_env_wrapper")  # what the run was trained under
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")

@@ -47,6 +47,7 @@ from sb3_emmarl.common.checkpoints import (
     REPLAY_BUFFER,
     TRAINING_STATE,
     VEC_NORMALIZE,
+    VEC_NORMALIZE_FILE,
     AtomicEvalCallback,
     ResumableCheckpointCallback,
     SaveVecNormalize,
@@ -356,7 +357,7 @@ class ReserveExperimentManager(ExperimentManager):
         if hasattr(model, "save_replay_buffer") and self.save_replay_buffer:
             save_pickle(os.path.join(self.save_path, "replay_buffer.pkl"), model.replay_buffer)
         if self.normalize:
-            save_pickle(os.path.join(self.params_path, "vecnormalize.pkl"), model.get_vec_normalize_env())
+            save_pickle(os.path.join(self.params_path, VEC_NORMALIZE_FILE), model.get_vec_normalize_env())
         save_model(model, f"{self.save_path}/{self.env_name}.zip")
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:

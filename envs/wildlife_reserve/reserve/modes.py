@@ -86,3 +86,19 @@ def decode_mode(mode: int) -> tuple[PoacherStrategy, Weather]:
     if not 0 <= int(mode) < N_MODES:
         raise ValueError(f"mode must be None or an int in [0, {N_MODES - 1}], got {mode!r}")
     return STRATEGIES[int(mode) // len(WEATHERS)], WEATHERS[int(mode) % len(WEATHERS)]
+
+
+def encode_mode(strategy: int, weather: int) -> int:
+    """The mode index of a poacher strategy and a weather (their indices in :data:`STRATEGIES` and :data:`WEATHERS`):
+    the inverse of :func:`decode_mode`."""
+    if not (0 <= int(strategy) < len(STRATEGIES) and 0 <= int(weather) < len(WEATHERS)):
+        raise ValueError(f"strategy must be in [0, {len(STRATEGIES) - 1}] and weather in [0, {len(WEATHERS) - 1}], "
+                         f"got {strategy!r} and {weather!r}")
+    return int(strategy) * len(WEATHERS) + int(weather)
+
+
+def next_strategy(mode: int) -> int:
+    """The mode with the next poacher strategy (cyclically) and the same weather: a wrong strategy for every mode,
+    for telling a policy a wrong mode (see ``sb3_emmarl.common.mode_aware.ModeObservationWrapper``'s ``relabel``)."""
+    strategy, weather = decode_mode(mode)
+    return encode_mode((STRATEGIES.index(strategy) + 1) % len(STRATEGIES), WEATHERS.index(weather))
