@@ -301,3 +301,27 @@ def test_tail_weight_norms_on_hand_set_weights():
     assert norms == {"policy": (3.0, 4.0), "value": (3.0, 4.0)}
     with pytest.raises(ValueError, match="n_tail must be in"):
         tail_weight_norms(model.policy, 0)
+
+
+@pytest.mark.parametrize("mode_input, blind", [("policy", "value"), ("value", "policy")])
+def test_mode_input_holds_the_other_network_s_weights_on_the_mode_at_zero_through_training_and_loading(
+        tmp_path, mode_input, blind):
+    from sb3_emmarl.common.initialization import first_layers
+
+    model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0,
+                      mode_input=mode_input)
+    model.learn(128)
+    layers = first_layers(model.policy)
+    assert th.count_nonzero(layers[blind].weight[:, -N_MODES:]) == 0
+    assert th.count_nonzero(layers[mode_input].weight[:, -N_MODES:]) > 0  # the reading network learned weights on it
+    assert th.count_nonzero(layers[blind].weight[:, :-N_MODES]) > 0
+    model.save(tmp_path / "oracle")
+    loaded = OraclePPO.load(tmp_path / "oracle", env=make_vec_env(2, seed=1, env_kwargs=SMALL), device="cpu")
+    assert loaded.mode_input == mode_input
+    loaded.learn(64)  # the mask is set up again on loading
+    assert th.count_nonzero(first_layers(loaded.policy)[blind].weight[:, -N_MODES:]) == 0
+
+
+def test_mode_input_rejects_an_unknown_network():
+    with pytest.raises(ValueError, match="mode_input"):
+        OraclePPO("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=SMALL), mode_input="critic")

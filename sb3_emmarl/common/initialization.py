@@ -50,6 +50,31 @@ def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:
     return True
 
 
+def hold_tail_weights_at_zero(policy: ActorCriticPolicy, n_tail: int, network: str) -> bool:
+    """Set to zero, and keep there, the weights with which one network's first layer (``"policy"`` or ``"value"``, see
+    :func:`first_layers`) reads the last ``n_tail`` values of a flat observation: that network does not read them.
+
+    Their gradient is masked by a hook on the weight (hooks are not saved: call this again after loading, as
+    ``_setup_model`` does), so no optimiser step moves them. Returns False, changing nothing, where the features
+    extractor does not pass those values through unchanged (see :func:`features_end_with_observation_tail`).
+
+    :param policy: an SB3 actor-critic policy
+    :param n_tail: values at the end of the observation, at least 1
+    :param network: ``"policy"`` or ``"value"``
+    """
+    obs_dim = int(policy.observation_space.shape[0])
+    extractor = policy.pi_features_extractor if network == "policy" else policy.vf_features_extractor
+    if n_tail <= 0 or not features_end_with_observation_tail(extractor, obs_dim, n_tail):
+        return False
+    layer = first_layers(policy)[network]
+    mask = th.ones_like(layer.weight)
+    mask[:, -n_tail:] = 0.0
+    with th.no_grad():
+        layer.weight.mul_(mask)
+    layer.weight.register_hook(lambda grad: grad * mask)
+    return True
+
+
 def first_layers(policy: ActorCriticPolicy) -> dict[str, th.nn.Linear]:
     """The layers that read the features first: ``{"policy": ..., "value": ...}`` (the first ``Linear`` of each
     network of SB3's ``mlp_extractor``, or the action and value heads where that network has no layer)."""

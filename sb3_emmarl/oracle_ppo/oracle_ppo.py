@@ -8,7 +8,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.initialization import zero_tail_weights
+from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
 from sb3_emmarl.common.mode_aware import find_mode_wrapper, wrap_with_mode
 from sb3_emmarl.common.validation import RULES
 from wildlife_reserve.reserve.modes import N_MODES
@@ -28,23 +28,37 @@ class OraclePPO(PPO):
     networks start as plain PPO's, and learn what the mode is worth from there (see
     :mod:`sb3_emmarl.common.initialization` for why).
 
+    Which networks read the mode is ``mode_input``: both (the default), or only the policy (the critic's weights on
+    the one-hot stay at zero: the mode can change what the team does, not what it expects), or only the value (the
+    policy acts as PPO's does, with a critic that knows the mode). The two halves tell apart what the mode does for
+    the actions and what it does for the advantages.
+
     :param zero_mode_weights: start the weights that read the mode at zero (with SB3's ``FlattenExtractor``;
         another features extractor reads the one-hot as it reads the rest); False keeps SB3's orthogonal
         initialisation for them
+    :param mode_input: ``"both"``, ``"policy"`` or ``"value"``: the networks whose first layers read the one-hot; the
+        other network's weights on it are held at zero (their gradient is masked); needs SB3's ``FlattenExtractor``
     Every other argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
     """
 
     def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, zero_mode_weights: bool = True,
-                 **kwargs: Any) -> None:
+                 mode_input: str = "both", **kwargs: Any) -> None:
         self.zero_mode_weights = RULES["zero_mode_weights"]("zero_mode_weights", zero_mode_weights)
+        self.mode_input = RULES["mode_input"]("mode_input", mode_input)
         env = wrap_with_mode(env, kwargs.get("verbose", 0)) if env is not None and not isinstance(env, str) else env
         super().__init__(policy, env, *args, **kwargs)
 
     def _setup_model(self) -> None:
         super()._setup_model()
+        wrapper = find_mode_wrapper(self.env) if self.env is not None else None
+        n_modes = wrapper.n_modes if wrapper is not None else N_MODES
         if self.zero_mode_weights:
-            wrapper = find_mode_wrapper(self.env) if self.env is not None else None
-            zero_tail_weights(self.policy, wrapper.n_modes if wrapper is not None else N_MODES)
+            zero_tail_weights(self.policy, n_modes)
+        if self.mode_input != "both":
+            blind = "value" if self.mode_input == "policy" else "policy"
+            if not hold_tail_weights_at_zero(self.policy, n_modes, blind):
+                raise ValueError(f"mode_input={self.mode_input!r} needs SB3's FlattenExtractor (the first layers "
+                                 f"must read the one-hot directly), got {type(self.policy.features_extractor).__name__}")
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:
         """``venv`` with the true mode appended to its observations (for evaluation and recording)."""
