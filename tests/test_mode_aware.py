@@ -156,7 +156,7 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
         run = mode_value.latest_run(mode_value.run_folder(argparse.Namespace(log_folder=str(tmp_path)), variant, 0),
                                     "oracle_ppo" if variant == "told_mode" else "ppo")
         assert "n_epochs: 2" in (run / "WildlifeReserve-v0" / "config.yml").read_text()
-    with pytest.raises(ValueError, match="needs a run told the mode .oracle_ppo., not ppo"):
+    with pytest.raises(ValueError, match=r"needs a run told the mode \(oracle_ppo\), not ppo"):
         mode_value.evaluate_run("ppo", run, 1, 0, mode_value.WRONG_STRATEGY)  # run: the last one, plain PPO's
     out, mode_use = out.split("Does told PPO act on the mode?")
     assert "true_mode" in mode_use and "wrong_strategy" in mode_use and "p (paired t)" in mode_use
