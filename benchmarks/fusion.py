@@ -20,10 +20,10 @@ import torch as th
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.evaluation import evaluate_team, make_eval_env
+from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.vec_env import LINKS_KEY
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value, run_settings
+from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value, run_eval_env, run_settings
 from sb3_emmarl.zoo.cli import latest_run
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
@@ -79,9 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in settings:
             model.fusion = name != "fusion off"
             # The same episodes as evaluate_team's own reserve (make_eval_env), with every link up.
-            vec_env = AllLinks(make_eval_env(args.eval_seed, run_kwargs["env_kwargs"], False,
-                                             run_kwargs["vec_normalize_path"], None, run_kwargs["vec_env_wrapper"])) \
-                if name == "all links" else None
+            vec_env = AllLinks(run_eval_env(run, args.eval_seed)) if name == "all links" else None
             records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed,
                                     **(run_kwargs if vec_env is None else {}), vec_env=vec_env)
             if vec_env is not None:

@@ -222,3 +222,11 @@ def test_parse_variant_keeps_commas_inside_brackets_and_quotes():
     assert parse_variant("x=ppo:policy_kwargs=dict(net_arch=[64, 64]),gamma=0.9")[2] == [
         "policy_kwargs:dict(net_arch=[64, 64])", "gamma:0.9"]
     assert parse_variant("x=ppo:a='1,2',b=3")[2] == ["a:'1,2'", "b:3"]
+
+
+def test_vec_normalize_stats_names_the_file_only_where_a_run_saved_one(tmp_path):
+    from sb3_emmarl.common.checkpoints import VEC_NORMALIZE_FILE, vec_normalize_stats
+
+    assert vec_normalize_stats(tmp_path) is None
+    (tmp_path / VEC_NORMALIZE_FILE).write_bytes(b"")
+    assert vec_normalize_stats(tmp_path) == str(tmp_path / "vecnormalize.pkl")

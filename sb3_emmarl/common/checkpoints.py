@@ -55,6 +55,13 @@ VEC_NORMALIZE = "vecnormalize"
 VEC_NORMALIZE_FILE = f"{VEC_NORMALIZE}.pkl"
 
 
+def vec_normalize_stats(folder: str | Path) -> str | None:
+    """The ``VecNormalize`` statistics a run saved in ``folder`` (its params folder, ``<run>/<env id>``), or None if
+    it was not normalised."""
+    path = Path(folder) / VEC_NORMALIZE_FILE
+    return str(path) if path.is_file() else None
+
+
 # ---------------------------------------------------------------------------------------------- pickling
 def _view(base: np.ndarray, offset: int, shape: tuple[int, ...], strides: tuple[int, ...], dtype: np.dtype,
           writeable: bool) -> np.ndarray:

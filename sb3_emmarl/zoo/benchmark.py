@@ -12,9 +12,10 @@ from typing import Any, NamedTuple
 import numpy as np
 from rl_zoo3.utils import get_wrapper_class
 from scipy import stats
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.checkpoints import VEC_NORMALIZE_FILE
+from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from sb3_emmarl.oracle_ppo import OraclePPO
@@ -309,13 +310,11 @@ def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int, relabel
     :return: one record per episode
     """
     model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
-    settings = run_settings(run)
     if relabel is None:
-        return evaluate_team(model, n_episodes, seed=seed, **settings)
+        return evaluate_team(model, n_episodes, seed=seed, **run_settings(run))
     if not issubclass(ZOO_ALGOS[algo], OraclePPO):
         raise ValueError(f"relabel tells a run a wrong mode: it needs a run told the mode (oracle_ppo), not {algo}")
-    venv = ModeObservationWrapper(make_eval_env(seed, settings["env_kwargs"], False, settings["vec_normalize_path"],
-                                                None, settings["vec_env_wrapper"]), relabel=relabel)
+    venv = ModeObservationWrapper(run_eval_env(run, seed), relabel=relabel)
     try:
         return evaluate_team(model, n_episodes, seed=seed, vec_env=venv)
     finally:
@@ -330,10 +329,18 @@ def run_settings(run: str | Path) -> dict[str, Any]:
     :param run: the run's folder (``<log-folder>/<algo>/<env>_<n>``)
     """
     config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
-    vec_normalize = Path(run) / ENV_ID / VEC_NORMALIZE_FILE
     return {"env_kwargs": dict(config.get("env_kwargs") or {}),
             "vec_env_wrapper": get_wrapper_class(config, "vec_env_wrapper"),
-            "vec_normalize_path": str(vec_normalize) if vec_normalize.is_file() else None}
+            "vec_normalize_path": vec_normalize_stats(Path(run) / ENV_ID)}
+
+
+def run_eval_env(run: str | Path, seed: int) -> VecEnv:
+    """The evaluation reserve of a finished zoo run, as :func:`~sb3_emmarl.common.evaluation.evaluate_team` builds it
+    from :func:`run_settings` (the parameter-sharing view, its wrapper, its frozen ``VecNormalize``), for callers that
+    wrap it further before evaluating on it (``vec_env=``): episodes from ``seed``."""
+    settings = run_settings(run)
+    return make_eval_env(seed, settings["env_kwargs"], False, settings["vec_normalize_path"], None,
+                         settings["vec_env_wrapper"])
 
 
 def _one_torch_thread() -> None:

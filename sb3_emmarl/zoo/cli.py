@@ -26,11 +26,11 @@ import yaml
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
-    VEC_NORMALIZE_FILE,
     check_model_file,
     check_saved_algorithm,
     companion,
     list_checkpoints,
+    vec_normalize_stats,
     write_text,
 )
 from sb3_emmarl.common.evaluation import evaluate_team
@@ -289,10 +289,9 @@ def train_main(argv: list[str] | None = None) -> int:
              "peak_rss_mib": peak_rss_mib()}
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:
-        vec_normalize = Path(manager.params_path) / VEC_NORMALIZE_FILE
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
                                 env_kwargs=manager.eval_env_kwargs,
-                                vec_normalize_path=str(vec_normalize) if vec_normalize.is_file() else None,
+                                vec_normalize_path=vec_normalize_stats(manager.params_path),
                                 vec_env_wrapper=manager.vec_env_wrapper)
         write_text(Path(manager.save_path) / "team_eval.json", json.dumps(records, indent=1))
         eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
@@ -348,8 +347,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
             raise ValueError(f"{config_file} must hold a mapping of hyperparameters, got {type(config).__name__}")
         env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
         reserve_v0.parallel_env(**env_kwargs).close()  # checked before anything runs
-        vec_normalize = params_path / VEC_NORMALIZE_FILE
-        vec_normalize_path = str(vec_normalize) if vec_normalize.is_file() else None
+        vec_normalize_path = vec_normalize_stats(params_path)
         vec_env_wrapper = get_wrapper_class(config, "vec_env_wrapper")  # what the run was trained under
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
     except (AssertionError, ValueError) as error:
