@@ -17,12 +17,11 @@ import time
 
 import numpy as np
 import torch as th
-import yaml
 
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR
+from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
 #: Settings of the zoo's YAML files that are not the algorithm's arguments.
 ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
@@ -30,7 +29,7 @@ ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
 
 def zoo_settings(algo: str) -> dict:
     """The zoo YAML's settings of ``algo`` on the reserve."""
-    settings = dict(yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())[ENV_ID])
+    settings = zoo_hyperparams(algo, ENV_ID)
     if settings.get("normalize"):
         raise ValueError(f"{algo}.yml normalizes observations; this benchmark does not")
     return settings

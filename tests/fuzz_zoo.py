@@ -25,7 +25,7 @@ from pathlib import Path
 
 import yaml
 
-from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR
+from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 QUICK = ["--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--seed", "0"]
@@ -148,7 +148,7 @@ class Case:
 
 
 def _entry(algo: str) -> dict:
-    return yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text())["WildlifeReserve-v0"]
+    return zoo_hyperparams(algo)
 
 
 def _mutated(algo: str, key: str, value: str) -> str:

@@ -9,7 +9,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
 from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
-from sb3_emmarl.zoo.exp_manager import read_yaml
+from sb3_emmarl.zoo import exp_manager
+from sb3_emmarl.zoo.exp_manager import read_yaml, yaml_section, zoo_hyperparams
 
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 
@@ -120,6 +121,44 @@ def test_key_values_take_python_values():
         "n_uavs": 20, "region": "forest", "grid_size": (40, 60), "policy": {"a": 1}}
     with pytest.raises(ValueError, match="not a valid Python value"):
         parse_key_values(["x:__import__('os')"], "--x")
+
+
+def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
+    ppo = zoo_hyperparams("ppo")
+    em_ppo = zoo_hyperparams("em_ppo")
+    # em_ppo.yml writes only what differs: every PPO setting is ppo.yml's, and its own keys are added.
+    assert {key: em_ppo[key] for key in ppo} == ppo and em_ppo["n_components"] == 8 and "base" not in em_ppo
+    assert zoo_hyperparams("oracle_ppo") == ppo  # oracle_ppo reads ppo.yml itself
+    lstm = zoo_hyperparams("ppo_lstm")
+    assert lstm["policy"] == "MlpLstmPolicy" and lstm["n_epochs"] == ppo["n_epochs"]
+    # Own keys win, a whole value at a time; "default" is read when the env has no section.
+    own = yaml_section({"default": {"base": "ppo", "n_epochs": 3, "env_kwargs": {"n_uavs": 2}}}, "WildlifeReserve-v0",
+                       "own.yml")
+    assert own == {**ppo, "n_epochs": 3, "env_kwargs": {"n_uavs": 2}}
+
+
+@pytest.mark.parametrize(("base", "message"), [("sac", "base must name a zoo hyperparameter file"),
+                                               (["ppo"], "base must name a zoo hyperparameter file")])
+def test_a_bad_base_is_rejected_naming_it(base, message):
+    with pytest.raises(ValueError, match=message) as error:
+        yaml_section({"WildlifeReserve-v0": {"base": base}}, "WildlifeReserve-v0", "own.yml")
+    assert "own.yml" in str(error.value) and repr(base) in str(error.value)
+
+
+def test_a_cycle_of_base_files_is_rejected(tmp_path, monkeypatch):
+    (tmp_path / "a.yml").write_text("WildlifeReserve-v0:\n  base: b\n")
+    (tmp_path / "b.yml").write_text("WildlifeReserve-v0:\n  base: a\n")
+    monkeypatch.setattr(exp_manager, "HYPERPARAMS_DIR", tmp_path)
+    with pytest.raises(ValueError, match="cycle: a -> b -> a"):
+        yaml_section({"WildlifeReserve-v0": {"base": "a"}}, "WildlifeReserve-v0", "own.yml")
+
+
+def test_training_reads_a_users_file_through_its_base(tmp_path):
+    own = tmp_path / "own.yml"
+    own.write_text("WildlifeReserve-v0:\n  base: ppo\n  n_epochs: 1\n")
+    assert train(tmp_path, "-conf", str(own)) == 0
+    config = load_config(tmp_path / "logs" / "ppo" / "WildlifeReserve-v0_1")
+    assert config["n_epochs"] == 1 and config["ent_coef"] == zoo_hyperparams("ppo")["ent_coef"] and "base" not in config
 
 
 def test_cli_env_kwargs_update_the_yaml_ones(tmp_path):

@@ -19,9 +19,9 @@ from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import SHARED_HYPERPARAMS, ZOO_ALGOS
+from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values, train_main
-from sb3_emmarl.zoo.exp_manager import HYPERPARAMS_DIR, plain, read_yaml
+from sb3_emmarl.zoo.exp_manager import plain, read_yaml, zoo_hyperparams
 
 #: Metrics in the comparison table.
 TABLE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "poaching_events", "collisions")
@@ -286,8 +286,7 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     given = {key: (saved.get(key) or None) if isinstance(saved.get(key), dict) else saved.get(key) for key in flags}
     differences = [(key, given[key], value) for key, value in flags.items() if given[key] != value]
     if not differences:  # the YAML may have changed since: compare the run's hyperparameters with today's
-        content = read_yaml(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml", "a hyperparameter file")
-        today = plain({**content.get(ENV_ID, content.get("default", {})), **overrides})
+        today = plain({**zoo_hyperparams(algo, ENV_ID), **overrides})
         today["env_kwargs"] = {**(today.get("env_kwargs") or {}), **(env_kwargs or {})}
         config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
         differences = [(key, config.get(key), value) for key, value in today.items()

@@ -99,6 +99,54 @@ def read_yaml(path: str | Path, what: str) -> Any:
         raise ValueError(f"{path} is not valid YAML ({error})") from None
 
 
+#: The key of a YAML section that names the zoo file whose settings it starts from (``base: ppo``).
+BASE_KEY = "base"
+
+
+def yaml_section(content: Any, env_id: str, source: str | Path) -> dict[str, Any]:
+    """The hyperparameters of ``env_id`` (else of ``default``) in a hyperparameter file's ``content``, with the
+    settings of the zoo file its ``base`` key names underneath (recursively; its own keys win, a whole value at a
+    time: a ``base`` file's ``env_kwargs`` are replaced, not merged). ``em_ppo.yml`` starts from ``ppo.yml`` this way,
+    so the PPO settings the two share are written once; a user's own file may start from any zoo file too.
+
+    :param content: the file's content (``read_yaml``)
+    :param env_id: the environment's id
+    :param source: the file, for messages
+    :raise ValueError: no mapping for ``env_id``, a ``base`` that names no zoo file, or a cycle of ``base`` files
+    """
+    chain: list[str] = []
+    layers: list[dict[str, Any]] = []
+    while True:
+        if not isinstance(content, dict):
+            raise ValueError(f"{source} must map {env_id!r} to its hyperparameters, got {type(content).__name__}")
+        section = content.get(env_id, content.get("default"))
+        if not isinstance(section, dict):
+            raise ValueError(f"{source} has no mapping of hyperparameters under {env_id!r}")
+        layers.append({key: value for key, value in section.items() if key != BASE_KEY})
+        if BASE_KEY not in section:
+            break
+        base = section[BASE_KEY]
+        names = sorted(path.stem for path in HYPERPARAMS_DIR.glob("*.yml"))
+        if not isinstance(base, str) or base not in names:
+            raise ValueError(f"{source}: {BASE_KEY} must name a zoo hyperparameter file, one of {names}, got {base!r}")
+        if base in chain:
+            raise ValueError(f"{source}: the {BASE_KEY} files form a cycle: {' -> '.join([*chain, base])}")
+        chain.append(base)
+        source = HYPERPARAMS_DIR / f"{base}.yml"
+        content = read_yaml(source, "a hyperparameter file")
+    merged: dict[str, Any] = {}
+    for layer in reversed(layers):
+        merged.update(layer)
+    return merged
+
+
+def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
+    """The zoo's settings of ``algo`` for ``env_id``, as training reads them: its file (``oracle_ppo`` reads
+    ``ppo.yml``) with its ``base`` resolved (:func:`yaml_section`)."""
+    path = HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml"
+    return yaml_section(read_yaml(path, "a hyperparameter file"), env_id, path)
+
+
 def plain(value: Any) -> Any:
     """``value`` as plain YAML data (dicts, lists, str, numbers, bools, None) for ``yaml.safe_dump``."""
     if isinstance(value, dict):
@@ -173,13 +221,7 @@ class ReserveExperimentManager(ExperimentManager):
         if self.resume_run is not None:
             hyperparams = content
         else:
-            if not isinstance(content, dict):
-                raise ValueError(f"{self.config} must map {self.env_name.gym_id!r} to its hyperparameters, got "
-                                 f"{type(content).__name__}")
-            hyperparams = content.get(self.env_name.gym_id, content.get("default"))
-            if not isinstance(hyperparams, dict):
-                raise ValueError(f"{self.config} has no mapping of hyperparameters under {self.env_name.gym_id!r}")
-            hyperparams = {**hyperparams, **(self.custom_hyperparams or {})}
+            hyperparams = {**yaml_section(content, self.env_name.gym_id, self.config), **(self.custom_hyperparams or {})}
         original_policy_kwargs = hyperparams.get("policy_kwargs")
         hyperparams = check_hyperparams(self.algo, ZOO_ALGOS[self.algo], hyperparams)
         yaml_env_kwargs = hyperparams.get("env_kwargs") or {}
