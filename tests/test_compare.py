@@ -1,7 +1,6 @@
 """The method comparison (``zoo/compare.py``): its paired tables on hand-built records, its flags and variants, and
 the evaluation of finished runs again (``--reuse-runs``)."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +22,7 @@ from sb3_emmarl.zoo.benchmark import (
     parse_variant,
     summary_table,
 )
+from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
 
 def records(team_reward: list[float], seeds: list[int] | None = None, **metrics: list[float]) -> list[dict]:
@@ -165,13 +165,28 @@ def test_reuse_runs_evaluates_the_finished_runs_again_and_refuses_runs_trained_o
     assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*")) == runs
 
 
+def test_finished_run_reads_todays_yaml_through_its_base(tmp_path):
+    # em_ppo.yml starts from ppo.yml (base: ppo): a run trained with the resolved settings is today's.
+    run = tmp_path / "em_ppo" / "WildlifeReserve-v0_1"
+    (run / "WildlifeReserve-v0").mkdir(parents=True)
+    (run / "WildlifeReserve-v0" / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams("em_ppo")))
+    (run / "WildlifeReserve-v0" / "args.yml").write_text(yaml.safe_dump({"algo": "em_ppo", "seed": 0,
+                                                                         "n_timesteps": 256}))
+    (run / "run_stats.json").write_text("{}")
+    (run / "WildlifeReserve-v0.zip").write_bytes(b"")
+    assert finished_run(tmp_path, "em_ppo", 0, 256, [], None) == run
+    # A run trained with the settings em_ppo.yml had before 0.13.0 is not today's.
+    (run / "WildlifeReserve-v0" / "config.yml").write_text(yaml.safe_dump({**zoo_hyperparams("em_ppo"), "n_epochs": 5}))
+    with pytest.raises(ValueError, match="trained with n_epochs 5, not 10"):
+        finished_run(tmp_path, "em_ppo", 0, 256, [], None)
+
+
 def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_path):
     assert finished_run(tmp_path, "ppo", 0, 256, [], None) is None  # no run at all
     run = tmp_path / "ppo" / "WildlifeReserve-v0_1"
     params = run / "WildlifeReserve-v0"
     params.mkdir(parents=True)
-    ppo_yaml = yaml.safe_load((Path(__file__).parents[1] / "sb3_emmarl/zoo/hyperparams/ppo.yml").read_text())
-    config = {**ppo_yaml["WildlifeReserve-v0"], "gamma": 0.9, "env_kwargs": {"n_uavs": 2}}
+    config = {**zoo_hyperparams("ppo"), "gamma": 0.9, "env_kwargs": {"n_uavs": 2}}
     (params / "config.yml").write_text(yaml.safe_dump(config))
     (params / "args.yml").write_text(yaml.safe_dump({"algo": "ppo", "seed": 3, "n_timesteps": 256,
                                                      "hyperparams": {"gamma": 0.9}, "env_kwargs": {"n_uavs": 2}}))
@@ -187,7 +202,7 @@ def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_pa
     # another discount): refused, naming the hyperparameter.
     (params / "args.yml").write_text(yaml.safe_dump({"algo": "ppo", "seed": 3, "n_timesteps": 256,
                                                      "env_kwargs": {"n_uavs": 2}}))
-    with pytest.raises(ValueError, match=f"trained with gamma 0.9, not {ppo_yaml['WildlifeReserve-v0']['gamma']!r}"):
+    with pytest.raises(ValueError, match=f"trained with gamma 0.9, not {zoo_hyperparams('ppo')['gamma']!r}"):
         finished_run(tmp_path, "ppo", 3, 256, [], {"n_uavs": 2})
 
 

@@ -8,8 +8,8 @@ from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
-from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
 from sb3_emmarl.zoo import exp_manager
+from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import read_yaml, yaml_section, zoo_hyperparams
 
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
