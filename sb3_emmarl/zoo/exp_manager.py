@@ -140,11 +140,15 @@ def yaml_section(content: Any, env_id: str, source: str | Path) -> dict[str, Any
     return merged
 
 
+def zoo_file(algo: str) -> Path:
+    """The zoo's hyperparameter file of ``algo`` (``oracle_ppo`` reads ``ppo.yml``: :data:`SHARED_HYPERPARAMS`)."""
+    return HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml"
+
+
 def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
-    """The zoo's settings of ``algo`` for ``env_id``, as training reads them: its file (``oracle_ppo`` reads
-    ``ppo.yml``) with its ``base`` resolved (:func:`yaml_section`)."""
-    path = HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml"
-    return yaml_section(read_yaml(path, "a hyperparameter file"), env_id, path)
+    """The zoo's settings of ``algo`` for ``env_id``, as training reads them: its file (:func:`zoo_file`) with its
+    ``base`` resolved (:func:`yaml_section`)."""
+    return yaml_section(read_yaml(zoo_file(algo), "a hyperparameter file"), env_id, zoo_file(algo))
 
 
 def plain(value: Any) -> Any:
@@ -180,7 +184,7 @@ class ReserveExperimentManager(ExperimentManager):
         if env_id != ENV_ID:
             raise ValueError(f"the zoo trains on {ENV_ID!r}, got env {env_id!r}")
         if kwargs.get("config") is None:
-            kwargs["config"] = str(HYPERPARAMS_DIR / f"{SHARED_HYPERPARAMS.get(algo, algo)}.yml")
+            kwargs["config"] = str(zoo_file(algo))
         if not Path(kwargs["config"]).is_file():
             raise ValueError(f"no hyperparameter file {kwargs['config']!r} for algorithm {algo!r}")
         if Path(kwargs["config"]).suffix not in (".yml", ".yaml"):
