@@ -148,7 +148,8 @@ def zoo_file(algo: str) -> Path:
 def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
     """The zoo's settings of ``algo`` for ``env_id``, as training reads them: its file (:func:`zoo_file`) with its
     ``base`` resolved (:func:`yaml_section`)."""
-    return yaml_section(read_yaml(zoo_file(algo), "a hyperparameter file"), env_id, zoo_file(algo))
+    path = zoo_file(algo)
+    return yaml_section(read_yaml(path, "a hyperparameter file"), env_id, path)
 
 
 def plain(value: Any) -> Any:
