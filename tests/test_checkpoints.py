@@ -136,6 +136,8 @@ def test_em_save_load_keeps_the_e_step_state(tmp_path):
     assert th.equal(loaded.e_step.generator.get_state(), model.e_step.generator.get_state())
     for a, b in zip(loaded.e_step.memory, model.e_step.memory):
         assert th.equal(a.features, b.features) and th.equal(a.episodes, b.episodes)
+    assert model.e_step.count_table and loaded.e_step.count_table.keys() == model.e_step.count_table.keys()
+    assert all(th.equal(loaded.e_step.count_table[k], v) for k, v in model.e_step.count_table.items())
     saved, fresh = loaded.e_step.optimizer.state_dict()["state"], model.e_step.optimizer.state_dict()["state"]
     assert saved.keys() == fresh.keys() and all(th.equal(saved[k]["exp_avg"], fresh[k]["exp_avg"]) for k in saved)
 

@@ -204,27 +204,73 @@ def rollout(episodes: list[int], rng: np.random.Generator, steps: int = 20):
     return data, EpisodeCounts.from_steps(ids, counts, exposure), exposure.sum()
 
 
-def test_the_e_step_fits_the_count_rates_in_closed_form_counting_each_rollout_once():
+def test_the_count_table_holds_each_episode_once_with_all_its_rollouts_and_its_age():
     import torch as th
 
-    from sb3_emmarl.common.latent.counts import PRIOR_EXPOSURE
     from sb3_emmarl.common.latent.em import COUNT_DECAY
 
-    e_step, rng = counted_e_step(), np.random.default_rng(0)
+    e_step, rng = counted_e_step(window=2), np.random.default_rng(0)
     first, first_counts, first_exposure = rollout([0, 1, 2, 3], rng)
     e_step.add(first, first_counts)
     e_step.step()
     second, second_counts, second_exposure = rollout([0, 1, 2, 3], rng)  # the same episodes, their next steps
     e_step.add(second, second_counts)
     e_step.step()
-    sums = e_step.count_sums
-    # the first rollout stays in the window but joined the sums once, then decayed once
-    assert float(sums["exposure"].sum()) == pytest.approx(COUNT_DECAY * first_exposure + second_exposure)
-    assert float(sums["pooled"][1]) == pytest.approx(first_exposure + second_exposure)
-    pooled = sums["pooled"][0] / sums["pooled"][1]
-    prior = PRIOR_EXPOSURE
-    rates = (sums["counts"].reshape(2, 1, 3) + prior * pooled) / (sums["exposure"][:, None] + prior)
-    th.testing.assert_close(e_step.model.count_log_rates.exp(), rates.float())
+    table = e_step.count_table
+    # the first rollout is still kept beside the second, yet each rollout joined the table once
+    assert table["ids"].tolist() == [0, 1, 2, 3] and table["age"].tolist() == [0, 0, 0, 0]
+    th.testing.assert_close(table["counts"], (first_counts.counts + second_counts.counts).double())
+    assert float(table["exposure"].sum()) == pytest.approx(first_exposure + second_exposure)
+    assert float(table["pooled"][1]) == pytest.approx(first_exposure + second_exposure)
+    third, third_counts, _ = rollout([4, 5], rng)
+    e_step.add(third, third_counts)
+    e_step.step()
+    assert e_step.count_table["ids"].tolist() == [0, 1, 2, 3, 4, 5]
+    assert e_step.count_table["age"].tolist() == [1, 1, 1, 1, 0, 0]  # weights COUNT_DECAY ** age
+    assert COUNT_DECAY < 1
+
+
+def test_the_count_table_keeps_the_newest_episodes(monkeypatch):
+    import sb3_emmarl.common.latent.em as em
+
+    monkeypatch.setattr(em, "COUNT_TABLE_EPISODES", 6)
+    e_step, rng = counted_e_step(window=1), np.random.default_rng(0)
+    for episodes in ([0, 1, 2, 3], [4, 5, 6, 7]):
+        data, counts, _ = rollout(episodes, rng)
+        e_step.add(data, counts)
+        e_step.step()
+    assert e_step.count_table["ids"].tolist() == [2, 3, 4, 5, 6, 7]
+    assert all(len(e_step.count_table[name]) == 6 for name in em.ROW_FIELDS)
+
+
+def test_the_count_rates_are_batch_em_over_every_remembered_episode(monkeypatch):
+    """At EM's fixed point the rates are the closed form of the whole table, each episode weighted by its
+    responsibilities (from the counts alone here) times ``COUNT_DECAY ** age``, not only of the fresh rollout's."""
+    import torch as th
+
+    import sb3_emmarl.common.latent.em as em
+    from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, PRIOR_EXPOSURE
+
+    monkeypatch.setattr(em, "COUNT_ITERATIONS", 200)  # run EM to its fixed point
+    e_step, rng = counted_e_step(window=1), np.random.default_rng(3)
+    for episodes in ([0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]):
+        data, counts, _ = rollout([e % 4 for e in episodes], rng)
+        data.episodes += episodes[0]
+        counts.episodes += episodes[0]
+        e_step.add(data, counts)
+        e_step.step()
+    table, model = e_step.count_table, e_step.model
+    assert len(table["ids"]) == 12 and table["age"].tolist() == [2] * 4 + [1] * 4 + [0] * 4
+    with th.no_grad():
+        evidence = COUNT_EVIDENCE_WEIGHT * model.count_log_likelihood(table["counts"].float(), table["exposure"].float())
+    # the transitions say (almost) nothing here (likelihood temperature 1e-6)
+    r = th.softmax(evidence.double() + model.log_prior.double(), dim=1) * em.COUNT_DECAY ** table["age"][:, None]
+    pooled = table["pooled"][0] / table["pooled"][1]
+    rates = ((r.T @ table["counts"]).reshape(2, 1, 3) + PRIOR_EXPOSURE * pooled) / (
+        (r.T @ table["exposure"])[:, None] + PRIOR_EXPOSURE)
+    th.testing.assert_close(model.count_log_rates.exp().double(), rates, rtol=1e-4, atol=1e-6)
+    # the two kinds of episode (bin 0 against bin 2) went to different components
+    assert sorted(rates[:, 0, [0, 2]].argmax(dim=1).tolist()) == [0, 1]
 
 
 def test_the_counts_alone_tell_two_kinds_of_episode_apart_after_a_few_e_steps():
