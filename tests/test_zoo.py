@@ -129,6 +129,8 @@ def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
     # em_ppo.yml writes only what differs: every PPO setting is ppo.yml's, and its own keys are added.
     assert {key: em_ppo[key] for key in ppo} == ppo and em_ppo["n_components"] == 8 and "base" not in em_ppo
     assert zoo_hyperparams("oracle_ppo") == ppo  # oracle_ppo reads ppo.yml itself
+    ddpg, em_ddpg = zoo_hyperparams("ddpg"), zoo_hyperparams("em_ddpg")  # likewise em_ddpg.yml over ddpg.yml
+    assert {key: em_ddpg[key] for key in ddpg} == ddpg and em_ddpg["n_components"] == 8
     lstm = zoo_hyperparams("ppo_lstm")
     assert lstm["policy"] == "MlpLstmPolicy" and lstm["n_epochs"] == ppo["n_epochs"]
     # Own keys win, a whole value at a time; "default" is read when the env has no section.
