@@ -56,14 +56,16 @@ class TeamKnowledge:
         # Readings older than this carry less than 1e-3 of their weight and are dropped.
         self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
         # Cell-major, (cell, UAV): the staleness reads every UAV's stamps of a few cells.
-        self._stamps = np.empty((2, self.cells_padded, n), dtype=np.float32)
-        self._block_stamps = np.empty((2, n_blocks, n), dtype=np.float32)
+        # Separate arrays, not views of one: a pickled environment (a checkpoint) must keep them apart.
+        self._last, self._first = (np.empty((self.cells_padded, n), dtype=np.float32) for _ in range(2))
+        self._block_last, self._block_first = (np.empty((n_blocks, n), dtype=np.float32) for _ in range(2))
+        self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
         n = self.n
-        self._stamps[0], self._stamps[1] = NEVER, -NEVER
-        self._block_stamps[0], self._block_stamps[1] = NEVER, -NEVER
+        self._last[:], self._first[:] = NEVER, -NEVER
+        self._block_last[:], self._block_first[:] = NEVER, -NEVER
         self.knowledge = np.full((n, n), NEVER, dtype=np.float32)
         self.beacons = np.zeros((n, n), dtype=bool)
         self.comm_links = np.zeros((n, n), dtype=bool)
@@ -75,12 +77,12 @@ class TeamKnowledge:
     @property
     def own_last(self) -> np.ndarray:
         """``(n, *padded)`` each UAV's last look at each cell (a view)."""
-        return self._stamps[0].T.reshape(self.n, *self.padded_shape)
+        return self._last.T.reshape(self.n, *self.padded_shape)
 
     @property
     def own_first(self) -> np.ndarray:
         """``(n, *padded)`` each UAV's first look at each cell (a view)."""
-        return self._stamps[1].T.reshape(self.n, *self.padded_shape)
+        return self._first.T.reshape(self.n, *self.padded_shape)
 
     # ------------------------------------------------------------------ one step: look, then talk
     def look_and_talk(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
@@ -116,10 +118,9 @@ class TeamKnowledge:
             comm = np.zeros(n, dtype=np.int64)
         else:
             draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
-        last, first = self._stamps
         return look_and_talk(
-            np.float32(t), np.float32(1.0 / self.max_cycles), window.reshape(n, -1), cell_blocks,
-            airborne, high_risk, visited, last, first, self._block_stamps[0], self._block_stamps[1], self.knowledge,
+            np.float32(t), self._time_scale, window.reshape(n, -1), cell_blocks,
+            airborne, high_risk, visited, self._last, self._first, self._block_last, self._block_first, self.knowledge,
             uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
             self.known_signs[:, :len(sign_blocks)], self.sign_counts, sign_blocks, stale_window.reshape(n, -1),
             stale_blocks, self.dist, self.beacons, self.comm_links)

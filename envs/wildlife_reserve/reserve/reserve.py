@@ -97,6 +97,9 @@ from wildlife_reserve.reserve.observation import (
 
 #: Unit displacement (row, col) of each discrete move.
 _MOVES = actors.STEPS.astype(np.float64)
+#: What ``ReserveParallelEnv._set_map`` makes from a map.
+MAP_ATTRIBUTES = ("terrain", "risk", "hotspots", "high_risk", "n_high_risk", "cover", "_occ_pad", "_terrain_pad",
+                  "_risk_pad", "_high_risk_pad")
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
@@ -171,6 +174,8 @@ class ReserveParallelEnv(ParallelEnv):
                                   cfg.comm_radius, cfg.comm_loss)
         self.np_random: np.random.Generator | None = None
         self._static_map = None
+        self._map_arrays: dict[str, Any] | None = None  # what a fixed map's steps read, made at the first reset
+        self._sensing_tables: dict[Any, dict[str, Any]] = {}  # what the sensing model reads, by weather
         if cfg.terrain_seed is not None:
             region_index = sorted(terrain_lib.REGIONS).index(cfg.region)
             self._static_map = self._build_map(np.random.default_rng([cfg.terrain_seed, region_index]))
@@ -228,6 +233,33 @@ class ReserveParallelEnv(ParallelEnv):
     def _pad(self, grid: np.ndarray, value: float) -> np.ndarray:
         return np.pad(grid, self.r, constant_values=value)
 
+    def _set_map(self, terrain: np.ndarray, risk: np.ndarray, hotspots: terrain_lib.Hotspots) -> None:
+        """Take a map and make what the steps read from it (high-risk cells, cover, the padded flat grids)."""
+        self.terrain, self.risk, self.hotspots = terrain, risk, hotspots
+        self.high_risk = self.risk >= terrain_lib.HIGH_RISK_THRESHOLD
+        self.n_high_risk = int(self.high_risk.sum())
+        self.cover = self.terrain != terrain_lib.OPEN
+        self._occ_pad = self._pad(terrain_lib.VISUAL_OCCLUSION[self.terrain], 1.0).ravel()
+        self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
+        self._risk_pad = self._pad(self.risk, 0.0).ravel()
+        self._high_risk_pad = self._pad(self.high_risk, False).ravel()
+
+    def _map_state(self) -> dict[str, Any]:
+        """The attributes :meth:`_set_map` sets (a fixed map's are kept and restored at every reset)."""
+        return {name: getattr(self, name) for name in MAP_ATTRIBUTES}
+
+    def _sensing_state(self, weather: Any) -> dict[str, Any]:
+        """What the sensing model reads in ``weather``: its reach, the window offsets within it and the tables."""
+        cfg = self.config
+        reach = sensing.effective_radius(self.r, weather)
+        return {"reach": reach,
+                # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
+                "_reach_offsets": np.argwhere(self._ring <= reach) - self.r,
+                "_detect_table": sensing.detection_table(self.r, weather, cfg.sensor_noise),
+                "_decoy_table": sensing.decoy_table(self.r, reach, cfg.sensor_noise),
+                # Chance of seeing a sign in each window cell, by terrain: (w * w, terrain types).
+                "_sign_table": sensing.sign_detection_table(self.r, weather, cfg.sensor_noise)[self._ring.ravel()]}
+
     # ------------------------------------------------------------------ reset
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Start an episode.
@@ -249,14 +281,13 @@ class ReserveParallelEnv(ParallelEnv):
         shape = (self.height, self.width)
 
         # The map: fixed per region and terrain_seed, or drawn per episode.
-        self.terrain, self.risk, self.hotspots = self._static_map or self._build_map(world_rng)
-        self.high_risk = self.risk >= terrain_lib.HIGH_RISK_THRESHOLD
-        self.n_high_risk = int(self.high_risk.sum())
-        self.cover = self.terrain != terrain_lib.OPEN
-        self._occ_pad = self._pad(terrain_lib.VISUAL_OCCLUSION[self.terrain], 1.0).ravel()
-        self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
-        self._risk_pad = self._pad(self.risk, 0.0).ravel()
-        self._high_risk_pad = self._pad(self.high_risk, False).ravel()
+        if self._static_map is None:
+            self._set_map(*self._build_map(world_rng))
+        elif self._map_arrays is None:  # a fixed map's derived arrays are made once (read-only for the episodes)
+            self._set_map(*self._static_map)
+            self._map_arrays = self._map_state()
+        else:
+            vars(self).update(self._map_arrays)
         self.visited = np.zeros(self._padded_shape, dtype=bool)
         self._n_covered = 0
 
@@ -268,13 +299,9 @@ class ReserveParallelEnv(ParallelEnv):
             mode = int(np.random.default_rng(mode_seed).choice(N_MODES, p=cfg.mode_prior))
         self.strategy, self.weather = decode_mode(mode)
         self.mode = int(mode)
-        self.reach = sensing.effective_radius(self.r, self.weather)
-        # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
-        self._reach_offsets = np.argwhere(self._ring <= self.reach) - self.r
-        self._detect_table = sensing.detection_table(self.r, self.weather, cfg.sensor_noise)
-        self._decoy_table = sensing.decoy_table(self.r, self.reach, cfg.sensor_noise)
-        # Chance of seeing a sign in each window cell, by terrain: (w * w, terrain types).
-        self._sign_table = sensing.sign_detection_table(self.r, self.weather, cfg.sensor_noise)[self._ring.ravel()]
+        if self.weather not in self._sensing_tables:  # made once per weather (read-only for the episodes)
+            self._sensing_tables[self.weather] = self._sensing_state(self.weather)
+        vars(self).update(self._sensing_tables[self.weather])
 
         # UAVs.
         if "uav_positions" in options:
@@ -525,11 +552,12 @@ class ReserveParallelEnv(ParallelEnv):
                  poaching_events: int, own_collisions: np.ndarray, collisions: int, energy: np.ndarray) -> np.ndarray:
         """The team reward (and each UAV's, with shaping); updates the episode metrics."""
         cfg, weights = self.config, self.config.reward_weights
-        spent = energy.sum()
+        spent = np.add.reduce(energy)  # energy.sum() without its Python wrapper (the same pairwise sum)
         team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
                 - weights["poaching"] * poaching_events - weights["collision"] * collisions
                 - weights["energy"] * spent)
-        rewards = np.full(self.n, team)
+        rewards = np.empty(self.n)
+        rewards.fill(team)
         if cfg.shaping > 0:
             own = (weights["detection"] * seen.sum(axis=1) + weights["coverage"] * own_new
                    - weights["collision"] * own_collisions - weights["energy"] * energy)
