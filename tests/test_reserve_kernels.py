@@ -6,7 +6,7 @@ import pytest
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve import actors, kernels
 from wildlife_reserve.reserve.constants import COMM_NONE, N_COMMS, N_MOVES, NEVER
-from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE, SIGN_VALUES, sign_values
+from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE, SIGN_VALUES, TeamKnowledge, sign_values
 
 
 def test_discrete_actions_decode_as_divmod_and_out_of_range_ones_are_flagged():
@@ -101,5 +101,21 @@ def test_block_staleness_is_the_per_cell_staleness_of_every_block():
     n, blocks, t = 5, 16, 30
     last, first, knowledge = random_stamps(np.random.default_rng(7), blocks, n, t)
     every = np.tile(np.arange(blocks), (n, 1))
-    ages = kernels.known_block_ages(last, first, knowledge, np.float32(t), np.float32(1 / 40))
+    # The block stamps are source-major, (n, blocks): the transposes of the cell-major stamps.
+    ages = kernels.known_block_ages(np.ascontiguousarray(last.T), np.ascontiguousarray(first.T), knowledge,
+                                    np.float32(t), np.float32(1 / 40))
     np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, every, t, 1 / 40))
+
+
+@pytest.mark.parametrize("n", [1, 10, 63, 64, 70])
+def test_heard_from_lists_each_receivers_senders_by_mask_and_beyond_63_uavs(n):
+    """Teams of up to 63 UAVs take their tuples from the bit-mask cache, larger ones build them: the same lists."""
+    team = TeamKnowledge(n, (12, 12), 4, 50, 0.98, 5.0, 0.0)
+    team.reset()
+    rng = np.random.default_rng(n)
+    for density in (0.0, 0.05, 0.5, 1.0):
+        for _ in range(3):
+            team.comm_links = rng.random((n, n)) < density
+            np.fill_diagonal(team.comm_links, False)
+            expected = [tuple(np.flatnonzero(team.comm_links[:, r]).tolist()) for r in range(n)]
+            assert team.heard_from() == expected

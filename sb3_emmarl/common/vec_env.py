@@ -383,7 +383,10 @@ class _SteppedCopies:
             if not (terminated or truncated):
                 if self.with_state:
                     info = {**info, STATE_KEY: self._state(env)}
-                infos.extend({**info, LINKS_KEY: senders} for senders in heard)
+                for senders in heard:  # (copy and set: cheaper than {**info, ...} per entry)
+                    entry = info.copy()
+                    entry[LINKS_KEY] = senders
+                    infos.append(entry)
                 continue
             terminations[lo:hi], truncations[lo:hi] = terminated, truncated
             obs = obs.copy()  # the terminal observations: the reset's go where they were written

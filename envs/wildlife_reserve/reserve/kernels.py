@@ -82,18 +82,24 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
 def known_block_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, t: np.float32,
                      scale: np.float32) -> np.ndarray:  # pragma: no cover - compiled
     """:func:`known_ages` of every block for every receiver, ``(n, blocks)``, from block stamps ``last`` and
-    ``first`` ``(blocks, n)``: a plain loop over all sources that the compiler vectorises (a source the receiver
-    knows nothing of, ``knowledge == NEVER``, adds ``NEVER`` by the formula itself), 3x faster at 50 UAVs than the
-    per-cell loop with its early exit, which rarely applies to blocks."""
-    n, blocks = knowledge.shape[0], last.shape[0]
+    ``first`` ``(n, blocks)`` (source-major, unlike the cells': every block of a source is read at once). For each
+    receiver the sources it knows anything of (``knowledge > NEVER``: the others add ``NEVER``) are folded into a row
+    of maxima over the blocks, a loop the compiler vectorises (about 2.4x faster than the per-block maximum over the
+    sources at 10 UAVs)."""
+    n, blocks = knowledge.shape[0], last.shape[1]
     ages = np.empty((n, blocks), dtype=np.float32)
+    best = np.empty(blocks, dtype=np.float32)
     one = np.float32(1.0)
     for r in range(n):
+        best[:] = NEVER
+        for s in range(n):
+            known = knowledge[r, s]
+            if known == NEVER:
+                continue
+            for b in range(blocks):
+                best[b] = max(best[b], _known_stamp(last[s, b], first[s, b], known))
         for b in range(blocks):
-            best = NEVER
-            for s in range(n):
-                best = max(best, _known_stamp(last[b, s], first[b, s], knowledge[r, s]))
-            age = (t - best) * scale
+            age = (t - best[b]) * scale
             ages[r, b] = age if age < one else one
     return ages
 
@@ -322,9 +328,9 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
          last: np.ndarray, first: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
          t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
-    one's own visit history of cells and blocks (``last[cell, u] = t``, ``first[cell, u] = min(first, t)``; stamps
-    are cell-major, see :func:`known_ages`), set its knowledge of itself to ``t``, and mark the team's coverage
-    ``visited``.
+    one's own visit history of cells and blocks (``last[cell, u] = t``, ``first[cell, u] = min(first, t)``; the
+    cells' stamps are cell-major, see :func:`known_ages`, the blocks' source-major, ``block_last[u, block]``), set
+    its knowledge of itself to ``t``, and mark the team's coverage ``visited``.
 
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
         once count for both), and the number of high-risk cells the team sees for the first time
@@ -348,9 +354,9 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
             last[cell, u] = t
             if t < first[cell, u]:
                 first[cell, u] = t
-        block_last[blocks[a], u] = t
-        if t < block_first[blocks[a], u]:
-            block_first[blocks[a], u] = t
+        block_last[u, blocks[a]] = t
+        if t < block_first[u, blocks[a]]:
+            block_first[u, blocks[a]] = t
         knowledge[u, u] = t
     return fresh, new
 
@@ -792,7 +798,12 @@ def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: flo
         for r in range(n):
             if time <= knowledge[r, who]:
                 mass[r, block] += weight
-    return 1.0 - np.exp(-mass)
+    belief = np.zeros((n, n_blocks))
+    for r in range(n):  # most blocks hold no reading: their 1 - exp(-0) = 0 needs no exp
+        for b in range(n_blocks):
+            if mass[r, b] > 0.0:
+                belief[r, b] = 1.0 - np.exp(-mass[r, b])
+    return belief
 
 
 @njit(cache=True)
@@ -833,6 +844,20 @@ def decode_actions(choices: np.ndarray, steps: np.ndarray, n_moves: int,
         comm[u] = a // n_moves
         move[u, 0], move[u, 1] = steps[a % n_moves, 0], steps[a % n_moves, 1]
     return move, comm, valid
+
+
+@njit(cache=True)
+def sender_masks(links: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Each receiver's senders as a bit mask ``(n,)``, bit ``s`` set when ``links[s, r]`` (teams of up to 63)."""
+    n = len(links)
+    masks = np.zeros(n, dtype=np.int64)
+    for r in range(n):
+        mask = np.int64(0)
+        for s in range(n):
+            if links[s, r]:
+                mask |= np.int64(1) << s
+        masks[r] = mask
+    return masks
 
 
 @njit(cache=True)

@@ -12,13 +12,19 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import NEVER
-from wildlife_reserve.reserve.kernels import learn_signs, look_and_talk, senders_by_receiver
+from wildlife_reserve.reserve.kernels import learn_signs, look_and_talk, sender_masks, senders_by_receiver
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
 #: That value for 0, 1, ... signs (numpy's exp, as tabulated): from 75 signs on it is exactly 1.0 in float64, so a
 #: larger count reads the last entry.
 SIGN_VALUES = 1.0 - np.exp(-np.arange(128) * (1.0 / SIGN_MAP_SCALE))
+#: Teams of up to this many UAVs get their ``heard_from`` tuples by bit mask from :data:`_SENDERS` (a step's links
+#: repeat across steps and copies: one dict lookup per UAV instead of a new tuple); larger teams build them.
+MASK_UAVS = 63
+#: Sender tuples by bit mask, shared by every reserve of the process; emptied when it outgrows :data:`_SENDERS_MAX`.
+_SENDERS: dict[int, tuple[int, ...]] = {0: ()}
+_SENDERS_MAX = 1 << 14
 
 
 def sign_values(counts: np.ndarray) -> np.ndarray:
@@ -58,7 +64,8 @@ class TeamKnowledge:
         # Cell-major, (cell, UAV): the staleness reads every UAV's stamps of a few cells.
         # Separate arrays, not views of one: a pickled environment (a checkpoint) must keep them apart.
         self._last, self._first = (np.empty((self.cells_padded, n), dtype=np.float32) for _ in range(2))
-        self._block_last, self._block_first = (np.empty((n_blocks, n), dtype=np.float32) for _ in range(2))
+        # Source-major, (UAV, block): the block staleness folds every block of one source at a time.
+        self._block_last, self._block_first = (np.empty((n, n_blocks), dtype=np.float32) for _ in range(2))
         self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
 
     def reset(self) -> None:
@@ -149,6 +156,18 @@ class TeamKnowledge:
 
     def heard_from(self) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
+        if self.n <= MASK_UAVS:
+            masks = sender_masks(self.comm_links).tolist()
+            try:
+                return [_SENDERS[mask] for mask in masks]
+            except KeyError:
+                if len(_SENDERS) > _SENDERS_MAX:
+                    _SENDERS.clear()
+                    _SENDERS[0] = ()
+                for mask in masks:
+                    if mask not in _SENDERS:
+                        _SENDERS[mask] = tuple(s for s in range(mask.bit_length()) if mask >> s & 1)
+                return [_SENDERS[mask] for mask in masks]
         senders, ends = senders_by_receiver(self.comm_links)
         if not len(senders):
             return [()] * self.n
