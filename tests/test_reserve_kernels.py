@@ -67,6 +67,28 @@ def test_flight_updates_in_place_and_a_grounded_uav_neither_moves_talks_nor_hove
     np.testing.assert_array_equal(window, (cells[:, 0] * 12 + cells[:, 1])[:, None, None] + offsets)
 
 
+def test_flight_and_collisions_in_one_call_count_the_uavs_airborne_before_the_flight():
+    """Three UAVs end in one cell; the one that was grounded before the flight (and stays, at 0 battery) is not
+    counted, and the last one's flight empties its battery: it still counts (it was airborne when it moved)."""
+    def team():
+        pos = np.array([[2.5, 0.5], [2.5, 4.5], [2.5, 2.5], [2.5, 0.5]])
+        return (pos, np.zeros((4, 2)), np.array([1.0, 1.0, 0.0, 0.0001]), np.array([False, False, True, False]),
+                np.zeros((4, 2), dtype=np.int64), np.zeros((4, 3, 3), dtype=np.int64),
+                np.array([[0.0, 1.0], [0.0, -1.0], [0.0, 0.0], [0.0, 1.0]]), np.array([0, 0, 0, 0]))
+    constants = (2.0, np.array([9.99, 9.99]), 0.0005, 0.002, np.array([0.0, 0.003, 0.0015]), 12,
+                 np.arange(9, dtype=np.int64).reshape(3, 3))
+    together = team()
+    energy, everyone, own, pairs = kernels.fly_and_collide(*together, *constants)
+    apart = team()
+    airborne = ~apart[3]
+    expected_energy, expected_everyone = kernels.fly(*apart, *constants)
+    expected_own, expected_pairs = kernels.collisions(apart[4], airborne)
+    np.testing.assert_array_equal(energy, expected_energy)
+    assert bool(everyone) == bool(expected_everyone)
+    assert own.tolist() == expected_own.tolist() == [2, 2, 0, 2] and pairs == expected_pairs == 3
+    assert together[3].tolist() == [False, False, True, True]  # the last one grounded by its flight
+
+
 def test_links_are_grouped_by_receiver_with_senders_ascending():
     links = np.zeros((4, 4), dtype=bool)
     links[[3, 0, 2, 1], [0, 2, 0, 2]] = True  # s -> r

@@ -251,6 +251,29 @@ def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, leopard_moved: n
 
 
 @njit(cache=True)
+def move_ground_actors_and_signs(ground: tuple, place: tuple, track_kind: int,
+                                 look: tuple) -> tuple:  # pragma: no cover - compiled
+    """The ground's step in one call: :func:`move_ground_actors` on the tuple ``ground`` (its arguments), the
+    tracks it returns placed as signs of kind ``track_kind`` born now (:func:`place_signs` on ``place``,
+    ``(grid, pad, width, block_of, lifetime, t, start, *records)``: ``Signs.place_args``, whose records must have room
+    for a track per poacher), then :func:`sign_candidates` on ``look`` (over the records just updated).
+
+    :return: the four arrays of :func:`sign_candidates`, and the sign records in use
+    """
+    tracks = move_ground_actors(*ground)
+    grid, pad, width, block_of, lifetime, t, start, record_pos, record_born, record_expires, record_kind, \
+        record_block = place
+    count = start
+    if len(tracks):
+        k = len(tracks)
+        count = place_signs(grid, pad, width, block_of, tracks, np.full(k, np.float64(t)),
+                            np.full(k, np.int64(track_kind)), lifetime, t, start, record_pos, record_born,
+                            record_expires, record_kind, record_block)[1]
+    uav, cell, sign, p = sign_candidates(*look)
+    return uav, cell, sign, p, count
+
+
+@njit(cache=True)
 def detection_probabilities(targets: np.ndarray, cells: np.ndarray, table: np.ndarray, terrain: np.ndarray,
                             moved: np.ndarray, present: np.ndarray, airborne: np.ndarray,
                             radius: int) -> np.ndarray:  # pragma: no cover - compiled
@@ -553,6 +576,20 @@ def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np
 
 
 @njit(cache=True)
+def fly_and_collide(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np.ndarray,
+                    cells: np.ndarray, window: np.ndarray, move: np.ndarray, comm: np.ndarray, speed: float,
+                    upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray, padded_width: int,
+                    window_offsets: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray, int]:  # pragma: no cover
+    """:func:`fly`, then :func:`collisions` among the UAVs that were airborne before the flight, in one call:
+    the energy spent, whether every UAV is grounded, ``(n,)`` other UAVs in each one's cell and the pairs."""
+    airborne = ~grounded
+    energy, everyone = fly(pos, velocity, battery, grounded, cells, window, move, comm, speed, upper, hover,
+                           move_cost, comm_costs, padded_width, window_offsets)
+    own, pairs = collisions(cells, airborne)
+    return energy, everyone, own, pairs
+
+
+@njit(cache=True)
 def place_windows(pos: np.ndarray, cells: np.ndarray, window: np.ndarray, padded_width: int,
                   window_offsets: np.ndarray) -> None:  # pragma: no cover - compiled
     """The UAVs' ``cells`` ``(n, 2)`` (their positions, floored) and their windows' padded flat cells ``window``
@@ -844,6 +881,21 @@ def decode_actions(choices: np.ndarray, steps: np.ndarray, n_moves: int,
         comm[u] = a // n_moves
         move[u, 0], move[u, 1] = steps[a % n_moves, 0], steps[a % n_moves, 1]
     return move, comm, valid
+
+
+@njit(cache=True)
+def look_talk_and_observe(talk: tuple, observe: tuple) -> tuple[np.ndarray, int, np.ndarray]:  # pragma: no cover
+    """The end of a step in one call: :func:`look_and_talk` on the tuple ``talk`` (its arguments), then
+    :func:`fill_observations` on ``observe`` (its arguments, whose arrays ``look_and_talk`` updates in place), then
+    :func:`sender_masks` of the messages delivered (``talk``'s last array; empty for teams of more than 63 UAVs).
+
+    :return: the high-risk cells each UAV saw first ``(n,)``, the team's new ones, and the masks
+    """
+    fresh, new = look_and_talk(*talk)
+    fill_observations(*observe)
+    delivered = talk[-1]
+    masks = sender_masks(delivered) if len(delivered) <= 63 else np.zeros(0, dtype=np.int64)
+    return fresh, new, masks
 
 
 @njit(cache=True)

@@ -96,7 +96,8 @@ class TeamKnowledge:
                       airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
                       ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
                       stale_blocks: np.ndarray) -> tuple[np.ndarray, int]:
-        """What the team knows after this step, in one compiled call (``kernels.look_and_talk``):
+        """What the team knows after this step, in one compiled call (``kernels.look_and_talk`` on
+        :meth:`talk_args`, whose arguments these are):
 
         1. **Staleness** (as each UAV knew it before this look): time since each window cell and coarse block was
            seen, into ``stale_window`` ``(n, w, w)`` and ``stale_blocks`` ``(n, blocks)``. UAV r knows UAV s's
@@ -119,13 +120,22 @@ class TeamKnowledge:
         :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query), or None
         :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
         """
+        return look_and_talk(*self.talk_args(t, rng, window, cell_blocks, airborne, high_risk, visited, uav_pos, ok,
+                                             comm, sign_blocks, stale_window, stale_blocks))
+
+    def talk_args(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
+                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
+                  ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
+                  stale_blocks: np.ndarray) -> tuple:
+        """The arguments of ``kernels.look_and_talk`` for :meth:`look_and_talk`'s (it draws the step's random
+        numbers): one tuple, which the reserve's step also hands to ``kernels.look_talk_and_observe``."""
         n = self.n
         if comm is None:
             draws = rng.random((1, n, n))
             comm = np.zeros(n, dtype=np.int64)
         else:
             draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
-        return look_and_talk(
+        return (
             np.float32(t), self._time_scale, window.reshape(n, -1), cell_blocks,
             airborne, high_risk, visited, self._last, self._first, self._block_last, self._block_first, self.knowledge,
             uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
@@ -154,10 +164,13 @@ class TeamKnowledge:
             grown[:, :self.known_signs.shape[1]] = self.known_signs
             self.known_signs = grown
 
-    def heard_from(self) -> list[tuple[int, ...]]:
-        """For each UAV, the indices of the teammates whose message reached it this step (ascending)."""
+    def heard_from(self, masks: np.ndarray | None = None) -> list[tuple[int, ...]]:
+        """For each UAV, the indices of the teammates whose message reached it this step (ascending).
+
+        :param masks: ``kernels.sender_masks(comm_links)`` if already made (teams of up to :data:`MASK_UAVS`)
+        """
         if self.n <= MASK_UAVS:
-            masks = sender_masks(self.comm_links).tolist()
+            masks = (sender_masks(self.comm_links) if masks is None else masks).tolist()
             try:
                 return [_SENDERS[mask] for mask in masks]
             except KeyError:

@@ -65,14 +65,27 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.nda
     :param signals: ``(n, 3, w, w)`` this step's poacher, leopard and sign readings, as the sensors report them
     :param out: a C-contiguous float32 ``(n, obs_dim)`` array to fill (every entry is written), or None
     """
-    cfg, team, layout = env.config, env.team, env.observation_layout
     obs = np.empty((env.n, env.obs_dim), dtype=np.float32) if out is None else out
-    fill_observations(obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
-                      env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
-                      min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),
-                      cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
-                      float(env.t), team.sign_counts, SIGN_VALUES, layout["own"][0].start,
-                      layout["neighbours"][0].start, layout[MAP_NAMES[0]][0].start)
+    fill_observations(*observation_args(env, signals, obs))
+    return finish_observations(env, obs)
+
+
+def observation_args(env: ReserveParallelEnv, signals: np.ndarray, obs: np.ndarray) -> tuple:
+    """The arguments of ``kernels.fill_observations`` that write ``obs`` (all but the optional parts at its end),
+    for :func:`build_observations` and the step's ``kernels.look_talk_and_observe``. The arrays are the ones the
+    team's communication updates in place, so they may be taken before it."""
+    cfg, team, layout = env.config, env.team, env.observation_layout
+    return (obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
+            env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
+            min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),
+            cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
+            float(env.t), team.sign_counts, SIGN_VALUES, layout["own"][0].start,
+            layout["neighbours"][0].start, layout[MAP_NAMES[0]][0].start)
+
+
+def finish_observations(env: ReserveParallelEnv, obs: np.ndarray) -> np.ndarray:
+    """Write the optional parts at the end of ``obs`` (compass, agent id), which ``fill_observations`` leaves."""
+    layout = env.observation_layout
     if "compass" in layout:  # the kernel writes the parts before it
         obs[:, layout["compass"][0]] = compass(env._cells, (env.hotspots.dens, env.hotspots.road_entries),
                                                env._inv_scale).reshape(env.n, -1)

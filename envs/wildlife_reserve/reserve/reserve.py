@@ -89,7 +89,9 @@ if TYPE_CHECKING:
     from wildlife_reserve.reserve.rendering import ReserveRenderer
 from wildlife_reserve.reserve.observation import (
     build_observations,
+    finish_observations,
     global_state,
+    observation_args,
     observation_layout,
     observation_size,
     state_size,
@@ -183,6 +185,10 @@ class ReserveParallelEnv(ParallelEnv):
         self._upper = np.array([self.height, self.width]) - 1e-6
         self._inv_scale = 1.0 / np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
         self._comm_costs = np.array([0.0, ENERGY_COSTS["broadcast"], ENERGY_COSTS["query"]])  # by COMM_* choice
+        # The reward weights and the false-alarm chance as plain floats, read once here rather than at every step.
+        self._weights = tuple(float(cfg.reward_weights[term]) for term in
+                              ("detection", "coverage", "sign", "poaching", "collision", "energy"))  # _rewards' order
+        self._false_alarm = float(sensing.false_alarm_probability(cfg.sensor_noise))
         self.t = 0
 
     # ------------------------------------------------------------------ spaces
@@ -414,17 +420,15 @@ class ReserveParallelEnv(ParallelEnv):
         airborne = ~self.grounded
         self.t += 1
 
-        energy, terminated = self._fly(move, comm)
+        energy, terminated, own_collisions, collisions = self._fly(move, comm)
         cells = self._cells
-        own_collisions, collisions = kernels.collisions(cells, airborne)
-        self._move_ground_actors(cells[airborne])
-        signals, seen, n_detected, readings, signs_found = self._sense(cells, airborne)
+        candidates = self._move_ground_actors(cells, airborne)
+        signals, seen, n_detected, readings, signs_found = self._sense(cells, airborne, candidates)
         poaching_events = self._poach()
-        own_new, new_cells = self._share(comm, airborne, readings)
+        obs = np.empty((self.n, self.obs_dim), dtype=np.float32) if out is None else out
+        own_new, new_cells, masks = self._share(comm, airborne, readings, signals, obs)
         rewards = self._rewards(seen, n_detected, signs_found, own_new, new_cells, poaching_events, own_collisions,
-                                int(collisions), energy)
-
-        obs = build_observations(self, signals, out)
+                                collisions, energy)
         truncated = self.t >= self.max_cycles
         info: dict[str, Any] = {"mode": self.mode}
         if truncated or terminated:
@@ -432,21 +436,24 @@ class ReserveParallelEnv(ParallelEnv):
             self.agents = []
         if self.render_mode == "human":
             self.render()
-        return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from()
+        return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from(masks)
 
     # ------------------------------------------------------------------ the phases of a step
-    def _fly(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool]:
+    def _fly(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray, int]:
         """Move the UAVs, spend their energy and ground those whose battery ran out (a grounded UAV's ``move`` and
         ``comm`` are zeroed; positions, velocities, batteries, ``grounded``, cells and windows are updated in place);
-        returns ``(n,)`` energy spent and whether every UAV is grounded."""
-        energy, everyone = kernels.fly(self.uav_pos, self.velocity, self.battery, self.grounded, self._cells,
-                                       self._window, move, comm, self.config.uav_speed, self._upper,
-                                       ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
-                                       self._padded_shape[1], self._win_offsets)
-        return energy, bool(everyone)
+        returns ``(n,)`` energy spent, whether every UAV is grounded, and the collisions after the flight: ``(n,)``
+        other UAVs in each UAV's cell and the pairs sharing a cell, among the UAVs airborne before it."""
+        energy, everyone, own_collisions, collisions = kernels.fly_and_collide(
+            self.uav_pos, self.velocity, self.battery, self.grounded, self._cells, self._window, move, comm,
+            self.config.uav_speed, self._upper, ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
+            self._padded_shape[1], self._win_offsets)
+        return energy, bool(everyone), own_collisions, int(collisions)
 
-    def _move_ground_actors(self, uav_cells: np.ndarray) -> None:
-        """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them."""
+    def _move_ground_actors(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them; returns the live
+        signs in the airborne UAVs' windows after it (``kernels.sign_candidates``: UAVs, window cells, records and
+        the chance of seeing each), which the sensing draws for."""
         cfg = self.config
         if self.t >= self._next_entry:  # the earliest entry time of the poachers still waiting (no random draws)
             entering = (self.poacher_status == POACHER_WAITING) & (self.poacher_entry_time <= self.t)
@@ -460,22 +467,26 @@ class ReserveParallelEnv(ParallelEnv):
         active = self.poacher_status == POACHER_ACTIVE
         any_active = np.count_nonzero(active) > 0  # (a quarter of active.any()'s cost on a few poachers)
         draws = self.rng.random(3 * len(self.leopard_pos) + 5 * len(self.poacher_pos) * any_active)
-        strategy = self.strategy
-        tracks = kernels.move_ground_actors(
-            draws, self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
-            actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, active, self.poaching_timer,
-            self.leopard_alive, self.poacher_target,
-            float(actors.POACHER_SIGHT), uav_cells, actors.NOTICE_RADIUS * self.weather.notice_factor,
-            strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
-            actors.STEPS, signs_lib.TRACK_PROB)
-        if len(tracks):
-            self.signs.add(tracks, self.t, signs_lib.TRACK, self.t)
+        strategy, signs, n = self.strategy, self.signs, self.n
+        ground = (draws, self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
+                  actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, active, self.poaching_timer,
+                  self.leopard_alive, self.poacher_target,
+                  float(actors.POACHER_SIGHT), cells[airborne], actors.NOTICE_RADIUS * self.weather.notice_factor,
+                  strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
+                  actors.STEPS, signs_lib.TRACK_PROB)
+        place = signs.place_args(len(self.poacher_pos), float(self.t))  # room for a track per poacher
+        look = (signs.grid.reshape(-1), signs.born, signs.expires, self._window.reshape(n, -1), self.t, airborne,
+                self._sign_table, self._terrain_pad)
+        *candidates, signs.count = kernels.move_ground_actors_and_signs(ground, place, signs_lib.TRACK, look)
         self.jammer_on = self.jammer_pos is not None and any_active  # the jammer works while poachers are in
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
+        return tuple(candidates)
 
-    def _sense(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, int]:
-        """Every airborne UAV senses poachers, leopards and signs; false alarms, decoys and false sign readings.
+    def _sense(self, cells: np.ndarray, airborne: np.ndarray,
+               candidates: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, int]:
+        """Every airborne UAV senses poachers, leopards and signs (the live signs in its window, ``candidates``:
+        see :meth:`_move_ground_actors`); false alarms, decoys and false sign readings.
 
         Caught poachers leave play here.
 
@@ -486,9 +497,7 @@ class ReserveParallelEnv(ParallelEnv):
         """
         cfg, signs, n = self.config, self.signs, self.n
         signals = np.zeros((n, 3, self.window, self.window), dtype=np.float32)
-        # The live signs in the windows; then room for what the UAVs may learn and the team may find.
-        candidates = kernels.sign_candidates(signs.grid.reshape(-1), signs.born, signs.expires, self._window.reshape(n, -1),
-                                             self.t, airborne, self._sign_table, self._terrain_pad)
+        # Room for what the UAVs may learn and the team may find.
         self.team.fit_signs(signs.count)
         if len(self._found) < signs.capacity:
             self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
@@ -498,7 +507,7 @@ class ReserveParallelEnv(ParallelEnv):
         seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where = kernels.sense(
             draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
             self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain, self.r,
-            sensing.false_alarm_probability(cfg.sensor_noise), self._reach_offsets, self.height, self.width,
+            self._false_alarm, self._reach_offsets, self.height, self.width,
             self.decoy_pos, self._decoy_table, *candidates, self.team.known_signs, self.team.sign_counts, signs.block,
             signs.kind, signs_lib.REAL, self._found, signals)
         self.metrics["false_alarms"] += false_alarms
@@ -533,40 +542,46 @@ class ReserveParallelEnv(ParallelEnv):
         self.signs.add(self.leopard_pos[victims], self.t, signs_lib.CARCASS, self.t)
         return len(victims)
 
-    def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray) -> tuple[np.ndarray, int]:
-        """Each UAV looks (coverage, visit stamps), then the team talks; returns the high-risk cells each UAV
-        saw first ``(n,)`` and the team's new ones."""
+    def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray, signals: np.ndarray,
+               obs: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+        """The poacher readings join the team's record, each UAV looks (coverage, visit stamps), the team talks, and
+        every UAV's observation is written into ``obs`` (``finish_observations`` and ``fill_observations``, in
+        one compiled call with the rest). Returns the high-risk cells each UAV saw first ``(n,)``, the team's new
+        ones and the senders' bit masks of ``heard_from``."""
         ok = airborne.copy()
         if self.jammer_on:
             self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
             ok &= ~self.jammed
         else:
             self.jammed.fill(False)
-        own_new, new_cells = self._look_and_talk(airborne, ok, comm)
         self.detections = readings
         blocks = self._block[readings[:, 1], readings[:, 2]] if len(readings) else readings[:, 0]
-        self.team.add_readings(self.t, readings[:, 0], blocks)
-        return own_new, new_cells
+        self.team.add_readings(self.t, readings[:, 0], blocks)  # (the looks and talk do not read the readings)
+        own_new, new_cells, masks = kernels.look_talk_and_observe(self._talk_args(airborne, ok, comm),
+                                                                  observation_args(self, signals, obs))
+        self._n_covered += new_cells
+        finish_observations(self, obs)
+        return own_new, new_cells, masks
 
     def _rewards(self, seen: np.ndarray, n_detected: int, signs_found: int, own_new: np.ndarray, new_cells: int,
                  poaching_events: int, own_collisions: np.ndarray, collisions: int, energy: np.ndarray) -> np.ndarray:
         """The team reward (and each UAV's, with shaping); updates the episode metrics."""
-        cfg, weights = self.config, self.config.reward_weights
-        spent = np.add.reduce(energy)  # energy.sum() without its Python wrapper (the same pairwise sum)
-        team = (weights["detection"] * n_detected + weights["coverage"] * new_cells + weights["sign"] * signs_found
-                - weights["poaching"] * poaching_events - weights["collision"] * collisions
-                - weights["energy"] * spent)
+        detection, coverage, sign, poaching, collision, energy_weight = self._weights
+        spent = float(np.add.reduce(energy))  # energy.sum() without its Python wrapper (the same pairwise sum)
+        team = (detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events
+                - collision * collisions - energy_weight * spent)
         rewards = np.empty(self.n)
         rewards.fill(team)
-        if cfg.shaping > 0:
-            own = (weights["detection"] * seen.sum(axis=1) + weights["coverage"] * own_new
-                   - weights["collision"] * own_collisions - weights["energy"] * energy)
-            rewards = (1.0 - cfg.shaping) * team + cfg.shaping * own
+        shaping = self.config.shaping
+        if shaping > 0:
+            own = (detection * seen.sum(axis=1) + coverage * own_new - collision * own_collisions
+                   - energy_weight * energy)
+            rewards = (1.0 - shaping) * team + shaping * own
         m = self.metrics
-        m["team_reward"] += float(team)
+        m["team_reward"] += team
         m["poaching_events"] += poaching_events
         m["collisions"] += collisions
-        m["energy"] += float(spent)
+        m["energy"] += spent
         m["poachers_detected"] += n_detected
         return rewards
 
@@ -624,13 +639,17 @@ class ReserveParallelEnv(ParallelEnv):
 
         :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
         """
+        fresh, new = kernels.look_and_talk(*self._talk_args(airborne, ok, comm))
+        self._n_covered += new
+        return fresh, new
+
+    def _talk_args(self, airborne: np.ndarray, ok: np.ndarray, comm: np.ndarray | None) -> tuple:
+        """``TeamKnowledge.talk_args`` of this step (it draws the step's random numbers of communication)."""
         cells = self._cells
-        fresh, new = self.team.look_and_talk(
+        return self.team.talk_args(
             self.t, self.rng, self._window, self._block[cells[:, 0], cells[:, 1]], airborne, self._high_risk_pad,
             self.visited.reshape(-1), self.uav_pos, ok, comm, self.signs.block[:self.signs.count], self._stale_window,
             self._stale_blocks)
-        self._n_covered += new
-        return fresh, new
 
     # ------------------------------------------------------------------ public extras
     def split_observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:

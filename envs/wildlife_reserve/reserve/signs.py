@@ -159,6 +159,10 @@ class Signs:
             kind[:old], block[:old] = self.kind[:old], self.block[:old]
         self.pos, self.born, self.expires, self.kind, self.block = pos, born, expires, kind, block
 
+    def _make_room(self, k: int) -> None:
+        if self.count + k > self.capacity:
+            self._grow(max(2 * self.capacity, self.count + k))
+
     @property
     def capacity(self) -> int:
         return len(self.born)
@@ -182,18 +186,25 @@ class Signs:
             np.broadcast_to(np.asarray(born, dtype=np.float64), (k,))
         kind = np.full(k, kind, dtype=np.int64) if isinstance(kind, _SCALARS) or np.ndim(kind) == 0 else \
             np.broadcast_to(np.asarray(kind, dtype=np.int64), (k,))
-        if self.count + k > self.capacity:
-            self._grow(max(2 * self.capacity, self.count + k))
-        start = self.count
         if on_grid:
-            index, self.count = place_signs(self._flat, self.pad, self.width, self._block_of, pos, born, kind, LIFETIME,
-                                            t, start, self.pos, self.born, self.expires, self.kind, self.block)
+            grid, pad, width, block_of, lifetime, t, start, *records = self.place_args(k, t)
+            index, self.count = place_signs(grid, pad, width, block_of, pos, born, kind, lifetime, t, start, *records)
             return index
+        self._make_room(k)
+        start = self.count
         ids = np.arange(start, start + k)
         self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos, born, born + LIFETIME[kind], kind
         self.block[ids] = self._block_of[pos[:, 0], pos[:, 1]]
         self.count = start + k
         return ids
+
+    def place_args(self, k: int, t: float) -> tuple:
+        """Room for ``k`` more records, and the arguments of ``kernels.place_signs`` but the new signs' cells, times
+        and kinds, as ``(grid, pad, width, block_of, lifetime, t, start, *records)`` (:meth:`add`'s, and the step's
+        compiled call that places the poachers' tracks, ``kernels.move_ground_actors_and_signs``)."""
+        self._make_room(k)
+        return (self._flat, self.pad, self.width, self._block_of, LIFETIME, t, self.count, self.pos, self.born,
+                self.expires, self.kind, self.block)
 
     def live(self, t: float) -> np.ndarray:
         """Record indices of the signs on the ground at step ``t``."""
