@@ -823,6 +823,28 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
 
 
 @njit(cache=True)
+def sense_and_poach(sensing: tuple, status: np.ndarray, caught_status: int, timer: np.ndarray,
+                    poaching_time: int) -> tuple:  # pragma: no cover - compiled
+    """:func:`sense` on the tuple ``sensing`` (its arguments), the poachers it caught given ``caught_status`` in
+    ``status`` (in place), then :func:`poaching_timers` of the poachers and leopards ``sensing`` names (when there
+    are leopards; else no poacher is near one and the timers stay).
+
+    :return: :func:`sense`'s eight values, then :func:`poaching_timers`' four
+    """
+    seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where = sense(*sensing)
+    for i in range(len(caught)):
+        if caught[i]:
+            status[i] = caught_status
+    poachers, leopards, alive = sensing[1], sensing[4], sensing[5]
+    if len(leopards):
+        near, new_timer, done, any_done = poaching_timers(poachers, status, leopards, alive, timer, poaching_time)
+    else:
+        near = np.zeros((len(poachers), 0), dtype=np.bool_)
+        new_timer, done, any_done = timer.copy(), np.zeros(len(poachers), dtype=np.bool_), False
+    return seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where, near, new_timer, done, any_done
+
+
+@njit(cache=True)
 def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: float, t: float) -> np.ndarray:
     # pragma: no cover - compiled
     """``(n, blocks)`` poacher activity ``1 - exp(-sum decay^(t - t_e))`` over the readings ``e`` (rows ``(time, uav,

@@ -423,8 +423,8 @@ class ReserveParallelEnv(ParallelEnv):
         energy, terminated, own_collisions, collisions = self._fly(move, comm)
         cells = self._cells
         candidates = self._move_ground_actors(cells, airborne)
-        signals, seen, n_detected, readings, signs_found = self._sense(cells, airborne, candidates)
-        poaching_events = self._poach()
+        signals, seen, n_detected, readings, signs_found, poaching = self._sense(cells, airborne, candidates)
+        poaching_events = self._poach(*poaching)
         obs = np.empty((self.n, self.obs_dim), dtype=np.float32) if out is None else out
         own_new, new_cells, masks = self._share(comm, airborne, readings, signals, obs)
         rewards = self._rewards(seen, n_detected, signs_found, own_new, new_cells, poaching_events, own_collisions,
@@ -483,17 +483,19 @@ class ReserveParallelEnv(ParallelEnv):
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
         return tuple(candidates)
 
-    def _sense(self, cells: np.ndarray, airborne: np.ndarray,
-               candidates: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, int]:
+    def _sense(self, cells: np.ndarray, airborne: np.ndarray, candidates: tuple[np.ndarray, ...]) -> tuple[
+            np.ndarray, np.ndarray, int, np.ndarray, int, tuple]:
         """Every airborne UAV senses poachers, leopards and signs (the live signs in its window, ``candidates``:
         see :meth:`_move_ground_actors`); false alarms, decoys and false sign readings.
 
-        Caught poachers leave play here.
+        Caught poachers leave play here, and the poaching timers of those left run in the same compiled call
+        (``kernels.sense_and_poach``; :meth:`_poach` acts on them).
 
         :return: signals ``(n, 3, w, w)`` (poacher, leopard and sign channels as the sensors report them),
             ``(n, n_poachers)`` who detected which poacher, how many poachers were detected (and caught), this step's
             poacher readings ``(k, 3)``
-            ``(uav, row, col)``, and the number of signs the team found for the first time
+            ``(uav, row, col)``, the number of signs the team found for the first time, and the poaching timers
+            (``kernels.poaching_timers``' four values)
         """
         cfg, signs, n = self.config, self.signs, self.n
         signals = np.zeros((n, 3, self.window, self.window), dtype=np.float32)
@@ -504,34 +506,32 @@ class ReserveParallelEnv(ParallelEnv):
         # The step's uniform draws, in the order kernels.sense reads them.
         targets, decoys = len(self.poacher_pos) + len(self.leopard_pos), len(self.decoy_pos)
         draws = self.rng.random(n * (targets + 2 + decoys + 2) + len(candidates[0]))
-        seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where = kernels.sense(
-            draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
-            self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain, self.r,
-            self._false_alarm, self._reach_offsets, self.height, self.width,
-            self.decoy_pos, self._decoy_table, *candidates, self.team.known_signs, self.team.sign_counts, signs.block,
-            signs.kind, signs_lib.REAL, self._found, signals)
+        sense_args = (draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
+                      self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain,
+                      self.r, self._false_alarm, self._reach_offsets, self.height, self.width,
+                      self.decoy_pos, self._decoy_table, *candidates, self.team.known_signs, self.team.sign_counts,
+                      signs.block, signs.kind, signs_lib.REAL, self._found, signals)
+        seen, _, n_caught, readings, false_alarms, found, f_uav, f_where, *poaching = kernels.sense_and_poach(
+            sense_args, self.poacher_status, POACHER_CAUGHT, self.poaching_timer, self.config.poaching_time)
         self.metrics["false_alarms"] += false_alarms
         self.metrics["signs_found"] += found
-        if n_caught:
-            self.poacher_status[caught] = POACHER_CAUGHT
-            if self.first_detection_time is None:
-                self.first_detection_time = self.t
+        if n_caught and self.first_detection_time is None:  # (the kernel marked the caught poachers)
+            self.first_detection_time = self.t
         if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
             phantom = signs.add(f_where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
             self.team.learn_signs(f_uav, phantom, signs.block[phantom])
         if cfg.sensor_noise > 0:  # (without noise the readings are the signals: no copy)
             signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
             signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
-        return signals, seen, int(n_caught), readings, found
+        return signals, seen, int(n_caught), readings, found, tuple(poaching)
 
-    def _poach(self) -> int:
+    def _poach(self, near: np.ndarray, timer: np.ndarray, done: np.ndarray, any_done: bool) -> int:
         """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
-        returns the poaching events of this step."""
-        if not len(self.leopard_pos):
-            return 0
-        near, self.poaching_timer, done, any_done = kernels.poaching_timers(
-            self.poacher_pos, self.poacher_status, self.leopard_pos, self.leopard_alive, self.poaching_timer,
-            self.config.poaching_time)
+        returns the poaching events of this step.
+
+        :param near, timer, done, any_done: this step's ``kernels.poaching_timers`` (made with the sensing)
+        """
+        self.poaching_timer = timer
         if not any_done:
             return 0
         # One event per leopard killed; the poachers whose timer ran out leave.
