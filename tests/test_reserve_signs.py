@@ -121,6 +121,30 @@ def test_moving_poachers_leave_tracks():
     assert (env.signs.born[tracks] > 0).all()
 
 
+
+def test_tracks_fill_a_full_sign_table_after_it_grows():
+    """The step places tracks in compiled code, which cannot grow the records: the table must make room first. A
+    table filled to its last free record still takes a track per poacher (the records before it unchanged), and the
+    tracks sit where the poachers moved."""
+    env = make(size=40, n_poachers=4)
+    env.reset(seed=3, options={"uav_positions": [[0, 0]]})
+    signs = env.signs
+    free = signs.capacity - signs.count - 1
+    signs.add(np.column_stack([np.arange(free) % 40, np.arange(free) // 40]), -100.0, signs_lib.SNARE, t=0)
+    assert signs.capacity - signs.count == 1
+    kept = signs.pos[:signs.count].copy()
+    env.poacher_entry_time[:] = 10**6
+    env.poacher_status[:] = POACHER_ACTIVE
+    env.poacher_pos[:] = [[30, 30], [30, 35], [35, 30], [35, 35]]
+    before = signs.count
+    for _ in range(10):
+        env.step({"uav_0": STAY})
+    tracks = np.arange(before, env.signs.count)
+    assert len(tracks) > 4 and (env.signs.kind[tracks] == signs_lib.TRACK).all()
+    np.testing.assert_array_equal(env.signs.pos[:before], kept)
+    assert (np.abs(env.signs.pos[tracks] - 32).max(axis=1) <= 14).all()
+
+
 # ---------------------------------------------------------------------------------------------------- sharing and links
 def test_a_broadcast_shares_found_signs_inside_the_comm_radius_only():
     env = make(size=40, n_uavs=3, comm_radius=10.0)
