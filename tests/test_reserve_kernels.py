@@ -141,3 +141,23 @@ def test_heard_from_lists_each_receivers_senders_by_mask_and_beyond_63_uavs(n):
             np.fill_diagonal(team.comm_links, False)
             expected = [tuple(np.flatnonzero(team.comm_links[:, r]).tolist()) for r in range(n)]
             assert team.heard_from() == expected
+
+
+def test_a_checkpointed_team_from_before_the_source_major_block_stamps_is_turned_on_unpickling():
+    """0.14.0 pickled the block stamps as (blocks, n); unpickled now they read as the same stamps, source-major."""
+    import pickle
+
+    env = reserve_v0.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=50)
+    env.reset(seed=2)
+    for _ in range(20):
+        env.step_arrays(np.random.default_rng(0).integers(0, N_MOVES * N_COMMS, 3))
+    team = env.team
+    old = pickle.loads(pickle.dumps(team))  # a 0.14.0 state: no layout mark, block stamps (blocks, n)
+    del old.__dict__["_stamp_layout"]
+    old._block_last, old._block_first = team._block_last.T.copy(), team._block_first.T.copy()
+    restored = pickle.loads(pickle.dumps(old))
+    np.testing.assert_array_equal(restored._block_last, team._block_last)
+    np.testing.assert_array_equal(restored._block_first, team._block_first)
+    assert restored._block_last.flags.c_contiguous and restored._stamp_layout == 1
+    again = pickle.loads(pickle.dumps(restored))  # a state of now is left as it is
+    np.testing.assert_array_equal(again._block_last, team._block_last)

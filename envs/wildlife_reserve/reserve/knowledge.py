@@ -19,6 +19,10 @@ SIGN_MAP_SCALE = 2.0
 #: That value for 0, 1, ... signs (numpy's exp, as tabulated): from 75 signs on it is exactly 1.0 in float64, so a
 #: larger count reads the last entry.
 SIGN_VALUES = 1.0 - np.exp(-np.arange(128) * (1.0 / SIGN_MAP_SCALE))
+#: Layout of the visit stamps in a pickled :class:`TeamKnowledge` (a checkpoint of the vector environment): 1 since
+#: sb3-emmarl 0.15.0, whose block stamps are source-major ``(n, blocks)``; a state without it (0.14.0) holds them
+#: block-major ``(blocks, n)`` and is turned on unpickling.
+STAMP_LAYOUT = 1
 #: Teams of up to this many UAVs get their ``heard_from`` tuples by bit mask from :data:`_SENDERS` (a step's links
 #: repeat across steps and copies: one dict lookup per UAV instead of a new tuple); larger teams build them.
 MASK_UAVS = 63
@@ -67,6 +71,15 @@ class TeamKnowledge:
         # Source-major, (UAV, block): the block staleness folds every block of one source at a time.
         self._block_last, self._block_first = (np.empty((n, n_blocks), dtype=np.float32) for _ in range(2))
         self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
+        self._stamp_layout = STAMP_LAYOUT
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (checkpoints), turning the block stamps of a state from before :data:`STAMP_LAYOUT`."""
+        self.__dict__.update(state)
+        if state.get("_stamp_layout", 0) < 1 and hasattr(self, "_block_last"):
+            self._block_last = np.ascontiguousarray(self._block_last.T)
+            self._block_first = np.ascontiguousarray(self._block_first.T)
+        self._stamp_layout = STAMP_LAYOUT
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
