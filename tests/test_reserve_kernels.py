@@ -161,3 +161,18 @@ def test_a_checkpointed_team_from_before_the_source_major_block_stamps_is_turned
     assert restored._block_last.flags.c_contiguous and restored._stamp_layout == 1
     again = pickle.loads(pickle.dumps(restored))  # a state of now is left as it is
     np.testing.assert_array_equal(again._block_last, team._block_last)
+
+
+def test_heard_from_stays_right_when_its_cache_is_emptied(monkeypatch):
+    """The mask cache is emptied when it outgrows its bound (here 4 entries): the lists stay the plain ones."""
+    from wildlife_reserve.reserve import knowledge
+
+    monkeypatch.setattr(knowledge, "_SENDERS_MAX", 4)
+    team = TeamKnowledge(12, (12, 12), 4, 50, 0.98, 5.0, 0.0)
+    team.reset()
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        team.comm_links = rng.random((12, 12)) < 0.3
+        np.fill_diagonal(team.comm_links, False)
+        assert team.heard_from() == [tuple(np.flatnonzero(team.comm_links[:, r]).tolist()) for r in range(12)]
+        assert len(knowledge._SENDERS) <= 4 + 12

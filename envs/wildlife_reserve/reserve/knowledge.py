@@ -26,7 +26,8 @@ STAMP_LAYOUT = 1
 #: Teams of up to this many UAVs get their ``heard_from`` tuples by bit mask from :data:`_SENDERS` (a step's links
 #: repeat across steps and copies: one dict lookup per UAV instead of a new tuple); larger teams build them.
 MASK_UAVS = 63
-#: Sender tuples by bit mask, shared by every reserve of the process; emptied when it outgrows :data:`_SENDERS_MAX`.
+#: Sender tuples by bit mask, shared by every reserve of the process (and its threads: a miss builds the list without
+#: re-reading the dict); emptied when it outgrows :data:`_SENDERS_MAX`.
 _SENDERS: dict[int, tuple[int, ...]] = {0: ()}
 _SENDERS_MAX = 1 << 14
 
@@ -186,14 +187,16 @@ class TeamKnowledge:
             masks = (sender_masks(self.comm_links) if masks is None else masks).tolist()
             try:
                 return [_SENDERS[mask] for mask in masks]
-            except KeyError:
+            except KeyError:  # a new mask (or another thread emptied the cache): the list made without re-reading it
                 if len(_SENDERS) > _SENDERS_MAX:
                     _SENDERS.clear()
-                    _SENDERS[0] = ()
+                heard = []
                 for mask in masks:
-                    if mask not in _SENDERS:
-                        _SENDERS[mask] = tuple(s for s in range(mask.bit_length()) if mask >> s & 1)
-                return [_SENDERS[mask] for mask in masks]
+                    senders = _SENDERS.get(mask)
+                    if senders is None:
+                        senders = _SENDERS[mask] = tuple(s for s in range(mask.bit_length()) if mask >> s & 1)
+                    heard.append(senders)
+                return heard
         senders, ends = senders_by_receiver(self.comm_links)
         if not len(senders):
             return [()] * self.n
