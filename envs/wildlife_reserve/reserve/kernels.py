@@ -826,8 +826,7 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
 def sense_and_poach(sensing: tuple, status: np.ndarray, caught_status: int, timer: np.ndarray,
                     poaching_time: int) -> tuple:  # pragma: no cover - compiled
     """:func:`sense` on the tuple ``sensing`` (its arguments), the poachers it caught given ``caught_status`` in
-    ``status`` (in place), then :func:`poaching_timers` of the poachers and leopards ``sensing`` names (when there
-    are leopards; else no poacher is near one and the timers stay).
+    ``status`` (in place), then :func:`poaching_timers` of the poachers and leopards ``sensing`` names.
 
     :return: :func:`sense`'s eight values, then :func:`poaching_timers`' four
     """
@@ -835,12 +834,7 @@ def sense_and_poach(sensing: tuple, status: np.ndarray, caught_status: int, time
     for i in range(len(caught)):
         if caught[i]:
             status[i] = caught_status
-    poachers, leopards, alive = sensing[1], sensing[4], sensing[5]
-    if len(leopards):
-        near, new_timer, done, any_done = poaching_timers(poachers, status, leopards, alive, timer, poaching_time)
-    else:
-        near = np.zeros((len(poachers), 0), dtype=np.bool_)
-        new_timer, done, any_done = timer.copy(), np.zeros(len(poachers), dtype=np.bool_), False
+    near, new_timer, done, any_done = poaching_timers(sensing[1], status, sensing[4], sensing[5], timer, poaching_time)
     return seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where, near, new_timer, done, any_done
 
 

@@ -28,7 +28,6 @@ from wildlife_reserve.reserve.kernels import place_signs
 from wildlife_reserve.reserve.modes import PoacherStrategy
 from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
-_SCALARS = (int, float, np.integer, np.floating)
 SIGN_KINDS = ("track", "snare", "camp", "vehicle", "carcass", "decoy", "false_reading")
 TRACK, SNARE, CAMP, VEHICLE, CARCASS, DECOY, FALSE_READING = range(len(SIGN_KINDS))
 #: Steps each kind of sign stays visible after it is made (``inf``: until the episode ends).
@@ -180,12 +179,12 @@ class Signs:
         """
         pos = np.asarray(pos, dtype=np.int64).reshape(-1, 2)
         k = len(pos)
-        # A scalar is filled (the common case, a step's tracks: cheap, and tested for without np.ndim's asarray); an
-        # array must broadcast to (k,), as before (checked here: the compiled place_signs does not check bounds).
-        born = np.full(k, born, dtype=np.float64) if isinstance(born, _SCALARS) or np.ndim(born) == 0 else \
-            np.broadcast_to(np.asarray(born, dtype=np.float64), (k,))
-        kind = np.full(k, kind, dtype=np.int64) if isinstance(kind, _SCALARS) or np.ndim(kind) == 0 else \
-            np.broadcast_to(np.asarray(kind, dtype=np.int64), (k,))
+        # A scalar is filled (the common case: cheap); an array must broadcast to (k,), as before (checked here:
+        # the compiled place_signs does not check bounds).
+        born = np.full(k, born, dtype=np.float64) if np.ndim(born) == 0 else np.broadcast_to(
+            np.asarray(born, dtype=np.float64), (k,))
+        kind = np.full(k, kind, dtype=np.int64) if np.ndim(kind) == 0 else np.broadcast_to(
+            np.asarray(kind, dtype=np.int64), (k,))
         if on_grid:
             grid, pad, width, block_of, lifetime, t, start, *records = self.place_args(k, t)
             index, self.count = place_signs(grid, pad, width, block_of, pos, born, kind, lifetime, t, start, *records)
