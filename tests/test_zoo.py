@@ -131,6 +131,8 @@ def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
     assert zoo_hyperparams("oracle_ppo") == ppo  # oracle_ppo reads ppo.yml itself
     ddpg, em_ddpg = zoo_hyperparams("ddpg"), zoo_hyperparams("em_ddpg")  # likewise em_ddpg.yml over ddpg.yml
     assert {key: em_ddpg[key] for key in ddpg} == ddpg and em_ddpg["n_components"] == 8
+    vdn, vdn_em = zoo_hyperparams("vdn"), zoo_hyperparams("vdn_em")  # and vdn_em.yml over vdn.yml
+    assert {key: vdn_em[key] for key in vdn} == vdn and vdn_em["n_components"] == 8
     lstm = zoo_hyperparams("ppo_lstm")
     assert lstm["policy"] == "MlpLstmPolicy" and lstm["n_epochs"] == ppo["n_epochs"]
     # Own keys win, a whole value at a time; "default" is read when the env has no section.
