@@ -23,6 +23,7 @@ from sb3_emmarl.zoo.benchmark import (
     summary_table,
 )
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+from wildlife_reserve import reserve_v0
 
 
 def records(team_reward: list[float], seeds: list[int] | None = None, **metrics: list[float]) -> list[dict]:
@@ -245,3 +246,40 @@ def test_vec_normalize_stats_names_the_file_only_where_a_run_saved_one(tmp_path)
     assert vec_normalize_stats(tmp_path) is None
     (tmp_path / VEC_NORMALIZE_FILE).write_bytes(b"")
     assert vec_normalize_stats(tmp_path) == str(tmp_path / "vecnormalize.pkl")
+
+
+def test_the_spread_benchmark_counts_the_boundary_corners_and_how_alike_the_moves_are():
+    spread = load_benchmark("team_spread")
+    for continuous in (True, False):
+        env_kwargs = {"n_uavs": 3, "grid_size": 20, "max_cycles": 100, "continuous_actions": continuous}
+        own = reserve_v0.parallel_env(**env_kwargs).observation_layout["own"][0]
+        monitor = spread.SpreadMonitor(make_vec_env(1, seed=0, env_kwargs=env_kwargs), own, 3, continuous)
+        try:
+            monitor.reset()
+            if continuous:  # every UAV flies up and left: one direction, and after at most 20 steps the corner
+                actions = np.tile(np.array([-1.0, -1.0, 0.0], dtype=np.float32), (3, 1))
+            else:  # up, down, stay: the two moving UAVs fly opposite ways (the one staying is not a move)
+                actions = np.array([1, 2, 0], dtype=np.int64)
+            for _ in range(40):
+                monitor.step(actions)
+            summary = monitor.summary()
+        finally:
+            monitor.close()
+        if continuous:
+            assert summary["alignment"] == pytest.approx(1.0) and 0.5 <= summary["corner"] <= summary["edge"] <= 1.0
+        else:
+            assert summary["alignment"] == pytest.approx(-1.0)
+
+
+def test_the_spread_benchmark_runs_end_to_end_on_a_tiny_ddpg_run(tmp_path, capsys):
+    flags = ["-n", "64", "--seeds", "0", "--eval-episodes", "1", "-f", str(tmp_path), "--env-kwargs", "n_uavs:2",
+             "grid_size:20", "max_cycles:8"]
+    assert compare_main(["--variants", "ddpg", "--baseline", "ddpg", "--oracle", "-", "--ratio", "ddpg", "ddpg",
+                         *flags]) == 0
+    capsys.readouterr()
+    assert load_benchmark("team_spread").main(["-f", str(tmp_path), "--variants", "ddpg", "--seeds", "0",
+                                               "--eval-episodes", "2"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("ddpg")]
+    assert len(rows) == 1 and rows[0][:2] == ["ddpg", "0"]
+    edge, corner, alignment = map(float, rows[0][4:])
+    assert 0.0 <= corner <= edge <= 1.0 and -1.0 <= alignment <= 1.0
