@@ -48,7 +48,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
     :param e_step_interval: ``train()`` calls between E-steps
-    :param e_step_kwargs: overrides of the E-step defaults
+    :param e_step_kwargs: overrides of the E-step defaults (``window`` counts ``train()`` calls; 400 by default)
     :param use_latent: False is the no-latent ablation
     :param freeze_e_step: ablation: the transition models and the prior never change
     :param freeze_m_step: ablation: actor and critic never change
@@ -84,7 +84,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         team_pooling: bool = False,
         reading_counts: bool = True,
         count_factors: tuple[int, int] | None = None,
-        e_step_interval: int = 20,
+        e_step_interval: int = 200,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
         freeze_e_step: bool = False,
@@ -97,8 +97,11 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ) -> None:
-        # The E-step reads the transitions of the last 20 train() calls: 200 steps per entry at train_freq 10.
-        e_step_kwargs = {"window": 20, **(e_step_kwargs or {})}
+        # As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq
+        # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
+        # Until 0.16.0 every 20 calls on the last 20: one 200-step episode per E-step, to which the decoder was
+        # fitted online, and on the reserve the belief stayed near chance (docs/results.md, EM-DDPG against DDPG).
+        e_step_kwargs = {"window": 400, **(e_step_kwargs or {})}
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
