@@ -283,3 +283,12 @@ def test_the_spread_benchmark_runs_end_to_end_on_a_tiny_ddpg_run(tmp_path, capsy
     assert len(rows) == 1 and rows[0][:2] == ["ddpg", "0"]
     edge, corner, alignment = map(float, rows[0][4:])
     assert 0.0 <= corner <= edge <= 1.0 and -1.0 <= alignment <= 1.0
+
+
+def test_the_e_step_memory_benchmark_runs_and_rejects_a_bad_window(capsys):
+    memory = load_benchmark("e_step_memory")
+    assert memory.main(["-n", "200", "--window", "3", "--interval", "2"]) == 0
+    assert "on the last 3: peak resident memory" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        memory.main(["--window", "0"])
+    assert "--window must be >= 1, got 0" in capsys.readouterr().err
