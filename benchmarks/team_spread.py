@@ -15,8 +15,8 @@ A deterministic actor shared by every UAV (DDPG, EM-DDPG) gives two UAVs that ob
 for good: docs/results.md ("EM-DDPG against DDPG") uses these figures to tell a team that piles up at the boundary
 from one that collides in the open.
 
-Example: ``python benchmarks/team_spread.py -f logs/compare --variants em_ddpg ddpg --seeds 0 1 2`` (a variant that
-compare.py named, ``--variants nofusion=em_ddpg:fusion=False``, is read as ``nofusion=em_ddpg``)
+Example: ``python benchmarks/team_spread.py -f logs/compare --variants em_ddpg ddpg --seeds 0 1 2`` (a variant as
+compare.py was given it, ``--variants nofusion=em_ddpg:fusion=False``, is read the same way)
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import run_eval_env, run_settings
+from sb3_emmarl.zoo.benchmark import parse_variant, run_eval_env, run_settings
 from sb3_emmarl.zoo.cli import latest_run
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.actors import STEPS
@@ -46,7 +46,7 @@ class SpreadMonitor(VecEnvWrapper):
     :param venv: the parameter-sharing reserve (plain observations)
     :param own: the slice of the own features in an observation (position scaled to [0, 1] first)
     :param agents_per_copy: UAVs per reserve copy (consecutive vector entries)
-    :param continuous: ``(d_row, d_col, comm)`` actions; else discrete ``move + 5 * comm``
+    :param continuous: ``(d_row, d_col, comm)`` actions; else discrete ``move + N_MOVES * comm``
     """
 
     def __init__(self, venv: VecEnv, own: slice, agents_per_copy: int, continuous: bool) -> None:
@@ -111,10 +111,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'variant':<10} {'seed':>4} {'team_reward':>12} {'collisions':>11} {'edge':>7} {'corner':>7} "
           f"{'alignment':>10}")
     for item in args.variants:
-        variant, _, algo = item.partition("=")
-        algo = (algo or variant).split(":")[0]
-        if algo not in ZOO_ALGOS:
-            parser.error(f"--variants {item!r}: unknown algorithm {algo!r}; the zoo trains {sorted(ZOO_ALGOS)}")
+        try:
+            variant, algo, _ = parse_variant(item)  # compare.py's own reading of a variant
+        except ValueError as error:
+            parser.error(f"--variants: {error}")
         for seed in args.seeds:
             run = latest_run(Path(args.folder) / variant / f"seed_{seed}", algo)
             if not run.is_dir():
