@@ -142,6 +142,33 @@ def test_em_save_load_keeps_the_e_step_state(tmp_path):
     assert saved.keys() == fresh.keys() and all(th.equal(saved[k]["exp_avg"], fresh[k]["exp_avg"]) for k in saved)
 
 
+
+def test_the_e_step_state_is_saved_with_torch_not_in_the_json_data(tmp_path):
+    model = build(EMPPO, e_step_interval=1)
+    model.learn(32 * 4 * 2)
+    path = save_model(model, tmp_path / "em")
+    with zipfile.ZipFile(path) as archive:
+        assert "e_step.pth" in archive.namelist()
+        assert "_e_step_state" not in archive.read("data").decode()
+
+
+def test_a_model_saved_with_the_e_step_state_in_its_data_still_loads(tmp_path, monkeypatch):
+    """Archives written before 0.17.0 keep the E-step's state among the pickled data, not as ``e_step.pth``."""
+    model = build(EMPPO, e_step_interval=1)
+    model.learn(32 * 4 * 2)
+    model._e_step_state = model.e_step.state_dict()
+    monkeypatch.setattr(EMPPO, "_get_torch_save_params", PPO._get_torch_save_params)
+    path = save_model(model, tmp_path / "old")
+    monkeypatch.undo()
+    del model._e_step_state
+    with zipfile.ZipFile(path) as archive:
+        assert "e_step.pth" not in archive.namelist() and "_e_step_state" in archive.read("data").decode()
+    loaded = EMPPO.load(path, device="cpu")
+    assert loaded.e_step.n_updates == model.e_step.n_updates == 2 and not hasattr(loaded, "_e_step_state")
+    for a, b in zip(loaded.e_step.memory, model.e_step.memory, strict=True):
+        assert th.equal(a.features, b.features)
+    loaded.set_parameters(path, device="cpu")  # a path too, not only the dict load() passes
+
 def test_finite_check_names_the_quantity_and_the_step():
     env = FiniteCheck(make_vec_env(1, seed=0, env_kwargs=TINY))
     env.reset()

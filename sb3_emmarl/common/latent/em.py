@@ -215,9 +215,10 @@ class EStep:
         self.n_updates = 0
         self.generator = th.Generator().manual_seed(seed)
 
-    def get_state(self) -> dict[str, Any]:
+    def state_dict(self) -> dict[str, Any]:
         """Everything the next E-steps depend on besides the model's weights: the optimizer, the update counter (it
-        drives the Gumbel temperature), the random generator and the kept transitions (on the CPU)."""
+        drives the Gumbel temperature), the random generator and the kept transitions (on the CPU). Named as torch's
+        ``state_dict``, so that SB3's ``save`` writes it with ``torch.save`` beside the policy's weights."""
         return {"optimizer": self.optimizer.state_dict(), "n_updates": self.n_updates,
                 "generator": self.generator.get_state(),
                 "memory": [{name: getattr(part, name).cpu() for name in FIELDS} for part in self.memory],
@@ -225,8 +226,12 @@ class EStep:
                                  for part in self.count_memory],
                 "fresh": self.fresh, "count_table": {name: value.cpu() for name, value in self.count_table.items()}}
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        """Restore a :meth:`get_state` dict (the E-step then continues as if it had not stopped)."""
+    def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> None:
+        """Restore a :meth:`state_dict` (the E-step then continues as if it had not stopped).
+
+        :param strict: accepted for SB3's ``set_parameters``, which passes it to every saved object; the state is
+            always restored whole
+        """
         self.optimizer.load_state_dict(state["optimizer"])
         self.n_updates = int(state["n_updates"])
         self.generator.set_state(state["generator"])
