@@ -1,10 +1,11 @@
 """Peak memory of an EM-DDPG run on the reserve with a given E-step window (one run per process).
 
-Trains ``EMDDPG`` with ``em_ddpg.yml``'s latent settings (8 components, factored counts, likelihood temperature 0.1,
-team pooling, the E-step's epochs and batches) for ``-n`` agent-steps on one reserve copy, with the E-step every
-``--interval`` ``train()`` calls on the last ``--window``, and prints the process's peak resident memory
-(``ru_maxrss``). Compare windows in separate processes, and with ``MALLOC_MMAP_THRESHOLD_=131072`` set in the
-environment to see how much of the difference is the C allocator's (docs/results.md, EM-DDPG against DDPG).
+Trains ``em_ddpg.yml`` through the zoo's own training command (every setting the YAML's: DDPG's, the latent ones,
+the reserve's) for ``-n`` agent-steps, with only the E-step's schedule overridden: every ``--interval`` ``train()``
+calls on the last ``--window``. Prints the process's peak resident memory (the zoo's ``peak_rss_mib``). The run goes
+to a temporary folder that is removed afterwards. Compare windows in separate processes, and with
+``MALLOC_MMAP_THRESHOLD_=131072`` set in the environment to see how much of the difference is the C allocator's
+(docs/results.md, EM-DDPG against DDPG).
 
 Example: ``python benchmarks/e_step_memory.py --window 800 --interval 200`` then ``--window 20 --interval 20``
 """
@@ -12,14 +13,13 @@ Example: ``python benchmarks/e_step_memory.py --window 800 --interval 200`` then
 from __future__ import annotations
 
 import argparse
-import resource
 import sys
+import tempfile
 
-import torch as th
-
-from sb3_emmarl import EMDDPG
-from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.zoo.cli import peak_rss_mib, train_main
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+
+ALGO = "em_ddpg"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,19 +32,15 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("n_timesteps", "window", "interval"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    th.set_num_threads(1)
-    settings = zoo_hyperparams("em_ddpg")
-    env = make_vec_env(1, seed=args.seed, env_kwargs=settings["env_kwargs"])
-    model = EMDDPG("MlpPolicy", env, n_components=settings["n_components"],
-                   count_factors=tuple(settings["count_factors"]),
-                   likelihood_temperature=settings["likelihood_temperature"], team_pooling=settings["team_pooling"],
-                   fusion=settings["fusion"], learning_starts=settings["learning_starts"],
-                   buffer_size=settings["buffer_size"], e_step_interval=args.interval,
-                   e_step_kwargs={**settings["e_step_kwargs"], "window": args.window}, seed=args.seed)
-    model.learn(args.n_timesteps)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB on Linux
-    print(f"EM-DDPG, {args.n_timesteps:,} agent-steps, E-step every {args.interval} train() calls on the last "
-          f"{args.window}: peak resident memory {peak:,.0f} MiB")
+    e_step_kwargs = {**zoo_hyperparams(ALGO).get("e_step_kwargs", {}), "window": args.window}
+    with tempfile.TemporaryDirectory(prefix="e_step_memory_") as folder:
+        code = train_main(["--algo", ALGO, "-n", str(args.n_timesteps), "--seed", str(args.seed), "-f", folder,
+                           "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--num-threads", "1",
+                           "-params", f"e_step_interval:{args.interval}", f"e_step_kwargs:{e_step_kwargs!r}"])
+    if code:
+        return code
+    print(f"EM-DDPG ({ALGO}.yml), {args.n_timesteps:,} agent-steps, E-step every {args.interval} train() calls on the "
+          f"last {args.window}: peak resident memory {peak_rss_mib():,.0f} MiB")
     return 0
 
 
