@@ -5,7 +5,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from sb3_emmarl import EMVDN
+from sb3_emmarl import EMDDPG, EMVDN
 from sb3_emmarl.common.latent.belief import find_belief_wrapper
 from sb3_emmarl.common.vec_env import make_vec_env
 
@@ -64,8 +64,19 @@ def test_save_load_gives_the_same_actions_and_e_step(trained, tmp_path):
     ({"n_components": 0}, r"n_components must be an int in \[1, 64\]"),
     ({"exploration_final_eps": 1.5}, r"exploration_final_eps must be a number in \[0.0, 1.0\]"),
     ({"e_step_kwargs": {"window": 0}}, r"e_step_kwargs\['window'\] must be an int"),
+    ({"e_step_kwargs": {"window": 10_001}}, r"e_step_kwargs\['window'\] must be an int in \[1, 10000\]"),
     ({"fusion": "yes"}, "fusion must be true or false"),
 ])
 def test_bad_arguments_are_rejected(kwargs, message):
     with pytest.raises(ValueError, match=message):
         EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY), **kwargs)
+
+
+def test_the_default_e_step_sees_as_many_steps_as_em_ddpgs():
+    """Both default to an E-step every 2,000 steps on the last 4,000 at their zoo train_freq (4 and 10 vector steps)."""
+    model = EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY), train_freq=4)
+    assert (model.e_step_interval * 4, model.e_step.memory.maxlen * 4) == (2000, 4000)
+    ddpg = EMDDPG("MlpPolicy", make_vec_env(1, seed=0, env_kwargs={**TINY, "continuous_actions": True}), train_freq=10)
+    assert (ddpg.e_step_interval * 10, ddpg.e_step.memory.maxlen * 10) == (2000, 4000)
+    assert EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY),
+                 e_step_kwargs={"window": 2000}).e_step.memory.maxlen == 2000

@@ -214,7 +214,9 @@ E_STEP_RULES: dict[str, Rule] = {
     "learning_rate": number(0.0, 10.0, low_open=True),
     "n_epochs": integer(1, 1000),
     "batch_size": integer(1, MAX_BUFFER),
-    "window": integer(1, 1000),
+    # Rollouts (EM-PPO) or train() calls (the off-policy ones): 40 episodes of one reserve copy are 800 calls at
+    # train_freq 10 (EM-DDPG) and 2,000 at train_freq 4 (VDN+EM).
+    "window": integer(1, 10_000),
     "max_transitions": integer(1, MAX_BUFFER),
     "temperature": number(0.0, 100.0, low_open=True),
     "min_temperature": number(0.0, 100.0, low_open=True),

@@ -57,10 +57,10 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
         readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
-    :param e_step_interval: ``train()`` calls between E-steps (default 50: with ``train_freq=4``, every 200 steps, a
-        reserve episode)
-    :param e_step_kwargs: overrides of the E-step defaults (``window`` defaults to 100 ``train()`` calls here: the
-        last two reserve episodes)
+    :param e_step_interval: ``train()`` calls between E-steps (default 500: with ``train_freq=4``, every 2,000 steps,
+        as EM-PPO's every rollout of 2,048 and EM-DDPG's default)
+    :param e_step_kwargs: overrides of the E-step defaults (``window`` defaults to 1,000 ``train()`` calls here: the
+        last 4,000 steps at ``train_freq=4``; the E-step must see many episodes, docs/em.md section 5)
     :param use_latent: False is the no-latent ablation
     :param freeze_e_step: ablation: the transition models and the prior never change
     :param freeze_m_step: ablation: the agent network never changes
@@ -102,7 +102,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         team_pooling: bool = False,
         reading_counts: bool = True,
         count_factors: tuple[int, int] | None = None,
-        e_step_interval: int = 50,
+        e_step_interval: int = 500,
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
         freeze_e_step: bool = False,
@@ -115,7 +115,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        e_step_kwargs = {"window": 100, **(e_step_kwargs or {})} if isinstance(e_step_kwargs, (dict, type(None))) \
+        e_step_kwargs = {"window": 1000, **(e_step_kwargs or {})} if isinstance(e_step_kwargs, (dict, type(None))) \
             else e_step_kwargs
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
