@@ -1,5 +1,6 @@
 """The zoo's train and enjoy commands: rl-zoo's folder layout, tensorboard metrics, early and clean failures."""
 
+import inspect
 import json
 from pathlib import Path
 
@@ -9,6 +10,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
 from sb3_emmarl.zoo import exp_manager
+from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import read_yaml, yaml_section, zoo_hyperparams
 
@@ -122,6 +124,17 @@ def test_key_values_take_python_values():
     with pytest.raises(ValueError, match="not a valid Python value"):
         parse_key_values(["x:__import__('os')"], "--x")
 
+
+def test_the_off_policy_em_yamls_give_the_e_step_as_many_episodes():
+    """em_ddpg.yml and vdn_em.yml keep and refit the same stretch of play (40 episodes of 200 steps of their one
+    reserve copy, every 10), though their window and interval count train() calls, one every train_freq steps."""
+    def stretch(algo):
+        settings = zoo_hyperparams(algo)
+        interval = settings.get("e_step_interval",
+                                inspect.signature(ZOO_ALGOS[algo]).parameters["e_step_interval"].default)
+        return settings["e_step_kwargs"]["window"] * settings["train_freq"], interval * settings["train_freq"]
+
+    assert stretch("em_ddpg") == stretch("vdn_em") == (40 * 200, 10 * 200)
 
 def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
     ppo = zoo_hyperparams("ppo")
