@@ -101,7 +101,7 @@ benchmark-fuzz: install
 benchmark-matrix-game: install
 	$(PYTHON) benchmarks/matrix_game.py
 
-# MAPPO, QMIX, VDN and VDN+EM against PPO and EM-PPO on the default reserve, 3 seeds x 300k agent-steps (about 20 minutes).
+# MAPPO, QMIX, VDN and VDN+EM against PPO and EM-PPO on the default reserve, 3 seeds x 300k agent-steps (about 30 minutes on 0.17.0).
 benchmark-baselines: install
 	$(PYTHON) zoo/compare.py --variants ppo em_ppo mappo qmix vdn vdn_em --seeds 0 1 2 -n 300000 --n-jobs 2
 
