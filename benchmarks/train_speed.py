@@ -74,6 +74,8 @@ class ZeroCostVecEnv(VecEnv):
         pass
 
     def get_attr(self, attr_name, indices=None):
+        if attr_name == "render_mode":  # (as the reserve's: no rendering; SB3 warns on an environment without one)
+            return [None] * self.num_envs
         raise AttributeError(attr_name)
 
     def set_attr(self, attr_name, value, indices=None):

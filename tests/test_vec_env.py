@@ -403,3 +403,17 @@ def test_what_is_built_on_the_vector_environment_gives_the_same_on_both_paths(al
     for key, value in params[0].items():
         assert (value == params[1][key]).all(), key
     assert metrics[0] == metrics[1]
+
+
+def test_the_zero_cost_environment_has_the_reserves_spaces_and_no_render_mode():
+    """The training benchmark's reference: the reserve's spaces and entries, and no warning from SB3 about rendering."""
+    import warnings
+
+    from scripts import load_benchmark
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        zero = load_benchmark("train_speed").zero_cost_like("ppo", n_copies=2)
+    reserve = make_vec_env(2, seed=0)
+    assert (zero.num_envs, zero.observation_space, zero.action_space, zero.render_mode) == \
+        (reserve.num_envs, reserve.observation_space, reserve.action_space, None)
