@@ -80,3 +80,7 @@ def test_the_default_e_step_sees_as_many_steps_as_em_ddpgs():
     assert (ddpg.e_step_interval * 10, ddpg.e_step.memory.maxlen * 10) == (2000, 4000)
     assert EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY),
                  e_step_kwargs={"window": 2000}).e_step.memory.maxlen == 2000
+    # Whatever e_step_kwargs holds is checked before the default window joins it (EM-DDPG raised TypeError until 0.17.0).
+    for algo, env_kwargs in ((EMVDN, TINY), (EMDDPG, {**TINY, "continuous_actions": True})):
+        with pytest.raises(ValueError, match="e_step_kwargs must be a mapping"):
+            algo("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=env_kwargs), e_step_kwargs="x")

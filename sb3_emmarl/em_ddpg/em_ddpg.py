@@ -101,11 +101,10 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
         # Until 0.16.0 every 20 calls on the last 20: one 200-step episode per E-step, to which the decoder was
         # fitted online, and on the reserve the belief stayed near chance (docs/results.md, EM-DDPG against DDPG).
-        e_step_kwargs = {"window": 400, **(e_step_kwargs or {})}
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model)
+                                               verbose, loading=not _init_setup_model, default_window=400)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
                          batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
                          action_noise=action_noise, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,

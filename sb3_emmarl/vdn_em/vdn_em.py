@@ -115,12 +115,10 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        e_step_kwargs = {"window": 1000, **(e_step_kwargs or {})} if isinstance(e_step_kwargs, (dict, type(None))) \
-            else e_step_kwargs
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model)
+                                               verbose, loading=not _init_setup_model, default_window=1000)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                          train_freq=train_freq, gradient_steps=gradient_steps,

@@ -52,8 +52,13 @@ class LatentAlgorithmMixin:
                      fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
                      team_pooling: bool, reading_counts: bool, count_factors: tuple[int, int] | None,
                      e_step_interval: int, e_step_kwargs: dict[str, Any] | None, policy_kwargs: dict[str, Any] | None,
-                     verbose: int, loading: bool) -> tuple[VecEnv | None, dict]:
-        """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``."""
+                     verbose: int, loading: bool, default_window: int = E_STEP_DEFAULTS["window"]
+                     ) -> tuple[VecEnv | None, dict]:
+        """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``.
+
+        :param default_window: the E-step's ``window`` unless ``e_step_kwargs`` gives one (the off-policy algorithms
+            count it in ``train()`` calls, not rollouts)
+        """
         n_components = RULES["n_components"]("n_components", n_components)
         count_factors = RULES["count_factors"]("count_factors", count_factors)
         self.count_factors = check_factors(count_factors, n_components)
@@ -70,7 +75,7 @@ class LatentAlgorithmMixin:
         self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
         self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
         self.reading_counts = bool(reading_counts)
-        self.e_step_kwargs = {**E_STEP_DEFAULTS, **(e_step_kwargs or {})}
+        self.e_step_kwargs = {**E_STEP_DEFAULTS, "window": default_window, **(e_step_kwargs or {})}
         self.e_step = None
         policy_kwargs = dict(policy_kwargs or {})
         if env is None:  # loading without an environment: the saved policy_kwargs hold the layout
@@ -133,8 +138,7 @@ class LatentAlgorithmMixin:
         data, and :meth:`load` restores it from there)."""
         if not isinstance(load_path_or_dict, dict):
             _, load_path_or_dict, _ = load_from_zip_file(load_path_or_dict, device=device)
-        legacy = "e_step" not in load_path_or_dict
-        self._e_step_in_data = legacy
+        self._e_step_in_data = "e_step" not in load_path_or_dict
         try:
             super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
         finally:
