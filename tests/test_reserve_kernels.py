@@ -5,8 +5,17 @@ import pytest
 
 from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve import actors, kernels
-from wildlife_reserve.reserve.constants import COMM_NONE, N_COMMS, N_MOVES, NEVER
-from wildlife_reserve.reserve.knowledge import SIGN_MAP_SCALE, SIGN_VALUES, TeamKnowledge, sign_values
+from wildlife_reserve.reserve.constants import CH_STALENESS, COMM_NONE, N_COMMS, N_MOVES, NEVER
+from wildlife_reserve.reserve.knowledge import (
+    SIGN_MAP_SCALE,
+    SIGN_VALUES,
+    STAMP_LAYOUT,
+    TeamKnowledge,
+    pack_stamps,
+    sign_values,
+    stamp_dtype,
+    unpack_stamps,
+)
 
 
 def test_discrete_actions_decode_as_divmod_and_out_of_range_ones_are_flagged():
@@ -39,15 +48,55 @@ def random_stamps(rng, rows, n, t):
     return last, first, knowledge
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
 @pytest.mark.parametrize("seed", range(4))
-def test_staleness_is_the_newest_visit_each_uav_knows_of(seed):
-    """Random stamps with never-seen cells and never-heard sources (whose stamps must not count)."""
+def test_staleness_is_the_newest_visit_each_uav_knows_of(seed, dtype):
+    """Random stamps with never-seen cells and never-heard sources (whose stamps must not count), packed as the step
+    keeps them, in both stamp types."""
     rng = np.random.default_rng(seed)
     n, m, c, t = 6, 40, 9, 50
     last, first, knowledge = random_stamps(rng, m, n, t)
     cells = rng.integers(0, m, (n, c))
-    ages = kernels.known_ages(last, first, knowledge, cells, np.float32(t), np.float32(1 / 80), np.float32(t - 1))
+    stamps = pack_stamps(last, first, dtype)
+    ages = kernels.known_ages(stamps, knowledge, cells, np.float32(t), np.float32(1 / 80), np.float32(t - 1))
     np.testing.assert_array_equal(ages, reference_ages(last, first, knowledge, cells, t, 1 / 80))
+
+
+def test_packed_stamps_unpack_to_the_float_ones_and_take_int16_only_below_its_range():
+    last, first, _ = random_stamps(np.random.default_rng(3), 30, 4, 40)
+    for dtype in (np.int16, np.int32):
+        stamps = pack_stamps(last, first, dtype)
+        assert stamps.dtype == dtype and stamps.shape == (30, 2, 4)
+        np.testing.assert_array_equal(unpack_stamps(stamps, 0), last)
+        np.testing.assert_array_equal(unpack_stamps(stamps, 1), first)
+    assert stamp_dtype(200) is np.int16 and stamp_dtype(32_766) is np.int16
+    assert stamp_dtype(32_767) is np.int32 and stamp_dtype(100_000) is np.int32
+
+
+def test_int32_stamps_give_the_observations_of_int16_ones_and_long_episodes_take_them(monkeypatch):
+    """The stamp type does not change what the UAVs observe (the same reserve stamping in int16 and in int32); an
+    episode longer than int16's range stamps in int32, and a cell nobody has seen reads as stale as can be (1)."""
+    from wildlife_reserve.reserve import knowledge
+
+    def run(**kwargs):
+        env = reserve_v0.parallel_env(n_uavs=4, grid_size=20, comm_radius=30.0, **kwargs)
+        env.reset(seed=4)
+        rng = np.random.default_rng(4)
+        return env, np.array([env.step_arrays(rng.integers(0, N_MOVES * N_COMMS, 4))[0] for _ in range(150)])
+
+    narrow, narrow_obs = run()
+    monkeypatch.setattr(knowledge, "stamp_dtype", lambda max_cycles: np.int32)
+    wide, wide_obs = run()
+    assert narrow.team._stamps.dtype == np.int16 and wide.team._stamps.dtype == np.int32
+    np.testing.assert_array_equal(wide_obs, narrow_obs)
+    np.testing.assert_array_equal(wide.team.own_last, narrow.team.own_last)
+    monkeypatch.undo()
+    long = reserve_v0.parallel_env(n_uavs=4, grid_size=20, max_cycles=40_000)
+    long.reset(seed=4)
+    assert long.team._stamps.dtype == np.int32
+    obs = long.step_arrays(np.full(4, 3))[0]  # one step east: the windows' east column is new
+    staleness = long.split_observation(obs)["window"][:, CH_STALENESS]
+    assert set(np.unique(staleness).tolist()) == {np.float32(1 / 40_000), 1.0}
 
 
 def test_flight_updates_in_place_and_a_grounded_uav_neither_moves_talks_nor_hovers():
@@ -158,9 +207,35 @@ def test_a_checkpointed_team_from_before_the_source_major_block_stamps_is_turned
     restored = pickle.loads(pickle.dumps(old))
     np.testing.assert_array_equal(restored._block_last, team._block_last)
     np.testing.assert_array_equal(restored._block_first, team._block_first)
-    assert restored._block_last.flags.c_contiguous and restored._stamp_layout == 1
+    assert restored._block_last.flags.c_contiguous and restored._stamp_layout == STAMP_LAYOUT
     again = pickle.loads(pickle.dumps(restored))  # a state of now is left as it is
     np.testing.assert_array_equal(again._block_last, team._block_last)
+
+
+def test_a_checkpointed_reserve_with_float_cell_stamps_is_packed_on_unpickling_and_steps_on_alike():
+    """0.15.0-0.17.0 pickled the cells' stamps as float32 ``_last`` / ``_first`` ``(cells, n)``: unpickled now they
+    are packed, read as the same stamps and the reserve steps on exactly as the one never pickled."""
+    import pickle
+
+    env = reserve_v0.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=80)
+    env.reset(seed=5)
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        env.step_arrays(rng.integers(0, N_MOVES * N_COMMS, 3))
+    from sb3_emmarl.common.checkpoints import dumps  # (keeps the reserve's views of its arrays views)
+
+    old = pickle.loads(dumps(env))
+    team = old.team
+    team._last, team._first = unpack_stamps(team._stamps, 0), unpack_stamps(team._stamps, 1)
+    del team.__dict__["_stamps"]
+    team._stamp_layout = 1
+    assert team._last.dtype == np.float32 and (team._last == NEVER).any()
+    restored = pickle.loads(dumps(old))
+    assert restored.team._stamp_layout == STAMP_LAYOUT and not hasattr(restored.team, "_last")
+    np.testing.assert_array_equal(restored.team._stamps, env.team._stamps)
+    for _ in range(30):
+        action = rng.integers(0, N_MOVES * N_COMMS, 3)
+        np.testing.assert_array_equal(restored.step_arrays(action)[0], env.step_arrays(action)[0])
 
 
 def test_heard_from_stays_right_when_its_cache_is_emptied(monkeypatch):

@@ -35,20 +35,22 @@ def _known_stamp(newer: np.float32, older: np.float32, known: np.float32) -> np.
 
 
 @njit(cache=True)
-def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells: np.ndarray, t: np.float32,
-               scale: np.float32, newest: np.float32) -> np.ndarray:  # pragma: no cover - compiled
+def known_ages(stamps: np.ndarray, knowledge: np.ndarray, cells: np.ndarray, t: np.float32, scale: np.float32,
+               newest: np.float32) -> np.ndarray:  # pragma: no cover - compiled
     """Age in [0, 1] of the newest visit each receiver knows of, at its own cells.
 
     ``ages[r, c] = min((t - max_s seen[s, r, c]) * scale, 1)`` with ``seen = last[cells[r, c], s]`` if that
-    is ``<= knowledge[r, s]``, else ``first[cells[r, c], s]`` if that is, else ``NEVER``.
+    is ``<= knowledge[r, s]``, else ``first[cells[r, c], s]`` if that is, else ``NEVER``, where ``last`` and
+    ``first`` are ``stamps[:, 0]`` and ``stamps[:, 1]``.
 
     The maximum is taken over the sources the receiver knows anything of (``knowledge > NEVER``: the others add
     ``NEVER``), the receiver's own stamps first, and stops at a stamp equal to ``newest``, which no stamp may exceed
     (the step of the latest look): for most cells of a UAV's window its own look of the step before decides.
 
-    :param last: ``(m, n)`` float32 last-visit time at each cell of each source (cell-major: the sources' stamps of a
-        cell share a cache line)
-    :param first: ``(m, n)`` float32 first-visit times
+    :param stamps: ``(m, 2, n)`` integer last- and first-visit times at each cell of each source, never-seen cells at
+        the dtype's least and greatest value (``knowledge.pack_stamps``; cell-major: a cell's stamps of every source
+        in one run of memory, 40 bytes at 10 UAVs in int16; the least value reads as an age of 1, as ``NEVER`` does,
+        since the stamps are int16 only in episodes shorter than int16's greatest value)
     :param knowledge: ``(n, n)`` float32, ``knowledge[r, s]``
     :param cells: ``(n, c)`` cell indices (into the first axis of ``last``) per receiver
     """
@@ -70,7 +72,8 @@ def known_ages(last: np.ndarray, first: np.ndarray, knowledge: np.ndarray, cells
             best = NEVER
             for q in range(m):
                 s = sources[q]
-                best = max(best, _known_stamp(last[cell, s], first[cell, s], knowledge[r, s]))
+                best = max(best, _known_stamp(np.float32(stamps[cell, 0, s]), np.float32(stamps[cell, 1, s]),
+                                              knowledge[r, s]))
                 if best >= newest:
                     break
             age = (t - best) * scale
@@ -348,11 +351,12 @@ def sign_candidates(grid: np.ndarray, born: np.ndarray, expires: np.ndarray, win
 
 @njit(cache=True)
 def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray, visited: np.ndarray,
-         last: np.ndarray, first: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
+         stamps: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
          t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
-    one's own visit history of cells and blocks (``last[cell, u] = t``, ``first[cell, u] = min(first, t)``; the
-    cells' stamps are cell-major, see :func:`known_ages`, the blocks' source-major, ``block_last[u, block]``), set
+    one's own visit history of cells and blocks (``stamps[cell, 0, u] = t``, ``stamps[cell, 1, u] = min(first, t)``:
+    the cells' stamps are packed cell-major, see :func:`known_ages`, the blocks' source-major,
+    ``block_last[u, block]``), set
     its knowledge of itself to ``t``, and mark the team's coverage ``visited``.
 
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
@@ -374,9 +378,9 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
                 visited[cell] = True
                 if high_risk[cell]:
                     new += 1
-            last[cell, u] = t
-            if t < first[cell, u]:
-                first[cell, u] = t
+            stamps[cell, 0, u] = t
+            if t < stamps[cell, 1, u]:
+                stamps[cell, 1, u] = t
         block_last[u, blocks[a]] = t
         if t < block_first[u, blocks[a]]:
             block_first[u, blocks[a]] = t
@@ -429,7 +433,7 @@ def deliver(links: np.ndarray, comm: np.ndarray, dist: np.ndarray, draws: np.nda
 
 @njit(cache=True)
 def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blocks: np.ndarray,
-                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, last: np.ndarray, first: np.ndarray,
+                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, stamps: np.ndarray,
                   block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray, pos: np.ndarray, ok: np.ndarray,
                   radius: float, comm: np.ndarray, beacon_draws: np.ndarray, message_draws: np.ndarray, loss: float,
                   known: np.ndarray, counts: np.ndarray, sign_blocks: np.ndarray, stale_cells: np.ndarray,
@@ -449,11 +453,11 @@ def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blo
     :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
     """
     newest = t - np.float32(1.0)  # the stamps are of looks before this step's
-    stale_cells[:] = known_ages(last, first, knowledge, window, t, scale, newest)
+    stale_cells[:] = known_ages(stamps, knowledge, window, t, scale, newest)
     stale_blocks[:] = known_block_ages(block_last, block_first, knowledge, t, scale)
     uavs = np.flatnonzero(airborne)
     fresh = np.zeros(len(window), dtype=np.int64)
-    fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, last, first, block_last,
+    fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, stamps, block_last,
                             block_first, knowledge, t)
     distances, links = links_in_range(pos, ok, radius)
     dist[:] = distances

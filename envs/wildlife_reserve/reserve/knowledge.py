@@ -19,10 +19,11 @@ SIGN_MAP_SCALE = 2.0
 #: That value for 0, 1, ... signs (numpy's exp, as tabulated): from 75 signs on it is exactly 1.0 in float64, so a
 #: larger count reads the last entry.
 SIGN_VALUES = 1.0 - np.exp(-np.arange(128) * (1.0 / SIGN_MAP_SCALE))
-#: Layout of the visit stamps in a pickled :class:`TeamKnowledge` (a checkpoint of the vector environment): 1 since
-#: sb3-emmarl 0.15.0, whose block stamps are source-major ``(n, blocks)``; a state without it (0.14.0) holds them
-#: block-major ``(blocks, n)`` and is turned on unpickling.
-STAMP_LAYOUT = 1
+#: Layout of the visit stamps in a pickled :class:`TeamKnowledge` (a checkpoint of the vector environment): 2 since
+#: sb3-emmarl 0.18.0, whose cells' stamps are packed integers (:func:`pack_stamps`); 1 (0.15.0-0.17.0) held them as
+#: two float32 arrays ``(cells, n)`` with :data:`NEVER`; a state without it (0.14.0) also holds its block stamps
+#: block-major ``(blocks, n)``. Older states are turned on unpickling.
+STAMP_LAYOUT = 2
 #: Teams of up to this many UAVs get their ``heard_from`` tuples by bit mask from :data:`_SENDERS` (a step's links
 #: repeat across steps and copies: one dict lookup per UAV instead of a new tuple); larger teams build them.
 MASK_UAVS = 63
@@ -30,6 +31,34 @@ MASK_UAVS = 63
 #: re-reading the dict); emptied when it outgrows :data:`_SENDERS_MAX`.
 _SENDERS: dict[int, tuple[int, ...]] = {0: ()}
 _SENDERS_MAX = 1 << 14
+
+
+def stamp_dtype(max_cycles: int) -> type:
+    """The integer type of the cells' visit stamps: int16 for episodes shorter than its greatest value (the stamps of
+    10 UAVs at a cell then fill 40 bytes, one cache line: the staleness reads a few hundred scattered cells a step),
+    int32 for longer ones."""
+    return np.int16 if max_cycles < np.iinfo(np.int16).max else np.int32
+
+
+def pack_stamps(last: np.ndarray, first: np.ndarray, dtype: type) -> np.ndarray:
+    """The cells' visit stamps as the compiled step keeps them: ``(cells, 2, n)`` of ``dtype``, ``[:, 0]`` the last
+    look and ``[:, 1]`` the first, from float32 ``last`` and ``first`` ``(cells, n)`` whose never-seen cells are
+    :data:`NEVER` and ``-NEVER``; those become the dtype's least and greatest value (which, below and above every
+    step of an episode, compare as :data:`NEVER` and ``-NEVER`` do)."""
+    info = np.iinfo(dtype)
+    stamps = np.stack([last, first], axis=1)
+    packed = np.where(stamps < 0, 0, stamps).astype(dtype)  # (the sentinels set apart, not cast)
+    packed[:, 0][last == NEVER], packed[:, 1][first == -NEVER] = info.min, info.max
+    return packed
+
+
+def unpack_stamps(stamps: np.ndarray, which: int) -> np.ndarray:
+    """The last (``which=0``) or first (``1``) looks of :func:`pack_stamps`' ``stamps`` as float32 ``(cells, n)``,
+    never-seen cells at :data:`NEVER` (last) or ``-NEVER`` (first)."""
+    info = np.iinfo(stamps.dtype)
+    part = stamps[:, which]
+    never, value = (info.min, NEVER) if which == 0 else (info.max, -NEVER)
+    return np.where(part == never, value, part).astype(np.float32)
 
 
 def sign_values(counts: np.ndarray) -> np.ndarray:
@@ -66,26 +95,30 @@ class TeamKnowledge:
         self.comm_loss = comm_loss
         # Readings older than this carry less than 1e-3 of their weight and are dropped.
         self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
-        # Cell-major, (cell, UAV): the staleness reads every UAV's stamps of a few cells.
-        # Separate arrays, not views of one: a pickled environment (a checkpoint) must keep them apart.
-        self._last, self._first = (np.empty((self.cells_padded, n), dtype=np.float32) for _ in range(2))
+        # Cell-major and packed, (cell, last/first, UAV): the staleness reads every UAV's stamps of a few cells.
+        self._stamps = np.empty((self.cells_padded, 2, n), dtype=stamp_dtype(max_cycles))
         # Source-major, (UAV, block): the block staleness folds every block of one source at a time.
         self._block_last, self._block_first = (np.empty((n, n_blocks), dtype=np.float32) for _ in range(2))
         self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
         self._stamp_layout = STAMP_LAYOUT
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (checkpoints), turning the block stamps of a state from before :data:`STAMP_LAYOUT`."""
+        """Unpickle (checkpoints), turning the stamps of a state from before :data:`STAMP_LAYOUT`."""
         self.__dict__.update(state)
-        if state.get("_stamp_layout", 0) < 1 and hasattr(self, "_block_last"):
+        layout = state.get("_stamp_layout", 0)
+        if layout < 1 and hasattr(self, "_block_last"):
             self._block_last = np.ascontiguousarray(self._block_last.T)
             self._block_first = np.ascontiguousarray(self._block_first.T)
+        if layout < 2 and hasattr(self, "_last"):
+            self._stamps = pack_stamps(self.__dict__.pop("_last"), self.__dict__.pop("_first"),
+                                       stamp_dtype(self.max_cycles))
         self._stamp_layout = STAMP_LAYOUT
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
         n = self.n
-        self._last[:], self._first[:] = NEVER, -NEVER
+        info = np.iinfo(self._stamps.dtype)
+        self._stamps[:, 0], self._stamps[:, 1] = info.min, info.max
         self._block_last[:], self._block_first[:] = NEVER, -NEVER
         self.knowledge = np.full((n, n), NEVER, dtype=np.float32)
         self.beacons = np.zeros((n, n), dtype=bool)
@@ -97,13 +130,13 @@ class TeamKnowledge:
 
     @property
     def own_last(self) -> np.ndarray:
-        """``(n, *padded)`` each UAV's last look at each cell (a view)."""
-        return self._last.T.reshape(self.n, *self.padded_shape)
+        """``(n, *padded)`` float32 each UAV's last look at each cell, :data:`NEVER` where it never looked (a copy)."""
+        return unpack_stamps(self._stamps, 0).T.reshape(self.n, *self.padded_shape)
 
     @property
     def own_first(self) -> np.ndarray:
-        """``(n, *padded)`` each UAV's first look at each cell (a view)."""
-        return self._first.T.reshape(self.n, *self.padded_shape)
+        """``(n, *padded)`` float32 each UAV's first look at each cell, ``-NEVER`` where it never looked (a copy)."""
+        return unpack_stamps(self._stamps, 1).T.reshape(self.n, *self.padded_shape)
 
     # ------------------------------------------------------------------ one step: look, then talk
     def look_and_talk(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
@@ -151,7 +184,7 @@ class TeamKnowledge:
             draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
         return (
             np.float32(t), self._time_scale, window.reshape(n, -1), cell_blocks,
-            airborne, high_risk, visited, self._last, self._first, self._block_last, self._block_first, self.knowledge,
+            airborne, high_risk, visited, self._stamps, self._block_last, self._block_first, self.knowledge,
             uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
             self.known_signs[:, :len(sign_blocks)], self.sign_counts, sign_blocks, stale_window.reshape(n, -1),
             stale_blocks, self.dist, self.beacons, self.comm_links)
