@@ -44,10 +44,12 @@ ENERGY_COSTS: dict[str, float] = {"hover": 0.0005, "move": 0.002, "broadcast": 0
 MAX_UAVS = 1000
 #: Longest side of the grid, in cells.
 MAX_SIDE = 1000
-#: Most ``n_uavs * (height + 2 * sensor_radius) * (width + 2 * sensor_radius)``: every UAV keeps two float32 time
-#: stamps (its first and last look) per cell of the padded grid, so this caps them at 200 MB.
+#: Most ``n_uavs * (height + 2 * sensor_radius) * (width + 2 * sensor_radius)``: every UAV keeps two time stamps (its
+#: first and last look) per cell of the padded grid, int16 (int32 from 32,767 steps), so this caps them at 100 MB
+#: (200 MB).
 MAX_UAV_CELLS = 25_000_000
-#: Longest episode. Time stamps are float32 and "never seen" is -1e6, so staleness needs ``max_cycles`` well below 1e6.
+#: Longest episode. What a UAV knows of a teammate is a float32 time with "never" at -1e6, so staleness needs
+#: ``max_cycles`` well below 1e6.
 MAX_CYCLES = 100_000
 #: Most leopards, poachers and decoys (each).
 MAX_ACTORS = 1000
@@ -171,12 +173,12 @@ class ReserveConfig:
 
     :param n_uavs: number of UAVs (agents ``uav_0`` ... ``uav_{n-1}``), int in [1, 1000]; also
         ``n_uavs * (height + 2 * sensor_radius) * (width + 2 * sensor_radius) <= 25_000_000`` (every UAV keeps two
-        float32 time stamps per cell of the padded grid: at most 200 MB)
+        int16 time stamps per cell of the padded grid, int32 from 32,767 steps: at most 100 MB, 200 MB)
     :param grid_size: reserve side in cells (int, square) or ``(height, width)`` (a tuple, list or array of two
         ints); defaults to the terrain array's shape if one is given, else 100; each side in
         ``[2 * sensor_radius + 1, 1000]``
-    :param max_cycles: steps per episode (truncation), int in [1, 100_000] (time stamps are float32 and "never seen"
-        is -1e6)
+    :param max_cycles: steps per episode (truncation), int in [1, 100_000] (what a UAV knows of a teammate is a
+        float32 time and "never" is -1e6)
     :param n_leopards: leopards, int in [0, 1000]
     :param n_poachers: poachers entering over an episode, int in [0, 1000]
     :param sensor_radius: Chebyshev sensing radius in cells, int in [1, 10] (the observation window is ``2r + 1``
