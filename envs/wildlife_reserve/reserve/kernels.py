@@ -543,7 +543,7 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
         for i in range(blocks):
             row[maps + i] = block_staleness[u, i]
             row[maps + blocks + i] = belief[u, i]
-            row[maps + 2 * blocks + i] = sign_values[min(np.int64(sign_counts[u, i]), last_value)]
+            row[maps + 2 * blocks + i] = sign_values[min(int(sign_counts[u, i]), last_value)]
 
 
 @njit(cache=True)
@@ -865,7 +865,7 @@ def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: flo
 
 @njit(cache=True)
 def poaching_timers(poachers: np.ndarray, status: np.ndarray, leopards: np.ndarray, alive: np.ndarray,
-                    timer: np.ndarray, poaching_time: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+                    timer: np.ndarray, poaching_time: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.bool_]:
     # pragma: no cover - compiled
     """Which active poacher (``status == POACHER_ACTIVE``) is next to (Chebyshev distance <= 1) which live leopard
     ``(P, L)``, each poacher's timer (one more step if it is next to one, else 0), which timers reached

@@ -47,7 +47,7 @@ def pack_stamps(last: np.ndarray, first: np.ndarray, dtype: type) -> np.ndarray:
     step of an episode, compare as :data:`NEVER` and ``-NEVER`` do)."""
     info = np.iinfo(dtype)
     stamps = np.stack([last, first], axis=1)
-    packed = np.where(stamps < 0, 0, stamps).astype(dtype)  # (the sentinels set apart, not cast)
+    packed: np.ndarray = np.where(stamps < 0, 0, stamps).astype(dtype)  # (the sentinels set apart, not cast)
     packed[:, 0][last == NEVER], packed[:, 1][first == -NEVER] = info.min, info.max
     return packed
 
@@ -96,7 +96,7 @@ class TeamKnowledge:
         # Readings older than this carry less than 1e-3 of their weight and are dropped.
         self.horizon = np.log(1e-3) / np.log(belief_decay) if belief_decay < 1 else max_cycles
         # Cell-major and packed, (cell, last/first, UAV): the staleness reads every UAV's stamps of a few cells.
-        self._stamps = np.empty((self.cells_padded, 2, n), dtype=stamp_dtype(max_cycles))
+        self._stamps: np.ndarray = np.empty((self.cells_padded, 2, n), dtype=stamp_dtype(max_cycles))
         # Source-major, (UAV, block): the block staleness folds every block of one source at a time.
         self._block_last, self._block_first = (np.empty((n, n_blocks), dtype=np.float32) for _ in range(2))
         self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
@@ -230,8 +230,8 @@ class TeamKnowledge:
                         senders = _SENDERS[mask] = tuple(s for s in range(mask.bit_length()) if mask >> s & 1)
                     heard.append(senders)
                 return heard
-        senders, ends = senders_by_receiver(self.comm_links)
-        if not len(senders):
+        grouped, group_ends = senders_by_receiver(self.comm_links)
+        if not len(grouped):
             return [()] * self.n
-        senders, ends = senders.tolist(), ends.tolist()
-        return [tuple(senders[start:end]) for start, end in zip([0, *ends], ends)]
+        flat, ends = grouped.tolist(), group_ends.tolist()
+        return [tuple(flat[start:end]) for start, end in zip([0, *ends], ends)]

@@ -293,7 +293,7 @@ class ReserveParallelEnv(ParallelEnv):
             self._set_map(*self._static_map)
             self._map_arrays = self._map_state()
         else:
-            vars(self).update(self._map_arrays)
+            self.__dict__.update(self._map_arrays)
         self.visited = np.zeros(self._padded_shape, dtype=bool)
         self._n_covered = 0
 
@@ -307,7 +307,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.mode = int(mode)
         if self.weather not in self._sensing_tables:  # made once per weather (read-only for the episodes)
             self._sensing_tables[self.weather] = self._sensing_state(self.weather)
-        vars(self).update(self._sensing_tables[self.weather])
+        self.__dict__.update(self._sensing_tables[self.weather])
 
         # UAVs.
         if "uav_positions" in options:
@@ -478,7 +478,7 @@ class ReserveParallelEnv(ParallelEnv):
         look = (signs.grid.reshape(-1), signs.born, signs.expires, self._window.reshape(n, -1), self.t, airborne,
                 self._sign_table, self._terrain_pad)
         *candidates, signs.count = kernels.move_ground_actors_and_signs(ground, place, signs_lib.TRACK, look)
-        self.jammer_on = self.jammer_pos is not None and any_active  # the jammer works while poachers are in
+        self.jammer_on = self.jammer_pos is not None and bool(any_active)  # the jammer works while poachers are in
         if self.jammer_on:
             self.jammer_pos = self.poacher_pos[active].mean(axis=0)
         return tuple(candidates)
