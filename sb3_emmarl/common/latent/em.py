@@ -37,7 +37,6 @@ instead did worse online: 0.55 against 0.64 in the measurement that ``counts.COU
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +46,7 @@ import torch.nn.functional as F
 
 from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, check_rings, count_rates
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
+from sb3_emmarl.common.latent.parts import PartsMemory
 
 FIELDS = ("features", "actions", "next_features", "episodes")
 #: Decay per E-step of the count model's running sums.
@@ -75,10 +75,6 @@ class Transitions:
 
     def __len__(self) -> int:
         return len(self.features)
-
-    @staticmethod
-    def cat(parts: list[Transitions]) -> Transitions:
-        return Transitions(*(th.cat([getattr(p, name) for p in parts]) for name in FIELDS))
 
     @staticmethod
     def from_numpy(features: np.ndarray, actions: np.ndarray, next_features: np.ndarray, episodes: np.ndarray,
@@ -121,6 +117,11 @@ class EpisodeCounts:
         return EpisodeCounts(th.as_tensor(ids, device=device),
                              th.as_tensor(summed[:, 1:].reshape(len(ids), -1), dtype=th.float32, device=device),
                              th.as_tensor(summed[:, 0], dtype=th.float32, device=device))
+
+
+def _copy(tensor: th.Tensor) -> th.Tensor:
+    """A CPU copy of ``tensor`` (a view of the E-step's memory would carry its whole block into a checkpoint)."""
+    return tensor.detach().to("cpu", copy=True)
 
 
 def transition_log_likelihoods(model: LatentModel, data: Transitions) -> th.Tensor:
@@ -202,8 +203,9 @@ class EStep:
         self.model = latent_model
         self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
         self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
-        self.memory: deque[Transitions] = deque(maxlen=int(window))
-        self.count_memory: deque[EpisodeCounts | None] = deque(maxlen=int(window))  # beside each kept rollout
+        # The kept rollouts' transitions and reading counts, back to back in a few large tensors (see parts.py).
+        self.memory: PartsMemory[Transitions] = PartsMemory(Transitions, int(window))
+        self.count_memory: PartsMemory[EpisodeCounts] = PartsMemory(EpisodeCounts, int(window))  # beside each
         self.fresh = 0  # rollouts added since the last E-step
         #: the count model's memory of every episode (:meth:`_remember_counts`): sorted ``ids``, their summed ``counts``
         #: and ``exposure``, ``age`` (E-steps since their last reading) and the ``pooled`` readings and exposure
@@ -221,9 +223,9 @@ class EStep:
         ``state_dict``, so that SB3's ``save`` writes it with ``torch.save`` beside the policy's weights."""
         return {"optimizer": self.optimizer.state_dict(), "n_updates": self.n_updates,
                 "generator": self.generator.get_state(),
-                "memory": [{name: getattr(part, name).cpu() for name in FIELDS} for part in self.memory],
-                "count_memory": [None if part is None else [part.episodes.cpu(), part.counts.cpu(), part.exposure.cpu()]
-                                 for part in self.count_memory],
+                "memory": [{name: _copy(getattr(part, name)) for name in FIELDS} for part in self.memory],
+                "count_memory": [None if part is None else [_copy(part.episodes), _copy(part.counts),
+                                                            _copy(part.exposure)] for part in self.count_memory],
                 "fresh": self.fresh, "count_table": {name: value.cpu() for name, value in self.count_table.items()}}
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> None:
@@ -284,7 +286,10 @@ class EStep:
         return rows
 
     def _data(self) -> Transitions:
-        return Transitions.cat(list(self.memory))
+        """Every kept transition, oldest first (a view of the memory's blocks)."""
+        data = self.memory.contiguous()
+        assert data is not None  # (the E-step runs on a memory with transitions)
+        return data
 
     def responsibilities(self, data: Transitions) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
