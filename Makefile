@@ -21,7 +21,7 @@ main: install
 pytest:
 	$(PYTHON) -m pytest -n 2 tests
 
-test: install lint pytest
+test: install lint type pytest
 
 lint:
 	$(PYTHON) -m ruff check .
