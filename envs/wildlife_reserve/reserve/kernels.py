@@ -52,7 +52,7 @@ def known_ages(stamps: np.ndarray, knowledge: np.ndarray, cells: np.ndarray, t: 
         in one run of memory, 40 bytes at 10 UAVs in int16; the least value reads as an age of 1, as ``NEVER`` does,
         since the stamps are int16 only in episodes shorter than int16's greatest value)
     :param knowledge: ``(n, n)`` float32, ``knowledge[r, s]``
-    :param cells: ``(n, c)`` cell indices (into the first axis of ``last``) per receiver
+    :param cells: ``(n, c)`` cell indices (into the first axis of ``stamps``) per receiver
     """
     n, c = cells.shape
     ages = np.empty((n, c), dtype=np.float32)
@@ -356,8 +356,7 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
     """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
     one's own visit history of cells and blocks (``stamps[cell, 0, u] = t``, ``stamps[cell, 1, u] = min(first, t)``:
     the cells' stamps are packed cell-major, see :func:`known_ages`, the blocks' source-major,
-    ``block_last[u, block]``), set
-    its knowledge of itself to ``t``, and mark the team's coverage ``visited``.
+    ``block_last[u, block]``), set its knowledge of itself to ``t``, and mark the team's coverage ``visited``.
 
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
         once count for both), and the number of high-risk cells the team sees for the first time

@@ -47,7 +47,7 @@ def pack_stamps(last: np.ndarray, first: np.ndarray, dtype: type) -> np.ndarray:
     step of an episode, compare as :data:`NEVER` and ``-NEVER`` do)."""
     info = np.iinfo(dtype)
     stamps = np.stack([last, first], axis=1)
-    packed: np.ndarray = np.where(stamps < 0, 0, stamps).astype(dtype)  # (the sentinels set apart, not cast)
+    packed: np.ndarray = np.where(np.abs(stamps) >= -NEVER, 0, stamps).astype(dtype)  # (sentinels set apart, not cast)
     packed[:, 0][last == NEVER], packed[:, 1][first == -NEVER] = info.min, info.max
     return packed
 
