@@ -308,6 +308,22 @@ def test_episode_counts_from_observations_sum_the_per_step_counts():
     np.testing.assert_array_equal(grouped.episodes.numpy(), [5, 6, 7, 8])
     np.testing.assert_allclose(grouped.counts.numpy(), steps.counts.numpy(), rtol=1e-6)
     np.testing.assert_allclose(grouped.exposure.numpy(), steps.exposure.numpy(), rtol=1e-5)
+    # Blocks of augmented rows (extra columns after the observation, as the beliefs), read in place, with rows to skip
+    # (-1), give the sums of the kept rows stacked, to the bit.
+    augmented = np.concatenate([observations, rng.random((len(observations), 4), dtype=np.float32)], axis=1)
+    skipped = episodes.copy()
+    skipped[::3] = -1
+    kept = skipped >= 0
+    alone = EpisodeCounts.from_observations(counter, observations[kept], episodes[kept])
+    half = len(augmented) // 2
+    blocks = EpisodeCounts.from_observations(counter, (augmented[:half], augmented[half:][None]), skipped)
+    np.testing.assert_array_equal(blocks.episodes.numpy(), alone.episodes.numpy())
+    np.testing.assert_array_equal(blocks.counts.numpy(), alone.counts.numpy())
+    np.testing.assert_array_equal(blocks.exposure.numpy(), alone.exposure.numpy())
+    with pytest.raises(ValueError, match="one entry per observation"):
+        EpisodeCounts.from_observations(counter, (augmented[:half],), skipped)
+    with pytest.raises(ValueError, match="at least one block"):
+        EpisodeCounts.from_observations(counter, [], skipped[:0])
 
 
 def test_the_compiled_step_likelihood_equals_the_binned_counts_times_the_table():
@@ -336,6 +352,15 @@ def test_grouped_counts_reject_groups_that_do_not_fit(reserve):
     assert summed.shape == (3, 1 + counter.n_channels, counter.n_bins)
     np.testing.assert_allclose(summed[1], 3 * counter.grouped(observations[:1], [0])[0])
     assert not summed[[0, 2]].any()
+    # A row of group -1 is skipped; out accumulates (float64 of the right shape only).
+    np.testing.assert_allclose(counter.grouped(observations, [1, -1, 1], n_groups=3)[1], 2 * summed[1] / 3)
+    total = counter.grouped(observations[:1], [1], n_groups=3)
+    assert counter.grouped(observations[1:], [1, 1], out=total) is total
+    np.testing.assert_array_equal(total, summed)
+    with pytest.raises(ValueError, match=r"or be -1"):
+        counter.grouped(observations, [0, -2, 1], n_groups=2)
+    with pytest.raises(ValueError, match="out must be a float64 array of shape"):
+        counter.grouped(observations, [0, 0, 0], out=np.zeros((1, 1 + counter.n_channels, counter.n_bins), np.float32))
 
 
 def test_factored_rates_recover_planted_where_and_how_far_factors():

@@ -41,6 +41,7 @@ def test_policy_shapes_and_beliefs(continuous, k):
     np.testing.assert_allclose(model.posterior(obs).sum(-1), 1.0, rtol=1e-5)
     np.testing.assert_allclose(model.posterior(obs), np.exp(model.policy.latent_model.log_prior.numpy())[None].repeat(3, 0),
                                rtol=1e-5)  # nothing observed yet: the prior
+    assert not np.shares_memory(model.posterior(obs), obs)  # kept beliefs must not pin whole observation arrays
     for observation in (obs, obs[:, :OBS_DIM]):  # with the belief, and plain
         actions, _ = model.predict(observation)
         assert actions.shape == ((3, 3) if continuous else (3,))

@@ -133,11 +133,11 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         """The E-step's data from the rollout just collected: every step whose successor is in the same episode
         (the one after the rollout's last step is the algorithm's next observation)."""
         buffer = self.rollout_buffer
-        observations = np.concatenate([buffer.observations, self._last_obs[None]])
-        features = self._features(observations)
+        # The observations are not stacked with the last ones: that would copy the rollout's (220 MiB at 200 UAVs)
+        features = np.concatenate([self._features(buffer.observations), self._features(self._last_obs[None])])
         starts = np.concatenate([buffer.episode_starts, np.asarray(self._last_episode_starts, dtype=np.float32)[None]])
         return self._transitions(features[:-1], buffer.actions, features[1:], starts[:-1] > 0, starts[1:] == 0,
-                                 observations[1:])
+                                 (buffer.observations[1:], self._last_obs[None]))
 
     def train(self) -> None:
         """The E-step on the recent episodes (when there is a latent model), then PPO's update, the M-step

@@ -178,18 +178,19 @@ def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlu
 
 
 @njit(cache=True)
-def _grouped_counts(observations: np.ndarray, groups: np.ndarray, n_groups: int, own: int, window: int,
+def _grouped_counts(observations: np.ndarray, groups: np.ndarray, out: np.ndarray, own: int, window: int,
                     occlusion: int, channels: np.ndarray, height: int, width: int, blocks: np.ndarray,
                     width_padded: int, offsets: np.ndarray, ring: np.ndarray, n_rings: int,
                     n_bins: int) -> np.ndarray:  # pragma: no cover (compiled)
-    """``ReadingCounter.binned(*cells(observations), groups)`` without the off-map bin, in one pass:
-    ``(n_groups, 1 + channels, n_bins)``."""
+    """``ReadingCounter.binned(*cells(observations), groups)`` without the off-map bin, in one pass, added to ``out``
+    ``(n_groups, 1 + channels, n_bins)`` (returned); rows of a negative group are skipped."""
     cells = offsets.shape[0]
-    out = np.zeros((n_groups, 1 + channels.shape[0], n_bins))
     bins = np.empty(cells, dtype=np.int64)
     for i in range(observations.shape[0]):
-        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
         g = groups[i]
+        if g < 0:
+            continue
+        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
         for c in range(cells):
             b = bins[c]
             if b < 0:
@@ -304,23 +305,35 @@ class ReadingCounter:
         observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
         return _count_log_likelihood(observations, *self._geometry, np.ascontiguousarray(table, dtype=np.float64))
 
-    def grouped(self, observations: np.ndarray, groups: np.ndarray, n_groups: int | None = None) -> np.ndarray:
+    def grouped(self, observations: np.ndarray, groups: np.ndarray, n_groups: int | None = None,
+                out: np.ndarray | None = None) -> np.ndarray:
         """The exposures and counts of the observations in each group, by bin: ``(G, 1 + n_channels, n_bins)``, what
         :meth:`binned` of :meth:`cells` gives with ``groups`` (without the off-map bin), in one compiled pass (the
         E-step's per-episode sums of a rollout).
 
-        :param observations: ``(n, obs_dim)`` flat observations of the reserve
-        :param groups: ``(n,)`` ints in ``[0, n_groups)``
-        :param n_groups: ``G`` (None: ``max(groups) + 1``)
+        :param observations: ``(n, d)`` flat observations of the reserve (``d >= obs_dim``: columns after the
+            observation, as the beliefs of augmented observations, are not read, so no copy is made of them)
+        :param groups: ``(n,)`` ints in ``[0, n_groups)``, or -1 for a row to skip
+        :param n_groups: ``G`` (None: ``max(groups) + 1``, or ``len(out)``)
+        :param out: a float64 ``(G, 1 + n_channels, n_bins)`` array to add the sums to (returned), or None (zeros): the
+            sums of several blocks of rows, added in turn, equal those of the stacked blocks to the bit
         """
         observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
         groups = np.asarray(groups, dtype=np.int64).reshape(-1)
         if len(groups) != len(observations):
             raise ValueError(f"groups must have one entry per observation ({len(observations)}), got {len(groups)}")
-        n_groups = (int(groups.max()) + 1 if len(groups) else 0) if n_groups is None else int(n_groups)
-        if len(groups) and (groups.min() < 0 or groups.max() >= n_groups):
-            raise ValueError(f"groups must lie in [0, {n_groups}), got [{groups.min()}, {groups.max()}]")
-        return _grouped_counts(observations, groups, n_groups, *self._geometry, self.n_bins)
+        if n_groups is None:
+            n_groups = len(out) if out is not None else (int(groups.max()) + 1 if len(groups) else 0)
+        n_groups = int(n_groups)
+        if len(groups) and (groups.min() < -1 or groups.max() >= n_groups):
+            raise ValueError(f"groups must lie in [0, {n_groups}) or be -1 (skipped), got [{groups.min()}, "
+                             f"{groups.max()}]")
+        shape = (n_groups, 1 + self.n_channels, self.n_bins)
+        if out is None:
+            out = np.zeros(shape)
+        elif out.shape != shape or out.dtype != np.float64:
+            raise ValueError(f"out must be a float64 array of shape {shape}, got {out.dtype} {out.shape}")
+        return _grouped_counts(observations, groups, out, *self._geometry, self.n_bins)
 
     def binned(self, bins: np.ndarray, exposure: np.ndarray, readings: np.ndarray,
                groups: np.ndarray | None = None) -> np.ndarray:

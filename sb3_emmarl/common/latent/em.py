@@ -37,6 +37,7 @@ instead did worse online: 0.55 against 0.64 in the measurement that ``counts.COU
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -109,11 +110,30 @@ class EpisodeCounts:
         return EpisodeCounts(th.as_tensor(ids, device=device), summed(counts), summed(exposure))
 
     @staticmethod
-    def from_observations(counter: ReadingCounter, observations: np.ndarray, episodes: np.ndarray,
-                          device: th.device | str = "cpu") -> EpisodeCounts:
-        """The reading counts of ``observations`` ``(N, obs_dim)`` summed by their ``episodes`` ``(N,)``."""
-        ids, index = np.unique(np.asarray(episodes, dtype=np.int64), return_inverse=True)
-        summed = counter.grouped(observations, index, len(ids))
+    def from_observations(counter: ReadingCounter, observations: np.ndarray | Sequence[np.ndarray],
+                          episodes: np.ndarray, device: th.device | str = "cpu") -> EpisodeCounts:
+        """The reading counts of ``observations`` summed by their ``episodes``.
+
+        :param observations: ``(N, d)`` flat observations (``d >= obs_dim``: augmented ones are read in place), or
+            blocks ``(..., d)`` that stack to them row by row (a rollout's observations and the last ones, without
+            the copy that stacking them would make)
+        :param episodes: ``(N,)`` episode ids (>= 0), or -1 for a row to skip
+        """
+        episodes = np.asarray(episodes, dtype=np.int64).reshape(-1)
+        kept = episodes >= 0
+        ids, index = np.unique(episodes[kept], return_inverse=True)
+        groups = np.full(len(episodes), -1, dtype=np.int64)
+        groups[kept] = index
+        blocks = [observations] if isinstance(observations, np.ndarray) else list(observations)
+        if not blocks:
+            raise ValueError("observations must be an array or at least one block of rows")
+        summed, start = None, 0
+        for block in blocks:
+            rows = block.reshape(-1, block.shape[-1])
+            summed = counter.grouped(rows, groups[start:start + len(rows)], len(ids), out=summed)
+            start += len(rows)
+        if start != len(episodes):
+            raise ValueError(f"episodes must have one entry per observation ({start}), got {len(episodes)}")
         return EpisodeCounts(th.as_tensor(ids, device=device),
                              th.as_tensor(summed[:, 1:].reshape(len(ids), -1), dtype=th.float32, device=device),
                              th.as_tensor(summed[:, 0], dtype=th.float32, device=device))
