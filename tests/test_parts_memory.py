@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
+from sb3_emmarl.common.latent.em import FIELDS, EpisodeCounts, Transitions
 from sb3_emmarl.common.latent.parts import MIN_ROWS, PartsMemory
 
 
@@ -21,7 +21,7 @@ def assert_same(got, expected):
     if expected is None:
         assert got is None
         return
-    for name in ("features", "actions", "next_features", "episodes"):
+    for name in FIELDS:
         assert th.equal(getattr(got, name), getattr(expected, name))
 
 
@@ -44,8 +44,7 @@ def test_parts_come_back_as_a_deque_keeps_them_through_growth_and_compaction(max
         kept = [p for p in reference if p is not None]
         whole = memory.contiguous()
         if kept:
-            assert_same(whole, Transitions(*(th.cat([getattr(p, n) for p in kept]) for n in
-                                             ("features", "actions", "next_features", "episodes"))))
+            assert_same(whole, Transitions(*(th.cat([getattr(p, n) for p in kept]) for n in FIELDS)))
             assert memory.rows == sum(len(p) for p in kept)
         else:
             assert whole is None and memory.rows == 0
