@@ -148,3 +148,16 @@ def test_the_ray_backend_fills_the_store_as_the_local_backend_does(tmp_path):
                  r["episodes"]) for r in rows]
 
     assert len(content("local")) == 2 and content("local") == content("ray")
+
+
+def test_the_runner_compiles_the_kernels_for_every_reserve_of_a_condition_before_its_cells(monkeypatch):
+    from wildlife_reserve.reserve import reserve as reserve_module
+
+    from sb3_emmarl.experiments.runner import compile_for_condition
+
+    calls = []
+    monkeypatch.setattr(reserve_module, "compile_kernels", lambda **kwargs: calls.append(kwargs))
+    compile_for_condition(load_spec("table3_transfer"), "fine_tuned")
+    regions = [(c["region"], c["continuous_actions"]) for c in calls]
+    # Trained on the source, fine-tuned and evaluated on the target: each with discrete and continuous actions.
+    assert set(regions) == {("mixed", False), ("mixed", True), ("forest", False), ("forest", True)}

@@ -251,3 +251,37 @@ def test_heard_from_stays_right_when_its_cache_is_emptied(monkeypatch):
         np.fill_diagonal(team.comm_links, False)
         assert team.heard_from() == [tuple(np.flatnonzero(team.comm_links[:, r]).tolist()) for r in range(12)]
         assert len(knowledge._SENDERS) <= 4 + 12
+
+
+def test_compile_kernels_plays_once_per_arguments_and_touches_no_other_random_state(monkeypatch):
+    from wildlife_reserve.reserve import reserve as reserve_module
+
+    monkeypatch.setattr(reserve_module, "_COMPILED", set())
+    built = []
+    real = reserve_module.parallel_env
+
+    def counting(**kwargs):
+        built.append(kwargs)
+        return real(**kwargs)
+
+    monkeypatch.setattr(reserve_module, "parallel_env", counting)
+    np.random.seed(3)
+    before = np.random.get_state()[1].copy()
+    reserve_module.compile_kernels(n_uavs=3, max_cycles=30)
+    reserve_module.compile_kernels(max_cycles=30, n_uavs=3)  # the same arguments: nothing played
+    reserve_module.compile_kernels(n_uavs=3, max_cycles=30, continuous_actions=True)
+    assert built == [{"n_uavs": 3, "max_cycles": 30}, {"n_uavs": 3, "max_cycles": 30, "continuous_actions": True}]
+    assert np.array_equal(np.random.get_state()[1], before)
+    # Every kernel a step calls has machine code for both action types now.
+    for kernel in (kernels.decode_actions, kernels.fly_and_collide, kernels.move_ground_actors_and_signs,
+                   kernels.sense_and_poach, kernels.look_talk_and_observe):
+        assert kernel.signatures, kernel
+
+
+def test_compile_kernels_rejects_bad_arguments_as_the_reserve_does_and_remembers_nothing(monkeypatch):
+    from wildlife_reserve.reserve import reserve as reserve_module
+
+    monkeypatch.setattr(reserve_module, "_COMPILED", set())
+    with pytest.raises(ValueError, match="n_uavs"):
+        reserve_module.compile_kernels(n_uavs=0)
+    assert reserve_module._COMPILED == set()

@@ -133,9 +133,25 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
     return {"metrics": metrics, "episodes": records, "run_dir": str(folder)}
 
 
+def compile_for_condition(spec: ExperimentSpec, condition: str) -> None:
+    """Compile the reserve's kernels in this process for every reserve a cell of ``condition`` trains or is evaluated
+    on, with discrete and with continuous actions (an algorithm's YAML may ask for either), so that the cells' fresh
+    processes load them from numba's cache instead of each compiling them inside its timed training
+    (``wildlife_reserve.reserve.reserve.compile_kernels``)."""
+    from wildlife_reserve.reserve.reserve import compile_kernels
+
+    cond = spec.conditions[condition]
+    stages = [cond.train, cond.eval_kwargs] + ([cond.fine_tune["env_kwargs"]] if cond.fine_tune is not None else [])
+    for env_kwargs in stages:
+        for continuous in (False, True):
+            compile_kernels(**{**env_kwargs, "continuous_actions": continuous})
+
+
 def run_cell_process(spec_path: str, budget: str, algorithm: str, condition: str, seed: int,
                      root: str) -> dict[str, Any]:
-    """:func:`run_cell` in a fresh process (one torch thread); returns its result."""
+    """:func:`run_cell` in a fresh process (one torch thread), after :func:`compile_for_condition` in this one;
+    returns its result."""
+    compile_for_condition(load_spec(spec_path), condition)
     result_file = Path(root) / ".results" / f"{Path(spec_path).stem}-{budget}-{algorithm}-{condition}-{seed}.json"
     result_file.parent.mkdir(parents=True, exist_ok=True)
     result_file.unlink(missing_ok=True)

@@ -58,6 +58,7 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 from __future__ import annotations
 
 import functools
+import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -129,6 +130,43 @@ def parallel_env(**kwargs: Any) -> ReserveParallelEnv:
     :param kwargs: see :class:`~wildlife_reserve.reserve.config.ReserveConfig`
     """
     return ReserveParallelEnv(**kwargs)
+
+
+#: The arguments :func:`compile_kernels` has played an episode with in this process, and its lock.
+_COMPILED: set[str] = set()
+_COMPILING = threading.Lock()
+#: The steps :func:`compile_kernels` plays at most.
+COMPILE_STEPS = 1000
+
+
+def compile_kernels(**kwargs: Any) -> None:
+    """Compile the reserve's numba kernels for these arguments in this process (once per process and arguments).
+
+    numba compiles a kernel at its first call with each set of argument types and caches the machine code beside
+    ``kernels.py``: a process started after the cache is written loads it in well under a second, while processes
+    started before compile again, each for tens of seconds and some 175 MiB of peak memory (81 s and 390 MiB against
+    8 s and 215 MiB for a fresh process stepping the reserve, measured on a busy 2-core machine). Tools that time runs
+    in fresh processes (the paper's experiments, ``zoo/compare.py``, the benchmarks) call this in the parent first, so
+    that no run's time or peak memory counts the compilation. It plays one episode (at most :data:`COMPILE_STEPS`
+    steps) with actions drawn from seeded action spaces; nothing else's random state is touched.
+
+    :param kwargs: the reserve's arguments (see :class:`~wildlife_reserve.reserve.config.ReserveConfig`); invalid
+        ones raise ``ValueError`` as the environment does
+    """
+    key = repr(sorted(kwargs.items()))
+    with _COMPILING:
+        if key in _COMPILED:
+            return
+        reserve = parallel_env(**kwargs)
+        reserve.reset(seed=0)
+        for i, agent in enumerate(reserve.possible_agents):
+            reserve.action_space(agent).seed(i)
+        for _ in range(COMPILE_STEPS):
+            if not reserve.agents:
+                break
+            reserve.step({agent: reserve.action_space(agent).sample() for agent in reserve.agents})
+        reserve.close()
+        _COMPILED.add(key)
 
 
 class ReserveParallelEnv(ParallelEnv):
