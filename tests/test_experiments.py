@@ -151,9 +151,8 @@ def test_the_ray_backend_fills_the_store_as_the_local_backend_does(tmp_path):
 
 
 def test_the_runner_compiles_the_kernels_for_every_reserve_of_a_condition_before_its_cells(monkeypatch):
-    from wildlife_reserve.reserve import reserve as reserve_module
-
     from sb3_emmarl.experiments.runner import compile_for_condition
+    from wildlife_reserve.reserve import reserve as reserve_module
 
     calls = []
     monkeypatch.setattr(reserve_module, "compile_kernels", lambda **kwargs: calls.append(kwargs))
