@@ -37,8 +37,7 @@ from em_speed import build, zoo_settings
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve.reserve.reserve import compile_kernels
+from sb3_emmarl.common.vec_env import compile_reserve, make_vec_env
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -182,7 +181,7 @@ def team_sizes(n: int, sizes: list[int], vec_env: str, threads: int = 1) -> None
     first = None
     with tempfile.TemporaryDirectory() as folder:
         for uavs in sizes:
-            compile_kernels(n_uavs=uavs)  # so that no run's time or peak memory counts numba compiling the kernels
+            compile_reserve({"n_uavs": uavs})  # so that no run's time or peak memory counts numba compiling the kernels
             cmd = [sys.executable, "zoo/train.py", "--algo", "ppo", "-n", str(n), "--seed", "0", "-f", folder,
                    "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--vec-env", vec_env,
                    "--num-threads", str(threads), "--env-kwargs", f"n_uavs:{uavs}"]

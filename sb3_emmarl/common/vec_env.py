@@ -790,6 +790,20 @@ class FiniteCheck(VecCheckNan):
                                      f"{self.SOURCES[event]}")
 
 
+def compile_reserve(env_kwargs: dict[str, Any] | None = None) -> None:
+    """Compile the reserve's numba kernels in this process for training runs on ``env_kwargs``, with discrete and with
+    continuous actions (an algorithm's YAML may ask for either), so that runs started afterwards in fresh processes
+    load them from numba's cache instead of compiling them inside their timed training
+    (:func:`wildlife_reserve.reserve.reserve.compile_kernels`, once per process and arguments).
+
+    :param env_kwargs: the reserve's arguments, as ``--env-kwargs`` gives them
+    """
+    from wildlife_reserve.reserve.reserve import compile_kernels
+
+    for continuous in (False, True):
+        compile_kernels(**{**(env_kwargs or {}), "continuous_actions": continuous})
+
+
 def make_vec_env(
     n_copies: int = 1,
     seed: int | None = None,

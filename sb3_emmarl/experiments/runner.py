@@ -135,16 +135,14 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
 
 def compile_for_condition(spec: ExperimentSpec, condition: str) -> None:
     """Compile the reserve's kernels in this process for every reserve a cell of ``condition`` trains or is evaluated
-    on, with discrete and with continuous actions (an algorithm's YAML may ask for either), so that the cells' fresh
-    processes load them from numba's cache instead of each compiling them inside its timed training
-    (``wildlife_reserve.reserve.reserve.compile_kernels``)."""
-    from wildlife_reserve.reserve.reserve import compile_kernels
+    on (:func:`~sb3_emmarl.common.vec_env.compile_reserve`), so that the cells' fresh processes load them from numba's
+    cache instead of each compiling them inside its timed training."""
+    from sb3_emmarl.common.vec_env import compile_reserve
 
     cond = spec.conditions[condition]
     stages = [cond.train, cond.eval_kwargs] + ([cond.fine_tune["env_kwargs"]] if cond.fine_tune is not None else [])
     for env_kwargs in stages:
-        for continuous in (False, True):
-            compile_kernels(**{**env_kwargs, "continuous_actions": continuous})
+        compile_reserve(env_kwargs)
 
 
 def run_cell_process(spec_path: str, budget: str, algorithm: str, condition: str, seed: int,

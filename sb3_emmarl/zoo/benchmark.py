@@ -18,11 +18,11 @@ from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import plain, read_yaml, zoo_hyperparams
-from wildlife_reserve.reserve.reserve import compile_kernels
 
 #: Metrics in the comparison table.
 TABLE_METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "poaching_events", "collisions")
@@ -363,10 +363,7 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
 
     folder = str(run_folder(args, name, seed))
     if run is None:
-        # Compiled here once, the reserve's kernels load from numba's cache in the run instead of compiling inside
-        # its timed training (with either action type: the variant's YAML may ask for continuous actions).
-        for continuous in (False, True):
-            compile_kernels(**{**(args.env_kwargs or {}), "continuous_actions": continuous})
+        compile_reserve(args.env_kwargs)  # so that the run's timed training does not compile the reserve's kernels
         env_flags = ["--env-kwargs", *[f"{k}:{v!r}" for k, v in (args.env_kwargs or {}).items()]] \
             if args.env_kwargs else []
         command = [sys.executable, "-m", "sb3_emmarl.zoo.train", "--algo", algo, "-n", str(args.n_timesteps),
