@@ -5,7 +5,7 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_emmarl.common.vec_env import ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
+from sb3_emmarl.common.vec_env import POLL_SECONDS, ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
 from wildlife_reserve import reserve_v0
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 25}
@@ -251,6 +251,46 @@ def test_batched_copies_split_over_processes_give_the_same_data(env_kwargs, with
     split = record("batched", env_kwargs, 150, n_copies=3, with_state=with_state, num_cpus=num_cpus)
     assert sum(int(step[2].any()) for step in split[2:]) >= 2
     assert_same(split, record("batched", env_kwargs, 150, n_copies=3, with_state=with_state))
+
+
+def test_a_polled_receive_reads_every_message_rung_or_not():
+    import multiprocessing
+    import time
+
+    from sb3_emmarl.common.vec_env import _receive_polled
+
+    sender, receiver = multiprocessing.Pipe()
+    bell = np.zeros(2, dtype=np.int64)
+    sender.send("rung")
+    bell[0] += 1
+    start = time.perf_counter()
+    assert _receive_polled(receiver, bell, 0, 0, 30.0) == "rung"  # the bell ends the polling at once
+    assert time.perf_counter() - start < 10.0
+    sender.send("unrung")  # no bell: read from the pipe once the polling gives up
+    start = time.perf_counter()
+    assert _receive_polled(receiver, bell, 0, 1, 0.05) == "unrung"
+    assert time.perf_counter() - start >= 0.05
+    sender.send("blocking")
+    assert _receive_polled(receiver, bell, 0, 1, 0.0) == "blocking"
+
+
+def test_the_doorbells_count_every_message_and_polling_needs_a_cpu_per_process():
+    import os
+
+    venv = make_vec_env(2, seed=0, env_kwargs=SMALL, num_cpus=2)
+    try:
+        split = venv.unwrapped.venv
+        venv.reset()
+        (sent, replied), = split._bells.tolist()
+        assert replied == sent + 1 and split._received == [replied]  # every command answered, start-up included
+        for _ in range(30):  # across automatic resets (25 steps)
+            venv.step(np.zeros(6, dtype=np.int64))
+        venv.get_attr("t")
+        assert split._bells.tolist() == [[sent + 31, replied + 31]] and split._received == [replied + 31]
+        cpus = len(os.sched_getaffinity(0))
+        assert split.poll_seconds == (POLL_SECONDS if cpus >= 2 else 0.0)
+    finally:
+        venv.close()
 
 
 def test_the_state_switched_on_reaches_the_worker_processes():

@@ -28,7 +28,9 @@ instead of SuperSuit: the same data, step for step and seed for seed, without th
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import pickle
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -57,6 +59,12 @@ STATE_KEY, TERMINAL_STATE_KEY = "state", "terminal_state"
 #: after an automatic reset), and at an episode's end the links of its last step (SuperSuit's automatic reset would
 #: otherwise overwrite them with the new episode's empty ones).
 LINKS_KEY, TERMINAL_LINKS_KEY = "heard_from", "terminal_heard_from"
+
+#: Seconds a waiting side of the split batched path (:class:`_SplitCopies`) polls its doorbell in shared memory before
+#: it blocks on its pipe: on this project's 2-core virtual machine a blocking pipe round trip took 263 us (each side
+#: wakes a halted virtual CPU), a polled one 34 us. Long enough for a worker to wait through the policy's forward pass
+#: between two steps; during a gradient update it then sleeps. No polling when the processes outnumber the CPUs.
+POLL_SECONDS = 0.02
 
 
 class _ReserveCopy(MarkovVectorEnv):
@@ -412,18 +420,39 @@ class _SteppedCopies:
         return self
 
 
+def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, seconds: float) -> Any:
+    """``pipe.recv()``, after polling for up to ``seconds`` until the doorbell ``bell[side]`` (the count of messages the
+    other side sent, rung after each send) passes ``received`` (the messages read so far). The doorbell only tells
+    when to read: the pipe carries every message, and a reader that stopped polling blocks on it as before."""
+    if seconds > 0 and bell[side] <= received:
+        deadline = time.perf_counter() + seconds
+        while bell[side] <= received and time.perf_counter() < deadline:
+            pass
+    return pipe.recv()
+
+
 def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, buffers: tuple,
-                   shape: tuple[int, int], start: int) -> None:
+                   shape: tuple[int, int], start: int, bells: Any = None, index: int = 0,
+                   poll_seconds: float = 0.0) -> None:
     """A worker process of :class:`_SplitCopies`: ``n_copies`` reserves stepped through :class:`_SteppedCopies`,
     their observations, rewards and dones written to the shared ``buffers`` from entry ``start`` on, their infos
-    (or the error that stopped them) sent back through ``pipe``."""
+    (or the error that stopped them) sent back through ``pipe``. Its doorbells are row ``index`` of ``bells``
+    (see :class:`_SplitCopies`): it polls column 0 for commands, for up to ``poll_seconds``, and rings column 1."""
+    bell = np.zeros(2, dtype=np.int64) if bells is None else _bells(bells)[index]
+
+    def send(message: tuple) -> None:
+        pipe.send(message)
+        bell[1] += 1
+
     try:
         copies = _SteppedCopies([env_fn() for _ in range(n_copies)], action_space, with_state)
         entries = slice(start, start + n_copies * copies.n)
         out = tuple(view[entries] for view in _shared_views(buffers, shape))
-        pipe.send(("ok", None))
+        send(("ok", None))
+        received = 0
         while True:
-            command, data = pipe.recv()
+            command, data = _receive_polled(pipe, bell, 0, received, poll_seconds)
+            received += 1
             reply: Any = None
             if command == "step":
                 copies.step_async(data)
@@ -444,22 +473,28 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
                 try:
                     reply = [_apply(copies.envs[i], kind, name, payload) for i in indices]
                 except Exception as error:  # the caller's to handle (an AttributeError, say); the copies carry on
-                    pipe.send(("raise", error))
+                    send(("raise", error))
                     continue
             elif command == "render":
                 reply = copies.render()
             elif command == "close":
                 copies.close()
-                pipe.send(("ok", None))
+                send(("ok", None))
                 return
-            pipe.send(("ok", reply))
+            send(("ok", reply))
     except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the main process reports it
         return
     except BaseException:  # anything that stops the worker goes back to the main process
         try:
-            pipe.send(("error", traceback.format_exc()))
+            send(("error", traceback.format_exc()))
         except (BrokenPipeError, EOFError, OSError):
             pass
+
+
+def _bells(buffer: Any) -> np.ndarray:
+    """The doorbells of :class:`_SplitCopies` in the shared ``buffer``: ``(workers, 2)`` int64 counts of the messages
+    sent to each worker (column 0) and by it (column 1)."""
+    return np.frombuffer(buffer, dtype=np.int64).reshape(-1, 2)
 
 
 def _shared_views(buffers: tuple, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
@@ -477,6 +512,10 @@ class _SplitCopies:
     (each copy draws from its own generators). Hand-written because SuperSuit's ``ProcConcatVec`` writes the
     observations entry by entry and deep-copies every info dict (together more than the stepping itself at 10
     UAVs) and cannot hand its copies to a checkpoint.
+
+    Beside each pipe, two doorbells in shared memory count the messages each side sent; a side that waits for a
+    message polls its doorbell for up to :data:`POLL_SECONDS` before it blocks on the pipe (a hand-off without the
+    wake-up of a sleeping process; SB3's ``SubprocVecEnv`` blocks).
 
     :param env_fn: builds one reserve (picklable with cloudpickle: the workers are started as SB3's
         ``SubprocVecEnv`` starts them, with ``forkserver`` or ``spawn``, so scripts need ``if __name__ == "__main__":``)
@@ -508,6 +547,11 @@ class _SplitCopies:
         buffers = (context.RawArray("b", total * self.obs_dim * 4), context.RawArray("b", total * 4),
                    context.RawArray("b", total), context.RawArray("b", total))
         self._shared = _shared_views(buffers, (total, self.obs_dim))
+        bells = context.RawArray("b", 16 * max(n_groups - 1, 1))
+        self._bells = _bells(bells)
+        self._received = [0] * (n_groups - 1)  # the replies read from each worker
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.poll_seconds = POLL_SECONDS if n_groups <= cpus else 0.0  # polling beside a busy CPU would slow it
         self.pipes: list[Any] = []
         self.processes: list[Any] = []
         try:
@@ -516,7 +560,8 @@ class _SplitCopies:
                 process = context.Process(
                     target=_copies_worker, daemon=True, args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space,
                                                               with_state, buffers, (total, self.obs_dim),
-                                                              self.bounds[g] * self.n),
+                                                              self.bounds[g] * self.n, bells, g - 1,
+                                                              self.poll_seconds),
                     name=f"reserve-copies-{self.bounds[g]}-{self.bounds[g + 1] - 1}")
                 self.pipes.append(parent)
                 self.processes.append(process)
@@ -551,13 +596,16 @@ class _SplitCopies:
             self.pipes[g - 1].send((command, data))
         except OSError as error:  # BrokenPipeError among them
             raise self._died(g) from error
+        self._bells[g - 1, 0] += 1
 
     def _receive(self, g: int) -> Any:
         """The reply of group ``g``'s worker; a :class:`RuntimeError` naming its copies if it failed or died."""
         try:
-            status, reply = self.pipes[g - 1].recv()
+            status, reply = _receive_polled(self.pipes[g - 1], self._bells[g - 1], 1, self._received[g - 1],
+                                            self.poll_seconds)
         except (EOFError, OSError) as error:
             raise self._died(g) from error
+        self._received[g - 1] += 1
         if status == "error":
             raise RuntimeError(f"the worker process of reserve copies {self.bounds[g]}-{self.bounds[g + 1] - 1} "
                                f"failed:\n{reply}")
@@ -665,6 +713,7 @@ class _SplitCopies:
             try:
                 if process.is_alive():
                     pipe.send(("close", None))
+                    self._bells[self.pipes.index(pipe), 0] += 1
                     if pipe.poll(10.0):
                         pipe.recv()
             except (BrokenPipeError, EOFError, OSError):
