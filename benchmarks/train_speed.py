@@ -29,6 +29,7 @@ import sys
 import tempfile
 import time
 import tracemalloc
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,8 @@ from em_speed import build, zoo_settings
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from sb3_emmarl.common.vec_env import compile_reserve, make_vec_env
+from sb3_emmarl.common.vec_env import ReserveVecEnv, compile_reserve, make_vec_env
+from wildlife_reserve import reserve_v0
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,10 +135,15 @@ def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None)
 
 
 def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, trace: bool = False,
-               num_cpus: int = 0) -> float:
+               num_cpus: int = 0, poll_seconds: float | None = None) -> float:
     if trace:
         tracemalloc.start()
-    venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type, num_cpus=num_cpus)
+    if poll_seconds is None:
+        venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type, num_cpus=num_cpus)
+    else:  # the batched path with the given polling (make_vec_env leaves it at its default)
+        venv = VecMonitor(ReserveVecEnv(partial(reserve_v0.parallel_env, **env_kwargs), n_copies=n_copies,
+                                        num_cpus=num_cpus, poll_seconds=poll_seconds))
+        venv.seed(0)
     venv.reset()
     rng = np.random.default_rng(0)
     actions = rng.integers(0, venv.action_space.n, (64, venv.num_envs))
@@ -156,19 +163,29 @@ def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, t
 
 def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> None:
     sizes = [(c, 10, {}) for c in copies] + [(1, u, {"n_uavs": u, "grid_size": 200}) for u in large_teams]
-    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3); batched and "
-          "supersuit in one process, subproc: the batched copies split over this process and one worker (two cores; "
-          "memory: this process's allocations only)")
-    print(f"{'copies':>7}{'UAVs':>6}{'batched /s':>13}{'subproc /s':>13}{'supersuit /s':>15}{'ratio':>7}"
-          f"{'batched MiB':>13}{'supersuit MiB':>15}")
+    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3 turns, the paths "
+          "taking turns); batched and supersuit in one process, subproc: the batched copies split over this process "
+          "and one worker (two cores; blocking: the same without polling, poll_seconds=0; memory: this process's "
+          "allocations only)")
+    print(f"{'copies':>7}{'UAVs':>6}{'batched /s':>13}{'subproc /s':>13}{'blocking /s':>13}{'supersuit /s':>15}"
+          f"{'ratio':>7}{'batched MiB':>13}{'supersuit MiB':>15}")
     for copies, uavs, kwargs in sizes:
         steps = max(50, agent_steps // (copies * uavs))
-        rates = {path: np.median([_step_rate(path, copies, kwargs, steps) for _ in range(3)])
-                 for path in ("batched", "supersuit")}
-        split = np.median([_step_rate("batched", copies, kwargs, steps, num_cpus=2) for _ in range(3)]) \
-            if copies > 1 else float("nan")
+        # The paths take turns, three times (the machine's load moves): (vec_env_type, num_cpus, poll_seconds)
+        paths = {"batched": ("batched", 0, None), "supersuit": ("supersuit", 0, None)}
+        if copies > 1:
+            paths.update(subproc=("batched", 2, None), blocking=("batched", 2, 0.0))
+        turns: dict[str, list[float]] = {path: [] for path in paths}
+        for _ in range(3):
+            for path, (vec_env_type, num_cpus, poll) in paths.items():
+                turns[path].append(_step_rate(vec_env_type, copies, kwargs, steps, num_cpus=num_cpus,
+                                              poll_seconds=poll))
+        rates = {path: float(np.median(turns[path])) if path in turns else float("nan")
+                 for path in ("batched", "supersuit", "subproc", "blocking")}
+        split, blocking = rates["subproc"], rates["blocking"]
         memory = {path: _step_rate(path, copies, kwargs, 50, trace=True) for path in ("batched", "supersuit")}
-        print(f"{copies:>7}{uavs:>6}{rates['batched']:>13,.0f}{split:>13,.0f}{rates['supersuit']:>15,.0f}"
+        print(f"{copies:>7}{uavs:>6}{rates['batched']:>13,.0f}{split:>13,.0f}{blocking:>13,.0f}"
+              f"{rates['supersuit']:>15,.0f}"
               f"{rates['batched'] / rates['supersuit']:>7.2f}{memory['batched']:>13.1f}{memory['supersuit']:>15.1f}",
               flush=True)
 

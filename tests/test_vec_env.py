@@ -1,5 +1,7 @@
 """The parameter-sharing vector environment, and each SuperSuit 3.11 SB3-adapter fault pinned down."""
 
+from functools import partial
+
 import numpy as np
 import pytest
 from stable_baselines3 import PPO
@@ -291,6 +293,17 @@ def test_the_doorbells_count_every_message_and_polling_needs_a_cpu_per_process()
         assert split.poll_seconds == (POLL_SECONDS if cpus >= 2 else 0.0)
     finally:
         venv.close()
+    blocking = ReserveVecEnv(partial(reserve_v0.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=0)
+    try:
+        assert blocking.venv.poll_seconds == 0.0
+        blocking.seed(0)
+        blocking.reset()
+        blocking.step(np.zeros(6, dtype=np.int64))
+    finally:
+        blocking.close()
+    for bad in (-1.0, float("nan"), float("inf"), "0.1", True):
+        with pytest.raises(ValueError, match=f"poll_seconds must be None or a finite number >= 0, got {bad!r}"):
+            ReserveVecEnv(partial(reserve_v0.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=bad)
 
 
 def test_the_state_switched_on_reaches_the_worker_processes():
@@ -409,6 +422,9 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
     rows = [line.split() for line in out.splitlines()]
     assert [row[:2] for row in rows if row[:2] in (["1", "10"], ["3", "10"], ["1", "20"])] == \
         [["1", "10"], ["3", "10"], ["1", "20"]]
+    split = next(row for row in rows if row[:2] == ["3", "10"])  # subproc and blocking measured at 3 copies
+    assert len(split) == 9 and all(float(value.replace(",", "")) > 0 for value in split[2:5])
+    assert next(row for row in rows if row[:2] == ["1", "10"])[3:5] == ["nan", "nan"]
     assert any(row[:1] == ["2"] and row[3] == "1.00" for row in rows)  # the zoo run, against itself
 
 

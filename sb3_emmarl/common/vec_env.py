@@ -523,10 +523,12 @@ class _SplitCopies:
     :param n_groups: number of groups (this process and ``n_groups - 1`` workers), at most ``n_copies``
     :param action_space: one agent's action space
     :param with_state: the global state in the infos
+    :param poll_seconds: how long a waiting side polls its doorbell (0: block on the pipe at once, as SB3's
+        ``SubprocVecEnv``); None: :data:`POLL_SECONDS`, or 0 when the processes outnumber the CPUs
     """
 
     def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int, n_groups: int, action_space: Any,
-                 with_state: bool) -> None:
+                 with_state: bool, poll_seconds: float | None = None) -> None:
         sizes = [len(group) for group in np.array_split(np.arange(n_copies), n_groups)]
         self.bounds = np.cumsum([0, *sizes]).tolist()  # copies [bounds[g], bounds[g + 1]) form group g
         self.local = _SteppedCopies([env_fn() for _ in range(sizes[0])], action_space, with_state)
@@ -550,8 +552,10 @@ class _SplitCopies:
         bells = context.RawArray("b", 16 * max(n_groups - 1, 1))
         self._bells = _bells(bells)
         self._received = [0] * (n_groups - 1)  # the replies read from each worker
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.poll_seconds = POLL_SECONDS if n_groups <= cpus else 0.0  # polling beside a busy CPU would slow it
+        if poll_seconds is None:
+            cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+            poll_seconds = POLL_SECONDS if n_groups <= cpus else 0.0  # polling beside a busy CPU would slow it
+        self.poll_seconds = float(poll_seconds)
         self.pipes: list[Any] = []
         self.processes: list[Any] = []
         try:
@@ -740,10 +744,17 @@ class ReserveVecEnv(SharedPolicyVecEnv):
     :param n_copies: number of independent copies
     :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`)
     :param num_cpus: processes stepping the copies (0 or 1: this one alone; at most one per copy)
+    :param poll_seconds: with ``num_cpus > 1``, how long this process and the workers poll for each other's messages
+        in shared memory before they block on their pipes (0: block at once); None: :data:`POLL_SECONDS`, or 0 when
+        the processes outnumber the CPUs
     """
 
     def __init__(self, env_fn: Callable[[], ParallelEnv], n_copies: int = 1, with_state: bool = False,
-                 num_cpus: int = 0) -> None:
+                 num_cpus: int = 0, poll_seconds: float | None = None) -> None:
+        if poll_seconds is not None and (isinstance(poll_seconds, bool) or not isinstance(poll_seconds, (int, float))
+                                         or not 0 <= poll_seconds < float("inf")):
+            raise ValueError(f"poll_seconds must be None or a finite number >= 0, got {poll_seconds!r}")
+        self.poll_seconds = poll_seconds
         super().__init__(env_fn, n_copies=n_copies, num_cpus=num_cpus, with_state=with_state)
 
     def _check_batchable(self) -> None:
@@ -758,7 +769,7 @@ class ReserveVecEnv(SharedPolicyVecEnv):
     def _worker_copies(self, env_fn: Callable[[], ParallelEnv], num_cpus: int, observation_space: Any,
                        action_space: Any) -> Any:
         self._check_batchable()
-        return _SplitCopies(env_fn, self.n_copies, num_cpus, action_space, self.with_state)
+        return _SplitCopies(env_fn, self.n_copies, num_cpus, action_space, self.with_state, self.poll_seconds)
 
     def _par_envs(self) -> list[ParallelEnv]:
         return list(self.venv.envs)
