@@ -161,9 +161,9 @@ def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, t
     return steps * venv.num_envs / elapsed
 
 
-def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> None:
+def stepping(agent_steps: int, copies: list[int], large_teams: list[int], turns: int = 3) -> None:
     sizes = [(c, 10, {}) for c in copies] + [(1, u, {"n_uavs": u, "grid_size": 200}) for u in large_teams]
-    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of 3 turns, the paths "
+    print(f"\nRaw stepping, random actions, about {agent_steps:,} agent-steps each (median of {turns} turns, the paths "
           "taking turns); batched and supersuit in one process, subproc: the batched copies split over this process "
           "and one worker (two cores; blocking: the same without polling, poll_seconds=0; memory: this process's "
           "allocations only)")
@@ -171,16 +171,16 @@ def stepping(agent_steps: int, copies: list[int], large_teams: list[int]) -> Non
           f"{'ratio':>7}{'batched MiB':>13}{'supersuit MiB':>15}")
     for copies, uavs, kwargs in sizes:
         steps = max(50, agent_steps // (copies * uavs))
-        # The paths take turns, three times (the machine's load moves): (vec_env_type, num_cpus, poll_seconds)
+        # The paths take turns, `turns` times (the load on the machine moves): (vec_env_type, num_cpus, poll_seconds)
         paths = {"batched": ("batched", 0, None), "supersuit": ("supersuit", 0, None)}
         if copies > 1:
             paths.update(subproc=("batched", 2, None), blocking=("batched", 2, 0.0))
-        turns: dict[str, list[float]] = {path: [] for path in paths}
-        for _ in range(3):
+        measured: dict[str, list[float]] = {path: [] for path in paths}
+        for _ in range(turns):
             for path, (vec_env_type, num_cpus, poll) in paths.items():
-                turns[path].append(_step_rate(vec_env_type, copies, kwargs, steps, num_cpus=num_cpus,
-                                              poll_seconds=poll))
-        rates = {path: float(np.median(turns[path])) if path in turns else float("nan")
+                measured[path].append(_step_rate(vec_env_type, copies, kwargs, steps, num_cpus=num_cpus,
+                                                 poll_seconds=poll))
+        rates = {path: float(np.median(measured[path])) if path in measured else float("nan")
                  for path in ("batched", "supersuit", "subproc", "blocking")}
         split, blocking = rates["subproc"], rates["blocking"]
         memory = {path: _step_rate(path, copies, kwargs, 50, trace=True) for path in ("batched", "supersuit")}
@@ -221,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-copies", type=int, default=None,
                         help="reserve copies of the training part (default: the zoo YAML's n_envs, 4)")
     parser.add_argument("--step-agent-steps", type=int, default=100_000, help="agent-steps per raw stepping measure")
+    parser.add_argument("--step-turns", type=int, default=3, help="turns of each path in raw stepping (median)")
     parser.add_argument("--copies", type=int, nargs="*", default=[1, 4, 16, 64], help="copies of 10 UAVs stepped raw")
     parser.add_argument("--large-teams", type=int, nargs="*", default=[50, 200],
                         help="UAVs of the one-copy raw stepping runs on 200 x 200 cells")
@@ -233,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--num-threads", type=int, default=1,
                         help="torch threads of the training part and the zoo runs (the zoo's --num-threads; default 1)")
     args = parser.parse_args(argv)
-    for name in ("n_timesteps", "rounds", "step_agent_steps", "team_n"):
+    for name in ("n_timesteps", "rounds", "step_agent_steps", "step_turns", "team_n"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     for name in ("copies", "large_teams", "team_sizes"):
@@ -247,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     if "training" not in args.skip:
         training(args.algos, args.n_timesteps, args.rounds, args.n_copies)
     if "stepping" not in args.skip:
-        stepping(args.step_agent_steps, args.copies, args.large_teams)
+        stepping(args.step_agent_steps, args.copies, args.large_teams, args.step_turns)
     if args.team_sizes:
         team_sizes(args.team_n, args.team_sizes, args.vec_env, args.num_threads)
     return 0

@@ -434,6 +434,9 @@ def test_the_train_speed_benchmark_rejects_a_bad_thread_count(capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_benchmark("train_speed").main(["--num-threads", "0"])
     assert exit_info.value.code == 2 and "--num-threads must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        load_benchmark("train_speed").main(["--step-turns", "0"])
+    assert exit_info.value.code == 2 and "--step-turns must be >= 1, got 0" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("algo", ["em_ppo", "mappo", "qmix"])
