@@ -193,3 +193,21 @@ def test_optimize_runs_optuna_trials_into_a_sqlite_study(tmp_path):
                        "--eval-episodes", "1", "--no-optim-plots", *TINY]) == 0
     study = optuna.load_study(study_name="ppo-WildlifeReserve-v0", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
     assert len(study.trials) == 2 and all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+
+
+def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path, monkeypatch):
+    """The training reserve's and (when different) the evaluation reserve's kernels are compiled before the clock of
+    ``run_stats.json`` starts, not inside the training (on a fresh machine that took tens of seconds of it)."""
+    from sb3_emmarl.zoo import cli
+
+    events = []
+    monkeypatch.setattr(cli, "compile_reserve", lambda env_kwargs: events.append(("compile", dict(env_kwargs))))
+    learn = exp_manager.ReserveExperimentManager.learn
+    monkeypatch.setattr(exp_manager.ReserveExperimentManager, "learn",
+                        lambda self, model: (events.append(("learn",)), learn(self, model))[1])
+    assert train_main(["--algo", "ppo", "-n", "64", "--seed", "1", "-f", str(tmp_path), "--eval-freq", "-1",
+                       "--team-eval-episodes", "0", "--verbose", "0", "-params", "n_steps:32", "batch_size:64", *TINY,
+                       "--eval-env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40", "adversarial:True"]) == 0
+    train_kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
+    assert [event[0] for event in events] == ["compile", "compile", "learn"]
+    assert train_kwargs.items() <= events[0][1].items() and events[1][1] == {**events[0][1], "adversarial": True}

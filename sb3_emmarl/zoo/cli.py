@@ -36,7 +36,7 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
-from sb3_emmarl.common.vec_env import VEC_ENV_TYPES
+from sb3_emmarl.common.vec_env import VEC_ENV_TYPES, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from wildlife_reserve import reserve_v0
 
@@ -217,6 +217,11 @@ def _remove_run_folder(manager: Any) -> None:
         algo_folder.rmdir()
 
 
+def _distinct(*items: dict) -> list[dict]:
+    """``items`` without repeats, in order (dicts are unhashable)."""
+    return [item for k, item in enumerate(items) if item not in items[:k]]
+
+
 def train_main(argv: list[str] | None = None) -> int:
     """Train, save the run in rl-zoo's layout, and print the team metrics of an evaluation on seeded episodes
     (actions sampled, as ``evaluate_team`` does)."""
@@ -268,6 +273,8 @@ def train_main(argv: list[str] | None = None) -> int:
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
+    for env_kwargs in _distinct(manager.env_kwargs, manager.eval_env_kwargs):
+        compile_reserve(env_kwargs)  # numba compiles (or loads) the reserve's kernels here, not in the timed training
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
         manager.learn(model)
