@@ -278,17 +278,25 @@ def test_a_polled_receive_reads_every_message_rung_or_not():
 
 def test_the_doorbells_count_every_message_and_polling_needs_a_cpu_per_process():
     import os
+    import time
 
     venv = make_vec_env(2, seed=0, env_kwargs=SMALL, num_cpus=2)
     try:
         split = venv.unwrapped.venv
+
+        def settled():  # the worker rings after its reply is sent: wait for the ring of the last reply read
+            deadline = time.monotonic() + 10.0
+            while split._bells[0, 1] < split._received[0] and time.monotonic() < deadline:
+                time.sleep(0.001)
+            return split._bells.tolist()
+
         venv.reset()
-        (sent, replied), = split._bells.tolist()
+        (sent, replied), = settled()
         assert replied == sent + 1 and split._received == [replied]  # every command answered, start-up included
         for _ in range(30):  # across automatic resets (25 steps)
             venv.step(np.zeros(6, dtype=np.int64))
         venv.get_attr("t")
-        assert split._bells.tolist() == [[sent + 31, replied + 31]] and split._received == [replied + 31]
+        assert settled() == [[sent + 31, replied + 31]] and split._received == [replied + 31]
         cpus = len(os.sched_getaffinity(0))
         assert split.poll_seconds == (POLL_SECONDS if cpus >= 2 else 0.0)
     finally:

@@ -420,6 +420,9 @@ class _SteppedCopies:
         return self
 
 
+_yield = getattr(os, "sched_yield", lambda: None)
+
+
 def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, seconds: float) -> Any:
     """``pipe.recv()``, after polling for up to ``seconds`` until the doorbell ``bell[side]`` (the count of messages the
     other side sent, rung after each send) passes ``received`` (the messages read so far). The doorbell only tells
@@ -427,7 +430,7 @@ def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, secon
     if seconds > 0 and bell[side] <= received:
         deadline = time.perf_counter() + seconds
         while bell[side] <= received and time.perf_counter() < deadline:
-            pass
+            _yield()  # other processes ready to run get the CPU; alone, this returns at once
     return pipe.recv()
 
 
