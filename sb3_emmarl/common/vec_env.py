@@ -435,13 +435,12 @@ def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, secon
 
 
 def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, buffers: tuple,
-                   shape: tuple[int, int], start: int, bells: Any = None, index: int = 0,
-                   poll_seconds: float = 0.0) -> None:
+                   shape: tuple[int, int], start: int, bells: Any, index: int, poll_seconds: float) -> None:
     """A worker process of :class:`_SplitCopies`: ``n_copies`` reserves stepped through :class:`_SteppedCopies`,
     their observations, rewards and dones written to the shared ``buffers`` from entry ``start`` on, their infos
     (or the error that stopped them) sent back through ``pipe``. Its doorbells are row ``index`` of ``bells``
     (see :class:`_SplitCopies`): it polls column 0 for commands, for up to ``poll_seconds``, and rings column 1."""
-    bell = np.zeros(2, dtype=np.int64) if bells is None else _bells(bells)[index]
+    bell = _bells(bells)[index]
 
     def send(message: tuple) -> None:
         pipe.send(message)
@@ -716,11 +715,11 @@ class _SplitCopies:
 
     def close(self) -> None:
         """Close the copies and stop the workers (killed if they do not stop within 10 s)."""
-        for pipe, process in zip(self.pipes, self.processes):
+        for pipe, process, bell in zip(self.pipes, self.processes, self._bells):
             try:
                 if process.is_alive():
                     pipe.send(("close", None))
-                    self._bells[self.pipes.index(pipe), 0] += 1
+                    bell[0] += 1
                     if pipe.poll(10.0):
                         pipe.recv()
             except (BrokenPipeError, EOFError, OSError):
