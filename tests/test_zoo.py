@@ -196,7 +196,7 @@ def test_optimize_runs_optuna_trials_into_a_sqlite_study(tmp_path):
 
 
 def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path, monkeypatch):
-    """The training reserve's and (when different) the evaluation reserve's kernels are compiled before the clock of
+    """The training and the evaluation reserves' kernels are compiled before the clock of
     ``run_stats.json`` starts, not inside the training (on a fresh machine that took tens of seconds of it)."""
     from sb3_emmarl.zoo import cli
 

@@ -217,11 +217,6 @@ def _remove_run_folder(manager: Any) -> None:
         algo_folder.rmdir()
 
 
-def _distinct(*items: dict) -> list[dict]:
-    """``items`` without repeats, in order (dicts are unhashable)."""
-    return [item for k, item in enumerate(items) if item not in items[:k]]
-
-
 def train_main(argv: list[str] | None = None) -> int:
     """Train, save the run in rl-zoo's layout, and print the team metrics of an evaluation on seeded episodes
     (actions sampled, as ``evaluate_team`` does)."""
@@ -273,7 +268,7 @@ def train_main(argv: list[str] | None = None) -> int:
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
-    for env_kwargs in _distinct(manager.env_kwargs, manager.eval_env_kwargs):
+    for env_kwargs in (manager.env_kwargs, manager.eval_env_kwargs):  # (each set of arguments is played once)
         compile_reserve(env_kwargs)  # numba compiles (or loads) the reserve's kernels here, not in the timed training
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
