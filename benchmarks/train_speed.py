@@ -10,7 +10,9 @@ Three parts, all printed as figures measured in this run:
    ``--rounds`` times; the table gives medians, and the share of training time spent outside the networks,
    ``1 - t(zero-cost) / t(path)`` (the environment plus the vector environment).
 2. **Raw stepping** of the batched path with random actions: 1, 4, 16 and 64 copies of 10 UAVs, and 50 and 200
-   UAVs (one copy, 200 x 200 cells), beside the SuperSuit path at the same sizes; peak memory that tracemalloc
+   UAVs (one copy, 200 x 200 cells), beside the SuperSuit path at the same sizes and, from 2 copies, the batched
+   copies split over this process and a worker, polling (``subproc``) and blocking; the paths take turns
+   (``--step-turns``, medians); peak memory that tracemalloc
    saw while the vector environment was built and stepped (a separate pass: tracing slows every allocation).
 3. **Team size through the zoo** (``--team-sizes``): ``zoo/train.py --algo ppo`` for the same agent-steps with 10,
    50 and 200 UAVs, each in its own process: its training time (``run_stats.json``), cost per agent-step against
