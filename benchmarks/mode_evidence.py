@@ -7,6 +7,8 @@ the poacher strategy and the weather, beside the commonest-class rate of the hel
 
 - **one UAV**: that UAV's observations so far;
 - **the team**: all the team's observations so far;
+- **UAV now**: one UAV's observation at that step alone, what a memoryless policy reads (its maps accumulate what
+  the UAV knows, so the evidence a history holds can show in one observation; the design asks that it not);
 
 at the first observation (the reset) and after 25 %, 50 % and 100 % of ``max_cycles``.
 
@@ -97,7 +99,7 @@ def parse_env_kwargs(text: str) -> dict:
 
 def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[float, ...] = POINTS,
                      patrol_seed: int = 0, uavs_per_episode: int | None = None
-                     ) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray], np.ndarray]:
+                     ) -> tuple[dict[float, np.ndarray], dict[float, np.ndarray], np.ndarray, dict[float, np.ndarray]]:
     """Play one episode per seed with a patrol and summarise the observations at each point.
 
     Running sums and maxima are kept instead of the whole history (the same numbers, less memory).
@@ -110,7 +112,8 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
     :param uavs_per_episode: one-UAV samples kept per episode, a random subset of its UAVs drawn from the
         episode's seed (None: all); the team features always use all of them
     :return: one-UAV features ``{point: (episodes * k, f)}`` (``k`` UAVs per episode, in their order),
-        team features ``{point: (episodes, 2f)}``, and the modes ``(episodes,)``
+        team features ``{point: (episodes, 2f)}``, the modes ``(episodes,)``, and the same ``k`` UAVs' observations
+        at each point alone ``{point: (episodes * k, d)}``
     """
     env = reserve_v0.parallel_env(**env_kwargs)
     policy = PATROLS[patrol](env, patrol_seed)
@@ -118,6 +121,7 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
     steps = {point: round(point * env.max_cycles) for point in points}
     single: dict[float, list] = {point: [] for point in points}
     team: dict[float, list] = {point: [] for point in points}
+    now: dict[float, list] = {point: [] for point in points}
     modes = []
     for seed in seeds:
         observations, infos = env.reset(seed=seed)
@@ -137,9 +141,10 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
             per_uav = np.concatenate([total / (t + 1), peak], axis=-1)
             single[point].append(per_uav[kept].astype(np.float32))
             team[point].append(team_features(per_uav).astype(np.float32))
+            now[point].append(obs[kept].astype(np.float32))
     env.close()
     return ({p: np.concatenate(v) for p, v in single.items()}, {p: np.stack(v) for p, v in team.items()},
-            np.array(modes))
+            np.array(modes), {p: np.concatenate(v) for p, v in now.items()})
 
 
 def accuracies(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -167,16 +172,17 @@ def evaluate(env_kwargs: dict, patrol: str, train_episodes: int, test_episodes: 
     :return: rows with the patrol, source, point, training samples and the :func:`accuracies`
     """
     probe = probe_accuracy
-    train_single, train_team, train_modes = collect_features(env_kwargs, patrol, range(seed, seed + train_episodes),
-                                                             points, patrol_seed=seed, uavs_per_episode=uavs_per_episode)
+    train_single, train_team, train_modes, train_now = collect_features(
+        env_kwargs, patrol, range(seed, seed + train_episodes), points, patrol_seed=seed, uavs_per_episode=uavs_per_episode)
     test_seeds = range(TEST_SEED_OFFSET + seed, TEST_SEED_OFFSET + seed + test_episodes)
-    test_single, test_team, test_modes = collect_features(env_kwargs, patrol, test_seeds, points, patrol_seed=seed + 1,
-                                                          uavs_per_episode=uavs_per_episode)
+    test_single, test_team, test_modes, test_now = collect_features(
+        env_kwargs, patrol, test_seeds, points, patrol_seed=seed + 1, uavs_per_episode=uavs_per_episode)
     n = len(train_single[points[0]]) // train_episodes
     rows = []
     for source, train, test, y_train, y_test in (
         ("one UAV", train_single, test_single, np.repeat(train_modes, n), np.repeat(test_modes, n)),
         ("team", train_team, test_team, train_modes, test_modes),
+        ("UAV now", train_now, test_now, np.repeat(train_modes, n), np.repeat(test_modes, n)),
     ):
         for point in points:
             predicted = probe(train[point], y_train, test[point], N_MODES, epochs, seed)

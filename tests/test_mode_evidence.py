@@ -23,7 +23,8 @@ def test_features_are_running_means_and_maxima(evidence):
 
 
 def test_collected_features_summarise_the_episode_as_played(evidence):
-    single, team, modes = evidence.collect_features(TINY, "random", range(3, 5), points=(0.0, 0.5, 1.0), patrol_seed=7)
+    single, team, modes, now = evidence.collect_features(TINY, "random", range(3, 5), points=(0.0, 0.5, 1.0),
+                                                         patrol_seed=7)
     env = reserve_v0.parallel_env(**TINY)
     policy = RandomPatrol(env, seed=7)
     for episode, seed in enumerate(range(3, 5)):
@@ -38,19 +39,23 @@ def test_collected_features_summarise_the_episode_as_played(evidence):
             expected = evidence.summarise(history[:t + 1])
             np.testing.assert_allclose(single[point][2 * episode:2 * episode + 2], expected, rtol=1e-5, atol=1e-6)
             np.testing.assert_allclose(team[point][episode], evidence.team_features(expected), rtol=1e-5, atol=1e-6)
+            np.testing.assert_array_equal(now[point][2 * episode:2 * episode + 2], history[t])  # that step's alone
 
 
 def test_a_subset_of_uavs_gives_their_rows_and_leaves_the_team_whole(evidence):
     points = (0.0, 1.0)
-    single, team, modes = evidence.collect_features(TINY, "random", range(3, 6), points=points, patrol_seed=7)
-    some, some_team, some_modes = evidence.collect_features(TINY, "random", range(3, 6), points=points, patrol_seed=7,
-                                                            uavs_per_episode=1)
+    single, team, modes, now = evidence.collect_features(TINY, "random", range(3, 6), points=points, patrol_seed=7)
+    some, some_team, some_modes, some_now = evidence.collect_features(TINY, "random", range(3, 6), points=points,
+                                                                      patrol_seed=7, uavs_per_episode=1)
     np.testing.assert_array_equal(some_modes, modes)
     for point in points:
         assert some[point].shape == (3, single[point].shape[1])
         np.testing.assert_array_equal(some_team[point], team[point])
-        for episode in range(3):  # each kept row is one of its episode's UAVs
-            assert (some[point][episode] == single[point][2 * episode:2 * episode + 2]).all(axis=1).any()
+        assert some_now[point].shape == (3, now[point].shape[1])
+        for episode in range(3):  # each kept row is one of its episode's UAVs, the same one in both parts
+            kept = (some[point][episode] == single[point][2 * episode:2 * episode + 2]).all(axis=1)
+            assert kept.any()
+            assert (some_now[point][episode] == now[point][2 * episode:2 * episode + 2][kept]).all()
 
 
 def test_env_kwargs_are_read_as_literals_only(evidence):
@@ -74,14 +79,14 @@ def test_the_script_prints_every_row(evidence, capsys):
     assert evidence.main(["--episodes", "6", "--test-episodes", "4", "--epochs", "1", "--env-kwargs", tiny]) == 0
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith(("random", "scripted"))]
-    assert len(rows) == 2 * 2 * len(evidence.POINTS)
+    assert len(rows) == 2 * 3 * len(evidence.POINTS)
     for patrol in ("random", "scripted"):
-        for source in ("one UAV", "team"):
+        for source in ("one UAV", "team", "UAV now"):
             points = [row.split()[-8] for row in rows if row.startswith(patrol) and source in row]
             assert points == ["first", "25%", "50%", "100%"]
     assert "random subset" not in out and "wall time" in out.splitlines()[-1]
-    one_uav = [row for row in rows if "one UAV" in row]
-    assert all(row.split()[-1] == "12" for row in one_uav)  # 6 episodes x 2 UAVs
+    one_uav = [row for row in rows if "one UAV" in row or "UAV now" in row]
+    assert len(one_uav) == 4 * len(evidence.POINTS) and all(row.split()[-1] == "12" for row in one_uav)  # 6 x 2 UAVs
 
 
 def test_the_script_says_when_it_keeps_a_subset_of_uavs(evidence, capsys):
@@ -90,7 +95,7 @@ def test_the_script_says_when_it_keeps_a_subset_of_uavs(evidence, capsys):
     out = capsys.readouterr().out
     assert "a random 1 of the 2 UAVs of each episode (--max-uav-samples 6)" in out
     rows = [line for line in out.splitlines() if line.startswith("random")]
-    assert [row.split()[-1] for row in rows] == ["6"] * 4 + ["6"] * 4  # 6 episodes x 1 UAV; 6 team samples
+    assert [row.split()[-1] for row in rows] == ["6"] * 12  # 6 episodes x 1 UAV (so far and now); 6 team samples
 
 
 @pytest.mark.parametrize("flags, message", [(["--episodes", "0"], "--episodes must be >= 1, got 0"),
