@@ -178,11 +178,12 @@ def evaluate(env_kwargs: dict, patrol: str, train_episodes: int, test_episodes: 
     test_single, test_team, test_modes, test_now = collect_features(
         env_kwargs, patrol, test_seeds, points, patrol_seed=seed + 1, uavs_per_episode=uavs_per_episode)
     n = len(train_single[points[0]]) // train_episodes
+    uav_train, uav_test = np.repeat(train_modes, n), np.repeat(test_modes, n)  # the one-UAV rows' labels
     rows = []
     for source, train, test, y_train, y_test in (
-        ("one UAV", train_single, test_single, np.repeat(train_modes, n), np.repeat(test_modes, n)),
+        ("one UAV", train_single, test_single, uav_train, uav_test),
         ("team", train_team, test_team, train_modes, test_modes),
-        ("UAV now", train_now, test_now, np.repeat(train_modes, n), np.repeat(test_modes, n)),
+        ("UAV now", train_now, test_now, uav_train, uav_test),
     ):
         for point in points:
             predicted = probe(train[point], y_train, test[point], N_MODES, epochs, seed)
