@@ -1,9 +1,10 @@
 """The reserve's hot loops, compiled with numba.
 
 At 10 UAVs a step of the reserve is dominated by fixed numpy call overhead on small arrays, not by
-arithmetic; these loops replace chains of small array operations with one compiled call each. Each
-kernel computes exactly what the numpy expression in its docstring computes (same float32/float64
-arithmetic, same order of random draws, which stay in numpy), so results are bit-identical.
+arithmetic; these loops replace chains of small array operations with compiled code, and a step after
+the actions' decoding is one compiled call (:func:`advance_world`). Each kernel computes exactly what
+the numpy expression in its docstring computes (same float32/float64 arithmetic, same random draws:
+numpy's own generator, called from compiled code through ``stream.handle``), so results are bit-identical.
 Compiled code is cached beside this file (``cache=True``): the first import on a machine compiles
 for a few seconds, later ones load the cache.
 """
@@ -22,9 +23,17 @@ from wildlife_reserve.reserve.constants import (
     CH_STALENESS,
     CH_UAV,
     COMM_NONE,
+    N_COMMS,
+    N_MOVES,
     NEVER,
     POACHER_ACTIVE,
 )
+from wildlife_reserve.reserve.stream import standard_normal, uniform
+
+
+class ActionError(ValueError):
+    """A discrete action out of range, raised by :func:`advance_world` before it changes anything (the reserve
+    re-raises it as a ``ValueError`` naming the actions)."""
 
 
 @njit(cache=True, inline="always")
@@ -251,29 +260,6 @@ def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, leopard_moved: n
     poachers[:] = new_poachers
     poacher_moved[:] = moved
     return new_poachers[moved & (moves[4] < track_prob)]
-
-
-@njit(cache=True)
-def move_ground_actors_and_signs(ground: tuple, place: tuple, track_kind: int,
-                                 look: tuple) -> tuple:  # pragma: no cover - compiled
-    """The ground's step in one call: :func:`move_ground_actors` on the tuple ``ground`` (its arguments), the
-    tracks it returns placed as signs of kind ``track_kind`` born now (:func:`place_signs` on ``place``,
-    ``(grid, pad, width, block_of, lifetime, t, start, *records)``: ``Signs.place_args``, whose records must have room
-    for a track per poacher), then :func:`sign_candidates` on ``look`` (over the records just updated).
-
-    :return: the four arrays of :func:`sign_candidates`, and the sign records in use
-    """
-    tracks = move_ground_actors(*ground)
-    grid, pad, width, block_of, lifetime, t, start, record_pos, record_born, record_expires, record_kind, \
-        record_block = place
-    count = start
-    if len(tracks):
-        k = len(tracks)
-        count = place_signs(grid, pad, width, block_of, tracks, np.full(k, np.float64(t)),
-                            np.full(k, np.int64(track_kind)), lifetime, t, start, record_pos, record_born,
-                            record_expires, record_kind, record_block)[1]
-    uav, cell, sign, p = sign_candidates(*look)
-    return uav, cell, sign, p, count
 
 
 @njit(cache=True)
@@ -826,22 +812,6 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
 
 
 @njit(cache=True)
-def sense_and_poach(sensing: tuple, status: np.ndarray, caught_status: int, timer: np.ndarray,
-                    poaching_time: int) -> tuple:  # pragma: no cover - compiled
-    """:func:`sense` on the tuple ``sensing`` (its arguments), the poachers it caught given ``caught_status`` in
-    ``status`` (in place), then :func:`poaching_timers` of the poachers and leopards ``sensing`` names.
-
-    :return: :func:`sense`'s eight values, then :func:`poaching_timers`' four
-    """
-    seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where = sense(*sensing)
-    for i in range(len(caught)):
-        if caught[i]:
-            status[i] = caught_status
-    near, new_timer, done, any_done = poaching_timers(sensing[1], status, sensing[4], sensing[5], timer, poaching_time)
-    return seen, caught, n_caught, readings, false_alarms, found, f_uav, f_where, near, new_timer, done, any_done
-
-
-@njit(cache=True)
 def beliefs(events: np.ndarray, knowledge: np.ndarray, n_blocks: int, decay: float, t: float) -> np.ndarray:
     # pragma: no cover - compiled
     """``(n, blocks)`` poacher activity ``1 - exp(-sum decay^(t - t_e))`` over the readings ``e`` (rows ``(time, uav,
@@ -903,18 +873,300 @@ def decode_actions(choices: np.ndarray, steps: np.ndarray, n_moves: int,
 
 
 @njit(cache=True)
-def look_talk_and_observe(talk: tuple, observe: tuple) -> tuple[np.ndarray, int, np.ndarray]:  # pragma: no cover
-    """The end of a step in one call: :func:`look_and_talk` on the tuple ``talk`` (its arguments), then
-    :func:`fill_observations` on ``observe`` (its arguments, whose arrays ``look_and_talk`` updates in place), then
-    :func:`sender_masks` of the messages delivered (``talk``'s last array; empty for teams of more than 63 UAVs).
+def noisy_signals(addresses: np.ndarray, signals: np.ndarray, scale: float) -> None:  # pragma: no cover - compiled
+    """The signal channels as the UAVs read them (``sensing.SIGNAL_NOISE_STD``): in place, ``signals[:, :2] =
+    np.clip(signals[:, :2] + rng.normal(0.0, scale, (n, 2, w, w)), 0, 1)``, then the same for ``signals[:, 2]``, with
+    ``rng`` the generator of ``addresses`` (``stream.handle``)."""
+    n, _, w, _ = signals.shape
+    for first, last in ((0, 2), (2, 3)):
+        draws = standard_normal(addresses, n * (last - first) * w * w)
+        i = 0
+        for u in range(n):
+            for ch in range(first, last):
+                for a in range(w):
+                    for b in range(w):
+                        noisy = np.float64(signals[u, ch, a, b]) + (0.0 + scale * draws[i])
+                        signals[u, ch, a, b] = min(max(noisy, 0.0), 1.0)
+                        i += 1
 
-    :return: the high-risk cells each UAV saw first ``(n,)``, the team's new ones, and the masks
+
+@njit(cache=True)
+def add_signs_off_grid(pos: np.ndarray, t: float, kind: int, lifetime: np.ndarray, block_of: np.ndarray,
+                       start: int, record_pos: np.ndarray, record_born: np.ndarray, record_expires: np.ndarray,
+                       record_kind: np.ndarray, record_block: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """``Signs.add(pos, t, kind, t, on_grid=False)``: records ``start, start + 1, ...`` (which must have room) for
+    signs no other UAV can find (false readings), born at ``t``; returns their indices."""
+    k = len(pos)
+    ids = np.arange(start, start + k)
+    for a in range(k):
+        m = start + a
+        record_pos[m, 0], record_pos[m, 1] = pos[a, 0], pos[a, 1]
+        record_born[m] = t
+        record_expires[m] = t + lifetime[kind]
+        record_kind[m] = kind
+        record_block[m] = block_of[pos[a, 0], pos[a, 1]]
+    return ids
+
+
+@njit(cache=True)
+def pairwise_sum(values: np.ndarray) -> float:  # pragma: no cover - compiled
+    """``np.add.reduce(values)`` of a contiguous float64 vector, bit for bit: numpy's pairwise summation (eight
+    accumulators in blocks of up to 128, halves above that; numba's ``sum`` adds in order, which rounds
+    differently)."""
+    n = len(values)
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += values[i]
+        return total
+    if n <= 128:
+        r = values[:8].copy()
+        i = 8
+        while i < n - n % 8:
+            for j in range(8):
+                r[j] += values[i + j]
+            i += 8
+        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            total += values[i]
+            i += 1
+        return total
+    half = n // 2
+    half -= half % 8
+    return pairwise_sum(values[:half]) + pairwise_sum(values[half:])
+
+
+@njit(cache=True)
+def step_rewards(weights: tuple, shaping: float, n_detected: int, new_cells: int, signs_found: int,
+                 poaching_events: int, collisions: int, energy: np.ndarray, seen: np.ndarray, own_new: np.ndarray,
+                 own_collisions: np.ndarray) -> tuple[np.ndarray, float, float]:  # pragma: no cover - compiled
+    """Each UAV's reward ``(n,)``, the team reward and the energy spent ``energy.sum()``.
+
+    The team's is ``detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events -
+    collision * collisions - energy * spent`` (``weights`` in that order); with ``shaping > 0`` each UAV gets
+    ``(1 - shaping) * team + shaping * own``, ``own`` the same terms of its own (``seen`` ``(n, P)`` the poachers it
+    detected, ``own_new`` its first looks, ``own_collisions``, its ``energy``).
     """
-    fresh, new = look_and_talk(*talk)
-    fill_observations(*observe)
-    delivered = talk[-1]
-    masks = sender_masks(delivered) if len(delivered) <= 63 else np.zeros(0, dtype=np.int64)
-    return fresh, new, masks
+    detection, coverage, sign, poaching, collision, energy_weight = weights
+    spent = pairwise_sum(energy)
+    team = (detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events
+            - collision * collisions - energy_weight * spent)
+    rewards = np.full(len(energy), team)
+    if shaping > 0:
+        for u in range(len(energy)):
+            own = (detection * seen[u].sum() + coverage * own_new[u] - collision * own_collisions[u]
+                   - energy_weight * energy[u])
+            rewards[u] = (1.0 - shaping) * team + shaping * own
+    return rewards, team, spent
+
+
+@njit(cache=True)
+def place_new_signs(signs: tuple, count: int, pos: np.ndarray, now: float,
+                    kind: int) -> int:  # pragma: no cover - compiled
+    """:func:`place_signs` of signs of ``kind`` born ``now`` at cells ``pos`` into the records of ``signs`` (the tuple
+    :func:`advance_world` takes), ``count`` of them in use; returns the records in use after them."""
+    (grid, pad, padded_width, block_of, lifetime, _, record_pos, record_born, record_expires, record_kind,
+     record_block) = signs[:11]
+    k = len(pos)
+    if k == 0:
+        return count
+    return place_signs(grid, pad, padded_width, block_of, pos, np.full(k, now), np.full(k, kind), lifetime, now, count,
+                       record_pos, record_born, record_expires, record_kind, record_block)[1]
+
+
+@njit(cache=True)
+def move_jammer(jammer: np.ndarray, poachers: np.ndarray, active: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``jammer[:] = poachers[active].mean(axis=0)`` (the cells are whole numbers: any order sums them exactly)."""
+    total_row, total_col = 0.0, 0.0
+    for i in range(len(poachers)):
+        if active[i]:
+            total_row += poachers[i, 0]
+            total_col += poachers[i, 1]
+    jammer[0], jammer[1] = total_row / active.sum(), total_col / active.sum()
+
+
+@njit(cache=True)
+def jam(jammed: np.ndarray, airborne: np.ndarray, pos: np.ndarray, jammer: np.ndarray, radius: float,
+        jammer_on: bool) -> np.ndarray:  # pragma: no cover - compiled
+    """Which UAVs the jammer silences (``jammed``, in place: within ``radius`` of it while it is on) and which can
+    talk: the ``airborne`` ones not jammed."""
+    ok = airborne.copy()
+    for u in range(len(pos)):
+        jammed[u] = False
+        if jammer_on:
+            d_row, d_col = pos[u, 0] - jammer[0], pos[u, 1] - jammer[1]
+            jammed[u] = np.sqrt(d_row ** 2 + d_col ** 2) <= radius
+            ok[u] &= not jammed[u]
+    return ok
+
+
+@njit(cache=True)
+def poach(near: np.ndarray, done: np.ndarray, status: np.ndarray, timer: np.ndarray, alive: np.ndarray,
+          gone_status: int) -> np.ndarray:  # pragma: no cover - compiled
+    """The poachers whose timer ran out (``done``) kill the leopard they are next to (the first in ``near``'s row;
+    one event per leopard) and leave (``status``, ``timer`` and ``alive`` in place); returns the leopards killed."""
+    killed = np.zeros(len(alive), dtype=np.bool_)
+    for i in range(len(done)):
+        if done[i]:
+            killed[np.argmax(near[i])] = True
+            status[i] = gone_status
+            timer[i] = 0
+    victims = np.flatnonzero(killed)
+    for j in victims:
+        alive[j] = False
+    return victims
+
+
+@njit(cache=True)
+def record_readings_seen(events: np.ndarray, readings: np.ndarray, now: float, block_of: np.ndarray,
+                         horizon: float) -> np.ndarray:  # pragma: no cover - compiled
+    """The team's record of poacher readings ``events`` (rows ``(time, uav, block)``, in time order) with this step's
+    ``readings`` ``(k, 3)`` ``(uav, row, col)`` added and those older than ``horizon`` dropped (a new array when
+    either happens)."""
+    if len(readings):
+        fresh = np.empty((len(readings), 3))
+        for a in range(len(readings)):
+            fresh[a, 0], fresh[a, 1] = now, readings[a, 0]
+            fresh[a, 2] = block_of[readings[a, 1], readings[a, 2]]
+        events = np.concatenate((events, fresh))
+    if len(events) and events[0, 0] <= now - horizon:
+        events = events[events[:, 0] > now - horizon]
+    return events
+
+
+@njit(cache=True)
+def advance_world(addresses: np.ndarray, t: int, choices: np.ndarray, fly: tuple, ground: tuple, signs: tuple,
+                  sensing: tuple, team: tuple, observe: tuple, reward: tuple) -> tuple:  # pragma: no cover - compiled
+    """A step in one compiled call, with its random draws taken from the generator of ``addresses``
+    (``stream.handle``) in the order the phases make them:
+
+    0. **Actions**: discrete ``choices`` (``(n,)`` ints; empty when the moves and communication choices in ``fly``
+       are already decoded) are decoded into ``fly``'s ``move`` and ``comm`` (:func:`decode_actions`); one out of
+       range raises :class:`ActionError` before anything changes. Then the poachers whose entry time ``t`` has come
+       enter play.
+    1. **Flight** (:func:`fly_and_collide` on ``fly``, its arguments): the UAVs move and spend energy; collisions
+       among those airborne before it.
+
+    2. **Ground** (:func:`move_ground_actors` on ``3 L`` uniform draws, then ``5 P`` if any poacher is active): the
+       leopards and poachers move; the poachers' tracks become signs born now (:func:`place_signs`); the jammer, if
+       any, moves to the active poachers' mean cell; the live signs in the airborne UAVs' windows
+       (:func:`sign_candidates`).
+    3. **Sensing** (:func:`sense` on ``n (P + L + 2 + D + 2) + k`` uniform draws): detections, false alarms, decoys,
+       sign sightings, false sign readings (records only the reading UAV knows of: :func:`add_signs_off_grid`,
+       :func:`learn_signs`); caught poachers leave play; the noise on the signal channels (:func:`noisy_signals`,
+       normal draws) when ``noise_scale > 0``.
+    4. **Poaching** (:func:`poaching_timers`): an undetected poacher next to a live leopard for ``poaching_time``
+       steps kills it (one event per leopard) and leaves (a carcass sign where the leopard was).
+    5. **Sharing** (:func:`look_and_talk` on ``2 n n`` uniform draws, then :func:`fill_observations` and
+       :func:`sender_masks`): the UAVs not jammed talk; the poacher readings join the team's record ``events`` (rows
+       ``(time, uav, block)``, those older than ``horizon`` dropped); every UAV's observation is written.
+    6. **Rewards** (:func:`step_rewards` on ``reward``: the weights and the shaping).
+
+    ``ground``, ``signs``, ``sensing`` and ``team`` are the state and constants each phase reads, ``observe`` the
+    arguments of :func:`fill_observations` (whose ``signals`` this step's readings are written into; see
+    ``ReserveParallelEnv._world_args``, which builds them all); every array in them is updated in place except the
+    record of readings, which is returned. The sign records and ``known``/``found`` must have room for ``P`` tracks,
+    ``n`` false readings and ``L`` carcasses more.
+
+    :return: the poachers that entered, the rewards ``(n,)``, the team reward, the energy spent, whether every UAV
+        is grounded, the collisions (pairs), the poacher readings ``(k, 3)`` ``(uav, row, col)``, poachers caught,
+        false poacher readings, real signs found for the first time, poaching events, the sign records in use,
+        whether the jammer is on, the readings record ``events``, the team's new high-risk cells and the senders'
+        bit masks of ``heard_from`` (empty above 63 UAVs)
+    """
+    (leopards, leopard_moved, home, home_range, leopard_move_prob, poachers, poacher_moved, status, timer, alive,
+     planned, sight, notice_radius, move_prob, wander_prob, evasion_prob, hide_in_cover, cover, steps, track_prob,
+     poaching_time, entry_time, waiting_status, active_status, caught_status, gone_status, jammer, jammed, has_jammer,
+     jam_radius) = ground
+    (grid, _, _, block_of, lifetime, count, record_pos, record_born, record_expires, record_kind, record_block,
+     track_kind, carcass_kind, false_kind, real) = signs
+    (detect_table, terrain, radius, alarm_probability, reach_offsets, decoys, decoy_table, sign_table, terrain_pad,
+     found, noise_scale) = sensing
+    (scale, high_risk, visited, stamps, block_last, block_first, knowledge, uav_pos, comm_radius, comm, loss, known,
+     counts, stale_cells, stale_blocks, dist, beacons, delivered, events, horizon) = team
+    cells = fly[4]
+    n, n_poachers, n_leopards = len(cells), len(poachers), len(leopards)
+    height, width = terrain.shape
+    window, signals = observe[3].reshape(n, -1), observe[5]
+    now = np.float64(t)
+
+    # 0. Actions, and the poachers due.
+    if len(choices):
+        move, comm_choices, valid = decode_actions(choices, steps.astype(np.float64), N_MOVES, N_COMMS)
+        if not valid:
+            raise ActionError("discrete action out of range")
+        fly[6][:] = move
+        fly[7][:] = comm_choices
+    entered = 0
+    for i in range(n_poachers):
+        if status[i] == waiting_status and entry_time[i] <= t:
+            status[i] = active_status
+            entered += 1
+
+    # 1. Flight.
+    airborne = ~fly[3]
+    energy, everyone, own_collisions, pairs = fly_and_collide(*fly)
+
+    # 2. Ground.
+    active = status == active_status
+    any_active = active.any()
+    draws = uniform(addresses, 3 * n_leopards + 5 * n_poachers * any_active)
+    tracks = move_ground_actors(draws, leopards, leopard_moved, home, home_range, leopard_move_prob, poachers,
+                                poacher_moved, active, timer, alive, planned, sight, cells[airborne], notice_radius,
+                                move_prob, wander_prob, evasion_prob, hide_in_cover, cover, steps, track_prob)
+    count = place_new_signs(signs, count, tracks, now, track_kind)
+    jammer_on = has_jammer and any_active
+    if jammer_on:
+        move_jammer(jammer, poachers, active)
+    c_uav, c_cell, c_sign, c_p = sign_candidates(grid, record_born, record_expires, window, now, airborne,
+                                                 sign_table, terrain_pad)
+
+    # 3. Sensing.
+    signals[:] = 0.0
+    draws = uniform(addresses, n * (n_poachers + n_leopards + 2 + len(decoys) + 2) + len(c_p))
+    seen, caught, n_caught, readings, false_alarms, fresh_signs, f_uav, f_where = sense(
+        draws, poachers, status == active_status, poacher_moved, leopards, alive, leopard_moved, cells, airborne,
+        detect_table, terrain, radius, alarm_probability, reach_offsets, height, width, decoys, decoy_table, c_uav,
+        c_cell, c_sign, c_p, known, counts, record_block, record_kind, real, found, signals)
+    for i in range(n_poachers):
+        if caught[i]:
+            status[i] = caught_status
+    near, new_timer, done, any_done = poaching_timers(poachers, status, leopards, alive, timer, poaching_time)
+    if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
+        phantom = add_signs_off_grid(f_where, now, false_kind, lifetime, block_of, count, record_pos, record_born,
+                                     record_expires, record_kind, record_block)
+        count += len(phantom)
+        learn_signs(known, counts, f_uav, phantom, record_block[phantom])
+    if noise_scale > 0:
+        noisy_signals(addresses, signals, noise_scale)
+
+    # 4. Poaching.
+    timer[:] = new_timer
+    events_now = 0
+    if any_done:
+        victims = poach(near, done, status, timer, alive, gone_status)
+        events_now = len(victims)
+        count = place_new_signs(signs, count, leopards[victims], now, carcass_kind)
+
+    # 5. Sharing.
+    ok = jam(jammed, airborne, uav_pos, jammer, jam_radius, jammer_on)
+    events = record_readings_seen(events, readings, now, block_of, horizon)
+    cell_blocks = np.empty(n, dtype=np.int64)
+    for u in range(n):
+        cell_blocks[u] = block_of[cells[u, 0], cells[u, 1]]
+    talk = uniform(addresses, 2 * n * n).reshape(2, n, n)
+    fresh, new = look_and_talk(np.float32(t), scale, window, cell_blocks, airborne, high_risk, visited, stamps,
+                               block_last, block_first, knowledge, uav_pos, ok, comm_radius, comm, talk[0], talk[1],
+                               loss, known[:, :count], counts, record_block[:count], stale_cells, stale_blocks, dist,
+                               beacons, delivered)
+    fill_observations(*observe[:19], events, *observe[20:])  # type: ignore[call-arg]  # (the readings as they are now)
+    masks = sender_masks(delivered) if n <= 63 else np.zeros(0, dtype=np.int64)
+
+    # 6. Rewards.
+    rewards, team_reward, spent = step_rewards(reward[0], reward[1], n_caught, new, fresh_signs, events_now, pairs,
+                                               energy, seen, fresh, own_collisions)
+    return (entered, rewards, team_reward, spent, everyone, pairs, readings, n_caught, false_alarms, fresh_signs, events_now,
+            count, jammer_on, events, new, masks)
 
 
 @njit(cache=True)

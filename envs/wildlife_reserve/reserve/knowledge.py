@@ -175,7 +175,7 @@ class TeamKnowledge:
                   ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
                   stale_blocks: np.ndarray) -> tuple:
         """The arguments of ``kernels.look_and_talk`` for :meth:`look_and_talk`'s (it draws the step's random
-        numbers): one tuple, which the reserve's step also hands to ``kernels.look_talk_and_observe``."""
+        numbers): one tuple (the reserve's reset; its step calls the same kernel inside ``kernels.advance_world``)."""
         n = self.n
         if comm is None:
             draws = rng.random((1, n, n))

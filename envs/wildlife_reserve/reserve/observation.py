@@ -72,8 +72,9 @@ def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.nda
 
 def observation_args(env: ReserveParallelEnv, signals: np.ndarray, obs: np.ndarray) -> tuple:
     """The arguments of ``kernels.fill_observations`` that write ``obs`` (all but the optional parts at its end),
-    for :func:`build_observations` and the step's ``kernels.look_talk_and_observe``. The arrays are the ones the
-    team's communication updates in place, so they may be taken before it."""
+    for :func:`build_observations` and the step's ``kernels.advance_world`` (which writes this step's readings into
+    ``signals`` and passes the readings record as it is after them). The arrays are the ones the step updates in
+    place, so they may be taken before it."""
     cfg, team, layout = env.config, env.team, env.observation_layout
     return (obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
             env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,

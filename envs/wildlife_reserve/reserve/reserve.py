@@ -85,6 +85,7 @@ from wildlife_reserve.reserve.constants import (
 )
 from wildlife_reserve.reserve.knowledge import TeamKnowledge
 from wildlife_reserve.reserve.modes import N_MODES, decode_mode
+from wildlife_reserve.reserve.stream import Stream
 
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.rendering import ReserveRenderer
@@ -98,8 +99,8 @@ from wildlife_reserve.reserve.observation import (
     state_size,
 )
 
-#: Unit displacement (row, col) of each discrete move.
-_MOVES = actors.STEPS.astype(np.float64)
+_NO_CHOICES = np.zeros(0, dtype=np.int64)  # continuous actions: decoded before the step's compiled call
+_NO_JAMMER = np.zeros(2)  # what the step's compiled call gets for the jammer's cell without one (never written)
 #: What ``ReserveParallelEnv._set_map`` makes from a map.
 MAP_ATTRIBUTES = ("terrain", "risk", "hotspots", "high_risk", "n_high_risk", "cover", "_occ_pad", "_terrain_pad",
                   "_risk_pad", "_high_risk_pad")
@@ -223,9 +224,10 @@ class ReserveParallelEnv(ParallelEnv):
         self._upper = np.array([self.height, self.width]) - 1e-6
         self._inv_scale = 1.0 / np.array([max(self.height - 1, 1), max(self.width - 1, 1)])
         self._comm_costs = np.array([0.0, ENERGY_COSTS["broadcast"], ENERGY_COSTS["query"]])  # by COMM_* choice
+        self._move, self._comm = np.zeros((self.n, 2)), np.zeros(self.n, dtype=np.int64)  # discrete actions, decoded
         # The reward weights and the false-alarm chance as plain floats, read once here rather than at every step.
         self._weights = tuple(float(cfg.reward_weights[term]) for term in
-                              ("detection", "coverage", "sign", "poaching", "collision", "energy"))  # _rewards' order
+                              ("detection", "coverage", "sign", "poaching", "collision", "energy"))  # step_rewards' order
         self._false_alarm = float(sensing.false_alarm_probability(cfg.sensor_noise))
         self.t = 0
 
@@ -320,6 +322,7 @@ class ReserveParallelEnv(ParallelEnv):
         world_seed, mode_seed, poacher_seed, step_seed = self.np_random.integers(0, 2**32, size=4)
         world_rng = np.random.default_rng(world_seed)
         self.rng = np.random.default_rng(step_seed)
+        self._stream = Stream(self.rng)  # what the step's compiled call draws from (the same generator)
         self.agents = self.possible_agents[:]
         self.t = 0
         shape = (self.height, self.width)
@@ -377,7 +380,6 @@ class ReserveParallelEnv(ParallelEnv):
         self.poacher_status = np.full(cfg.n_poachers, POACHER_WAITING, dtype=np.int8)
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)
         self.poaching_timer = np.zeros(cfg.n_poachers, dtype=np.int64)
-        self._next_entry = int(self.poacher_entry_time.min()) if cfg.n_poachers else np.inf
         self.signs = signs_lib.Signs(self._padded_shape, self.r, self._block)
         self.signs.add(*signs_lib.plan_signs(sign_rng := np.random.default_rng([poacher_seed, 1]), self.strategy,
                                              self.poacher_entry, self.poacher_target, dens, shape), t=0)
@@ -410,8 +412,8 @@ class ReserveParallelEnv(ParallelEnv):
         self._stale_blocks = np.empty((self.n, cfg.belief_size**2), dtype=np.float32)
         everyone = np.ones(self.n, dtype=bool)
         self._look_and_talk(everyone, everyone, None)
-        signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
-        obs = build_observations(self, signals)
+        self._signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)  # each step's readings
+        obs = build_observations(self, self._signals)
         infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
         if self.render_mode == "human":
             self.render()
@@ -452,21 +454,38 @@ class ReserveParallelEnv(ParallelEnv):
                              f"{out.dtype} {out.shape}")
         return self._advance(*self._action_arrays(actions), out)
 
-    def _advance(self, move: np.ndarray, comm: np.ndarray, out: np.ndarray | None = None) -> tuple[
-            np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
-        """The step itself, from decoded actions (see :meth:`step_arrays` for what it returns)."""
-        airborne = ~self.grounded
+    def _advance(self, choices: np.ndarray, move: np.ndarray, comm: np.ndarray, out: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
+        """The step itself, from :meth:`_action_arrays`' actions (see :meth:`step_arrays` for what it returns): the
+        whole step runs in one compiled call (``kernels.advance_world``, on :meth:`_world_args`: the actions'
+        decoding, the poachers' entry, the flight, ground, sensing, poaching, sharing and reward phases); the
+        episode's metrics are counted here."""
         self.t += 1
-
-        energy, terminated, own_collisions, collisions = self._fly(move, comm)
-        cells = self._cells
-        candidates = self._move_ground_actors(cells, airborne)
-        signals, seen, n_detected, readings, signs_found, poaching = self._sense(cells, airborne, candidates)
-        poaching_events = self._poach(*poaching)
         obs = np.empty((self.n, self.obs_dim), dtype=np.float32) if out is None else out
-        own_new, new_cells, masks = self._share(comm, airborne, readings, signals, obs)
-        rewards = self._rewards(seen, n_detected, signs_found, own_new, new_cells, poaching_events, own_collisions,
-                                collisions, energy)
+        try:
+            (entered, rewards, team_reward, spent, terminated, collisions, readings, n_caught, false_alarms,
+             signs_found, poaching_events, self.signs.count, self.jammer_on, self.team.events, new_cells,
+             masks) = kernels.advance_world(*self._world_args(choices, move, comm, obs))
+        except kernels.ActionError:  # raised before anything changed
+            self.t -= 1
+            raise self._bad_actions(choices) from None
+        if entered:
+            self.metrics["poachers_entered"] += entered
+            if self.first_entry_time is None:
+                self.first_entry_time = self.t
+        self.detections = readings
+        if n_caught and self.first_detection_time is None:
+            self.first_detection_time = self.t
+        self._n_covered += new_cells
+        finish_observations(self, obs)
+        m = self.metrics
+        m["team_reward"] += team_reward
+        m["poaching_events"] += poaching_events
+        m["collisions"] += collisions
+        m["energy"] += spent
+        m["poachers_detected"] += n_caught
+        m["false_alarms"] += false_alarms
+        m["signs_found"] += signs_found
         truncated = self.t >= self.max_cycles
         info: dict[str, Any] = {"mode": self.mode}
         if truncated or terminated:
@@ -476,157 +495,59 @@ class ReserveParallelEnv(ParallelEnv):
             self.render()
         return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from(masks)
 
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (checkpoints), adding what a reserve pickled before sb3-emmarl 0.18.5 lacks: the step's compiled
+        call reads the generator through a :class:`Stream` and writes the readings and decoded actions into buffers."""
+        self.__dict__.update(state)
+        self.__dict__.pop("_next_entry", None)  # (0.18.4's entry shortcut: the compiled step checks every poacher)
+        if "_move" not in state:
+            self._move, self._comm = np.zeros((self.n, 2)), np.zeros(self.n, dtype=np.int64)
+        if "_stream" not in state and "rng" in state:
+            self._stream = Stream(self.rng)
+        if "_signals" not in state and "rng" in state:
+            self._signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
+
     # ------------------------------------------------------------------ the phases of a step
-    def _fly(self, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray, int]:
-        """Move the UAVs, spend their energy and ground those whose battery ran out (a grounded UAV's ``move`` and
-        ``comm`` are zeroed; positions, velocities, batteries, ``grounded``, cells and windows are updated in place);
-        returns ``(n,)`` energy spent, whether every UAV is grounded, and the collisions after the flight: ``(n,)``
-        other UAVs in each UAV's cell and the pairs sharing a cell, among the UAVs airborne before it."""
-        energy, everyone, own_collisions, collisions = kernels.fly_and_collide(
-            self.uav_pos, self.velocity, self.battery, self.grounded, self._cells, self._window, move, comm,
-            self.config.uav_speed, self._upper, ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
-            self._padded_shape[1], self._win_offsets)
-        return energy, bool(everyone), own_collisions, int(collisions)
-
-    def _move_ground_actors(self, cells: np.ndarray, airborne: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Poachers enter, leopards walk, poachers move (leaving tracks), the jammer follows them; returns the live
-        signs in the airborne UAVs' windows after it (``kernels.sign_candidates``: UAVs, window cells, records and
-        the chance of seeing each), which the sensing draws for."""
-        cfg = self.config
-        if self.t >= self._next_entry:  # the earliest entry time of the poachers still waiting (no random draws)
-            entering = (self.poacher_status == POACHER_WAITING) & (self.poacher_entry_time <= self.t)
-            self.poacher_status[entering] = POACHER_ACTIVE
-            if entering.any():
-                self.metrics["poachers_entered"] += int(entering.sum())
-                if self.first_entry_time is None:
-                    self.first_entry_time = self.t
-            waiting = self.poacher_status == POACHER_WAITING
-            self._next_entry = int(self.poacher_entry_time[waiting].min()) if waiting.any() else np.inf
-        active = self.poacher_status == POACHER_ACTIVE
-        any_active = np.count_nonzero(active) > 0  # (a quarter of active.any()'s cost on a few poachers)
-        draws = self.rng.random(3 * len(self.leopard_pos) + 5 * len(self.poacher_pos) * any_active)
-        strategy, signs, n = self.strategy, self.signs, self.n
-        ground = (draws, self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
-                  actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, active, self.poaching_timer,
-                  self.leopard_alive, self.poacher_target,
-                  float(actors.POACHER_SIGHT), cells[airborne], actors.NOTICE_RADIUS * self.weather.notice_factor,
-                  strategy.move_prob, strategy.wander_prob, strategy.evasion_prob, strategy.hide_in_cover, self.cover,
-                  actors.STEPS, signs_lib.TRACK_PROB)
-        place = signs.place_args(len(self.poacher_pos), float(self.t))  # room for a track per poacher
-        look = (signs.grid.reshape(-1), signs.born, signs.expires, self._window.reshape(n, -1), self.t, airborne,
-                self._sign_table, self._terrain_pad)
-        *candidates, signs.count = kernels.move_ground_actors_and_signs(ground, place, signs_lib.TRACK, look)
-        self.jammer_on = self.jammer_pos is not None and bool(any_active)  # the jammer works while poachers are in
-        if self.jammer_on:
-            self.jammer_pos = self.poacher_pos[active].mean(axis=0)
-        return tuple(candidates)
-
-    def _sense(self, cells: np.ndarray, airborne: np.ndarray, candidates: tuple[np.ndarray, ...]) -> tuple[
-            np.ndarray, np.ndarray, int, np.ndarray, int, tuple]:
-        """Every airborne UAV senses poachers, leopards and signs (the live signs in its window, ``candidates``:
-        see :meth:`_move_ground_actors`); false alarms, decoys and false sign readings.
-
-        Caught poachers leave play here, and the poaching timers of those left run in the same compiled call
-        (``kernels.sense_and_poach``; :meth:`_poach` acts on them).
-
-        :return: signals ``(n, 3, w, w)`` (poacher, leopard and sign channels as the sensors report them),
-            ``(n, n_poachers)`` who detected which poacher, how many poachers were detected (and caught), this step's
-            poacher readings ``(k, 3)``
-            ``(uav, row, col)``, the number of signs the team found for the first time, and the poaching timers
-            (``kernels.poaching_timers``' four values)
-        """
-        cfg, signs, n = self.config, self.signs, self.n
-        signals = np.zeros((n, 3, self.window, self.window), dtype=np.float32)
-        # Room for what the UAVs may learn and the team may find.
-        self.team.fit_signs(signs.count)
+    def _world_args(self, choices: np.ndarray, move: np.ndarray, comm: np.ndarray, obs: np.ndarray) -> tuple:
+        """The arguments of ``kernels.advance_world`` for this step's actions (:meth:`_action_arrays`' three
+        arrays), writing the observations into ``obs`` (the arrays it updates in place are this
+        reserve's own); first makes room for the signs the step may add (a track per poacher, a false reading per
+        UAV, a carcass per leopard) in the records, in what the UAVs know and in what the team found."""
+        cfg, signs, team, strategy, n = self.config, self.signs, self.team, self.strategy, self.n
+        fly = (self.uav_pos, self.velocity, self.battery, self.grounded, self._cells, self._window, move, comm,
+               cfg.uav_speed, self._upper, ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
+               self._padded_shape[1], self._win_offsets)
+        signs.make_room(len(self.poacher_pos) + n + len(self.leopard_pos))
+        team.fit_signs(signs.capacity)
         if len(self._found) < signs.capacity:
             self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
-        # The step's uniform draws, in the order kernels.sense reads them.
-        targets, decoys = len(self.poacher_pos) + len(self.leopard_pos), len(self.decoy_pos)
-        draws = self.rng.random(n * (targets + 2 + decoys + 2) + len(candidates[0]))
-        sense_args = (draws, self.poacher_pos, self.poacher_status == POACHER_ACTIVE, self.poacher_moved, self.leopard_pos,
-                      self.leopard_alive, self.leopard_moved, cells, airborne, self._detect_table, self.terrain,
-                      self.r, self._false_alarm, self._reach_offsets, self.height, self.width,
-                      self.decoy_pos, self._decoy_table, *candidates, self.team.known_signs, self.team.sign_counts,
-                      signs.block, signs.kind, signs_lib.REAL, self._found, signals)
-        seen, _, n_caught, readings, false_alarms, found, f_uav, f_where, *poaching = kernels.sense_and_poach(
-            sense_args, self.poacher_status, POACHER_CAUGHT, self.poaching_timer, self.config.poaching_time)
-        self.metrics["false_alarms"] += false_alarms
-        self.metrics["signs_found"] += found
-        if n_caught and self.first_detection_time is None:  # (the kernel marked the caught poachers)
-            self.first_detection_time = self.t
-        if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
-            phantom = signs.add(f_where, self.t, signs_lib.FALSE_READING, self.t, on_grid=False)
-            self.team.learn_signs(f_uav, phantom, signs.block[phantom])
-        if cfg.sensor_noise > 0:  # (without noise the readings are the signals: no copy)
-            signals[:, :2] = sensing.noisy_signals(self.rng, signals[:, :2], cfg.sensor_noise)
-            signals[:, 2] = sensing.noisy_signals(self.rng, signals[:, 2], cfg.sensor_noise)
-        return signals, seen, int(n_caught), readings, found, tuple(poaching)
-
-    def _poach(self, near: np.ndarray, timer: np.ndarray, done: np.ndarray, any_done: bool) -> int:
-        """An undetected poacher next to a live leopard for ``poaching_time`` steps kills it and leaves a carcass;
-        returns the poaching events of this step.
-
-        :param near, timer, done, any_done: this step's ``kernels.poaching_timers`` (made with the sensing)
-        """
-        self.poaching_timer = timer
-        if not any_done:
-            return 0
-        # One event per leopard killed; the poachers whose timer ran out leave.
-        victims = np.unique(near[done].argmax(axis=1))
-        self.leopard_alive[victims] = False
-        self.poacher_status[done] = POACHER_GONE
-        self.poaching_timer[done] = 0
-        self.signs.add(self.leopard_pos[victims], self.t, signs_lib.CARCASS, self.t)
-        return len(victims)
-
-    def _share(self, comm: np.ndarray, airborne: np.ndarray, readings: np.ndarray, signals: np.ndarray,
-               obs: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
-        """The poacher readings join the team's record, each UAV looks (coverage, visit stamps), the team talks, and
-        every UAV's observation is written into ``obs`` (``finish_observations`` and ``fill_observations``, in
-        one compiled call with the rest). Returns the high-risk cells each UAV saw first ``(n,)``, the team's new
-        ones and the senders' bit masks of ``heard_from``."""
-        ok = airborne.copy()
-        if self.jammer_on:
-            self.jammed = np.sqrt(((self.uav_pos - self.jammer_pos) ** 2).sum(-1)) <= self.config.jam_radius
-            ok &= ~self.jammed
-        else:
-            self.jammed.fill(False)
-        self.detections = readings
-        blocks = self._block[readings[:, 1], readings[:, 2]] if len(readings) else readings[:, 0]
-        self.team.add_readings(self.t, readings[:, 0], blocks)  # (the looks and talk do not read the readings)
-        own_new, new_cells, masks = kernels.look_talk_and_observe(self._talk_args(airborne, ok, comm),
-                                                                  observation_args(self, signals, obs))
-        self._n_covered += new_cells
-        finish_observations(self, obs)
-        return own_new, new_cells, masks
-
-    def _rewards(self, seen: np.ndarray, n_detected: int, signs_found: int, own_new: np.ndarray, new_cells: int,
-                 poaching_events: int, own_collisions: np.ndarray, collisions: int, energy: np.ndarray) -> np.ndarray:
-        """The team reward (and each UAV's, with shaping); updates the episode metrics."""
-        detection, coverage, sign, poaching, collision, energy_weight = self._weights
-        spent = float(np.add.reduce(energy))  # energy.sum() without its Python wrapper (the same pairwise sum)
-        team = (detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events
-                - collision * collisions - energy_weight * spent)
-        rewards = np.empty(self.n)
-        rewards.fill(team)
-        shaping = self.config.shaping
-        if shaping > 0:
-            own = (detection * seen.sum(axis=1) + coverage * own_new - collision * own_collisions
-                   - energy_weight * energy)
-            rewards = (1.0 - shaping) * team + shaping * own
-        m = self.metrics
-        m["team_reward"] += team
-        m["poaching_events"] += poaching_events
-        m["collisions"] += collisions
-        m["energy"] += spent
-        m["poachers_detected"] += n_detected
-        return rewards
+        ground = (self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
+                  actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, self.poacher_status,
+                  self.poaching_timer, self.leopard_alive, self.poacher_target, float(actors.POACHER_SIGHT),
+                  actors.NOTICE_RADIUS * self.weather.notice_factor, strategy.move_prob, strategy.wander_prob,
+                  strategy.evasion_prob, strategy.hide_in_cover, self.cover, actors.STEPS, signs_lib.TRACK_PROB,
+                  cfg.poaching_time, self.poacher_entry_time, POACHER_WAITING, POACHER_ACTIVE, POACHER_CAUGHT,
+                  POACHER_GONE,
+                  _NO_JAMMER if self.jammer_pos is None else self.jammer_pos, self.jammed, self.jammer_pos is not None,
+                  float(cfg.jam_radius))
+        sign_args = (signs.grid.reshape(-1), signs.pad, signs.width, self._block, signs_lib.LIFETIME, signs.count,
+                     signs.pos, signs.born, signs.expires, signs.kind, signs.block, signs_lib.TRACK,
+                     signs_lib.CARCASS, signs_lib.FALSE_READING, signs_lib.REAL)
+        sensing_args = (self._detect_table, self.terrain, self.r, self._false_alarm, self._reach_offsets,
+                        self.decoy_pos, self._decoy_table, self._sign_table, self._terrain_pad, self._found,
+                        sensing.SIGNAL_NOISE_STD * cfg.sensor_noise)
+        team_args = (team._time_scale, self._high_risk_pad, self.visited.reshape(-1), team._stamps, team._block_last,
+                     team._block_first, team.knowledge, self.uav_pos, team.comm_radius, comm, team.comm_loss,
+                     team.known_signs, team.sign_counts, self._stale_window.reshape(n, -1), self._stale_blocks,
+                     team.dist, team.beacons, team.comm_links, team.events, float(team.horizon))
+        if self._stream.rng is not self.rng:  # (the reserve was handed another generator)
+            self._stream = Stream(self.rng)
+        return (self._stream.handle, self.t, choices, fly, ground, sign_args, sensing_args, team_args,
+                observation_args(self, self._signals, obs), (self._weights, float(cfg.shaping)))
 
     # ------------------------------------------------------------------ helpers
-    def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
-        """Turn the action dict into ``(n, 2)`` unit moves and ``(n,)`` communication choices (a missing or None
-        action means "stay, no message")."""
+    def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_action_arrays` of the action dict (a missing or None action means "stay, no message")."""
         if self.config.continuous_actions:
             act = np.zeros((self.n, 3))
             for i, agent in enumerate(self.agents):
@@ -639,8 +560,10 @@ class ReserveParallelEnv(ParallelEnv):
             choices = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
         return self._action_arrays(choices)
 
-    def _action_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(n, 2)`` unit moves and ``(n,)`` communication choices from ``(n,)`` ints or ``(n, 3)`` floats."""
+    def _action_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The step's actions from ``(n,)`` ints or ``(n, 3)`` floats, as ``kernels.advance_world`` takes them:
+        ``(n,)`` int64 discrete choices that it decodes (and checks) into the ``(n, 2)`` unit moves and ``(n,)``
+        communication choices that follow them, or no choices and the moves and choices decoded here."""
         if self.config.continuous_actions:
             act = np.asarray(actions, dtype=np.float64)
             if act.size != 3 * self.n:
@@ -650,17 +573,18 @@ class ReserveParallelEnv(ParallelEnv):
                 raise ValueError(f"continuous actions must be finite, got {act}")
             act = np.clip(act, -1.0, 1.0)
             comm = np.select([act[:, 2] > 1 / 3, act[:, 2] < -1 / 3], [COMM_BROADCAST, COMM_QUERY], COMM_NONE)
-            return act[:, :2], comm
+            return _NO_CHOICES, np.ascontiguousarray(act[:, :2]), comm
         choices = np.asarray(actions).reshape(-1)
-        if choices.dtype == np.int64 and choices.size == self.n:  # what SB3 and SuperSuit pass: decoded in one call
-            move, comm, valid = kernels.decode_actions(choices, _MOVES, N_MOVES, N_COMMS)
-            if valid:
-                return move, comm
-        whole = choices.dtype.kind in "iu" or (choices.dtype.kind == "f" and np.array_equal(choices, np.floor(choices)))
-        if not whole or choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
-            raise ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
-        move, comm, _ = kernels.decode_actions(choices.astype(np.int64), _MOVES, N_MOVES, N_COMMS)
-        return move, comm
+        if choices.dtype != np.int64 or choices.size != self.n:  # (SB3 and SuperSuit pass n int64s: checked compiled)
+            whole = choices.dtype.kind in "iu" or (choices.dtype.kind == "f"
+                                                   and np.array_equal(choices, np.floor(choices)))
+            if not whole or choices.size != self.n or choices.min() < 0 or choices.max() >= N_MOVES * N_COMMS:
+                raise self._bad_actions(choices)
+            choices = choices.astype(np.int64)
+        return choices, self._move, self._comm
+
+    def _bad_actions(self, choices: np.ndarray) -> ValueError:
+        return ValueError(f"discrete actions must be {self.n} ints in [0, {N_MOVES * N_COMMS - 1}], got {choices}")
 
     def _place_windows(self) -> None:
         """The UAVs' cells ``(n, 2)`` and the flat indices ``(n, w, w)`` of their observation windows in the padded

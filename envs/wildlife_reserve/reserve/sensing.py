@@ -3,8 +3,9 @@
 Each sensor fires independently; a target is detected when any of them fires, so the detection
 probability is ``1 - (1 - p_visual)(1 - p_thermal)(1 - p_motion)``. Signs of poacher activity are
 seen by the visual sensor alone. The whole noise model lives here: detection, false-alarm, decoy and sign
-probabilities (as tables over distance and terrain) and the noise on the signal channels; the compiled loop
-that applies them to a step's draws is ``kernels.sense``.
+probabilities (as tables over distance and terrain) and the noise on the signal channels
+(:data:`SIGNAL_NOISE_STD`); the compiled loops that apply them to a step's draws are ``kernels.sense`` and
+``kernels.noisy_signals``.
 """
 
 from __future__ import annotations
@@ -123,9 +124,3 @@ def decoy_table(sensor_radius: int, reach: int, noise: float) -> np.ndarray:
     """
     return DECOY_PEAK * range_falloff(np.arange(reach + 2), sensor_radius, reach) * (1 - 0.5 * noise)
 
-
-def noisy_signals(rng: np.random.Generator, signals: np.ndarray, noise: float) -> np.ndarray:
-    """The signal channels as the UAVs read them: Gaussian noise of std ``SIGNAL_NOISE_STD * noise``, clipped to [0, 1]."""
-    if noise <= 0:
-        return signals
-    return np.clip(signals + rng.normal(0.0, SIGNAL_NOISE_STD * noise, signals.shape), 0.0, 1.0)

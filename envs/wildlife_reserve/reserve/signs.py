@@ -158,7 +158,8 @@ class Signs:
             kind[:old], block[:old] = self.kind[:old], self.block[:old]
         self.pos, self.born, self.expires, self.kind, self.block = pos, born, expires, kind, block
 
-    def _make_room(self, k: int) -> None:
+    def make_room(self, k: int) -> None:
+        """Room for ``k`` more records (the capacity at least doubles when it grows)."""
         if self.count + k > self.capacity:
             self._grow(max(2 * self.capacity, self.count + k))
 
@@ -189,7 +190,7 @@ class Signs:
             grid, pad, width, block_of, lifetime, t, start, *records = self.place_args(k, t)
             index, self.count = place_signs(grid, pad, width, block_of, pos, born, kind, lifetime, t, start, *records)
             return index
-        self._make_room(k)
+        self.make_room(k)
         start = self.count
         ids = np.arange(start, start + k)
         self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos, born, born + LIFETIME[kind], kind
@@ -199,9 +200,8 @@ class Signs:
 
     def place_args(self, k: int, t: float) -> tuple:
         """Room for ``k`` more records, and the arguments of ``kernels.place_signs`` but the new signs' cells, times
-        and kinds, as ``(grid, pad, width, block_of, lifetime, t, start, *records)`` (:meth:`add`'s, and the step's
-        compiled call that places the poachers' tracks, ``kernels.move_ground_actors_and_signs``)."""
-        self._make_room(k)
+        and kinds, as ``(grid, pad, width, block_of, lifetime, t, start, *records)`` (:meth:`add`'s)."""
+        self.make_room(k)
         return (self._flat, self.pad, self.width, self._block_of, LIFETIME, t, self.count, self.pos, self.born,
                 self.expires, self.kind, self.block)
 
