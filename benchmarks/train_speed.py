@@ -17,6 +17,11 @@ Three parts, all printed as figures measured in this run:
 3. **Team size through the zoo** (``--team-sizes``): ``zoo/train.py --algo ppo`` for the same agent-steps with 10,
    50 and 200 UAVs, each in its own process: its training time (``run_stats.json``), cost per agent-step against
    10 UAVs and the process's peak resident memory.
+4. **The networks' floor** (``--floor-threads``): PPO's gradient epochs alone, ``model.train()`` on one full rollout
+   of the zero-cost environment (``ppo.yml``: 10 epochs over 4 x 10 x 128 agent-steps in batches of 1280), timed
+   with 1 and 2 torch threads taking turns; per agent-step and for the paper's 10M agent-steps. EM-PPO trains the
+   same networks (its policy reads the belief too) and adds its E-step, so no environment makes a 10M EM-PPO run
+   faster than this.
 
 Example: ``python benchmarks/train_speed.py`` (or ``make benchmark-train-speed``; about 15 minutes)
 """
@@ -215,6 +220,33 @@ def team_sizes(n: int, sizes: list[int], vec_env: str, threads: int = 1) -> None
                   f"{stats['peak_rss_mib']:>14.0f}", flush=True)
 
 
+def network_floor(threads: list[int], turns: int, total: int = 10_000_000) -> None:
+    """PPO's gradient epochs on one rollout, timed per thread count (the counts take turns; medians)."""
+    settings = zoo_settings("ppo")
+    env = zero_cost_like("ppo")
+    model = build("ppo", seed=0, env=env)
+    rollout = model.n_steps * env.num_envs
+    model.learn(rollout)  # one rollout collected and trained on: the buffer is full, the logger set up
+    seconds: dict[int, list[float]] = {count: [] for count in threads}
+    before = th.get_num_threads()
+    for _ in range(turns):
+        for count in threads:
+            th.set_num_threads(count)
+            start = time.perf_counter()
+            model.train()
+            seconds[count].append(time.perf_counter() - start)
+    th.set_num_threads(before)
+    env.close()
+    print(f"\nThe networks' floor: PPO's gradient epochs on one rollout of {rollout:,} agent-steps (ppo.yml: "
+          f"{settings['n_epochs']} epochs, batches of {settings['batch_size']}, net_arch "
+          f"{model.policy.net_arch}), model.train() on the zero-cost environment, {turns} turns (median), the thread "
+          f"counts taking turns; minutes: the gradient epochs alone of {total:,} agent-steps")
+    print(f"{'threads':>8}{'s per rollout':>15}{'us/agent-step':>15}{f'min per {total / 1e6:g}M':>14}")
+    for count in threads:
+        t = float(np.median(seconds[count]))
+        print(f"{count:>8}{t:>15.3f}{t / rollout * 1e6:>15.1f}{t / rollout * total / 60:>14.1f}", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("-n", "--n-timesteps", type=int, default=100_000, help="agent-steps per training turn")
@@ -232,14 +264,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--team-n", type=int, default=204_800, help="agent-steps of each zoo run")
     parser.add_argument("--vec-env", default="batched", choices=["batched", "subproc", "supersuit"],
                         help="path of the zoo runs")
+    parser.add_argument("--floor-threads", type=int, nargs="*", default=[1, 2],
+                        help="torch thread counts of the networks' floor (none: skip that part)")
+    parser.add_argument("--floor-turns", type=int, default=5, help="turns of each thread count in the networks' floor")
     parser.add_argument("--skip", nargs="*", default=[], choices=["training", "stepping"], help="parts to skip")
     parser.add_argument("--num-threads", type=int, default=1,
                         help="torch threads of the training part and the zoo runs (the zoo's --num-threads; default 1)")
     args = parser.parse_args(argv)
-    for name in ("n_timesteps", "rounds", "step_agent_steps", "step_turns", "team_n"):
+    for name in ("n_timesteps", "rounds", "step_agent_steps", "step_turns", "team_n", "floor_turns"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    for name in ("copies", "large_teams", "team_sizes"):
+    for name in ("copies", "large_teams", "team_sizes", "floor_threads"):
         if any(value < 1 for value in getattr(args, name)):
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.n_copies is not None and args.n_copies < 1:
@@ -253,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
         stepping(args.step_agent_steps, args.copies, args.large_teams, args.step_turns)
     if args.team_sizes:
         team_sizes(args.team_n, args.team_sizes, args.vec_env, args.num_threads)
+    if args.floor_threads:
+        network_floor(args.floor_threads, args.floor_turns)
     return 0
 
 

@@ -424,7 +424,8 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
 
     train_speed = load_benchmark("train_speed")
     assert train_speed.main(["-n", "256", "--rounds", "1", "--algos", "ppo", "--step-agent-steps", "100",
-                             "--copies", "1", "3", "--large-teams", "20", "--team-sizes", "2", "--team-n", "512"]) == 0
+                             "--copies", "1", "3", "--large-teams", "20", "--team-sizes", "2", "--team-n", "512",
+                             "--floor-threads", "1", "--floor-turns", "1"]) == 0
     out = capsys.readouterr().out
     assert "outside networks" in out and "zero-cost" in out and "batched" in out and "subproc" in out
     rows = [line.split() for line in out.splitlines()]
@@ -434,6 +435,10 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
     assert len(split) == 9 and all(float(value.replace(",", "")) > 0 for value in split[2:5])
     assert next(row for row in rows if row[:2] == ["1", "10"])[3:5] == ["nan", "nan"]
     assert any(row[:1] == ["2"] and row[3] == "1.00" for row in rows)  # the zoo run, against itself
+    floor = rows[out.splitlines().index(next(line for line in out.splitlines() if "min per 10M" in line)) + 1]
+    seconds, per_step, minutes = (float(value) for value in floor[1:])  # one thread: s per rollout, us, minutes
+    assert floor[0] == "1" and seconds > 0 and per_step == pytest.approx(seconds / 5120 * 1e6, rel=1e-2)
+    assert minutes == pytest.approx(per_step * 10_000_000 / 1e6 / 60, rel=1e-2)
 
 
 def test_the_train_speed_benchmark_rejects_a_bad_thread_count(capsys):
@@ -445,6 +450,9 @@ def test_the_train_speed_benchmark_rejects_a_bad_thread_count(capsys):
     with pytest.raises(SystemExit) as exit_info:
         load_benchmark("train_speed").main(["--step-turns", "0"])
     assert exit_info.value.code == 2 and "--step-turns must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        load_benchmark("train_speed").main(["--floor-threads", "1", "0"])
+    assert exit_info.value.code == 2 and "--floor-threads must be >= 1, got [1, 0]" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("algo", ["em_ppo", "mappo", "qmix"])
