@@ -1,6 +1,6 @@
 """Training speed on the reserve through the two parameter-sharing paths, against a zero-cost environment.
 
-Three parts, all printed as figures measured in this run:
+Four parts, all printed as figures measured in this run:
 
 1. **Training**: PPO and EM-PPO with their zoo YAMLs (4 copies x 10 UAVs, one torch thread unless
    ``--num-threads`` says otherwise) train ``-n``
@@ -18,10 +18,9 @@ Three parts, all printed as figures measured in this run:
    50 and 200 UAVs, each in its own process: its training time (``run_stats.json``), cost per agent-step against
    10 UAVs and the process's peak resident memory.
 4. **The networks' floor** (``--floor-threads``): PPO's gradient epochs alone, ``model.train()`` on one full rollout
-   of the zero-cost environment (``ppo.yml``: 10 epochs over 4 x 10 x 128 agent-steps in batches of 1280), timed
-   with 1 and 2 torch threads taking turns; per agent-step and for the paper's 10M agent-steps. EM-PPO trains the
-   same networks (its policy reads the belief too) and adds its E-step, so no environment makes a 10M EM-PPO run
-   faster than this.
+   of the zero-cost environment with ``ppo.yml``'s settings, timed with 1 and 2 torch threads taking turns; per
+   agent-step and for the paper's 10M agent-steps. EM-PPO trains the same networks (its policy reads the belief too)
+   and adds its E-step, so no environment makes a 10M EM-PPO run faster than this.
 
 Example: ``python benchmarks/train_speed.py`` (or ``make benchmark-train-speed``; about 15 minutes)
 """
@@ -222,7 +221,6 @@ def team_sizes(n: int, sizes: list[int], vec_env: str, threads: int = 1) -> None
 
 def network_floor(threads: list[int], turns: int, total: int = 10_000_000) -> None:
     """PPO's gradient epochs on one rollout, timed per thread count (the counts take turns; medians)."""
-    settings = zoo_settings("ppo")
     env = zero_cost_like("ppo")
     model = build("ppo", seed=0, env=env)
     rollout = model.n_steps * env.num_envs
@@ -238,7 +236,7 @@ def network_floor(threads: list[int], turns: int, total: int = 10_000_000) -> No
     th.set_num_threads(before)
     env.close()
     print(f"\nThe networks' floor: PPO's gradient epochs on one rollout of {rollout:,} agent-steps (ppo.yml: "
-          f"{settings['n_epochs']} epochs, batches of {settings['batch_size']}, net_arch "
+          f"{model.n_epochs} epochs, batches of {model.batch_size}, net_arch "
           f"{model.policy.net_arch}), model.train() on the zero-cost environment, {turns} turns (median), the thread "
           f"counts taking turns; minutes: the gradient epochs alone of {total:,} agent-steps")
     print(f"{'threads':>8}{'s per rollout':>15}{'us/agent-step':>15}{f'min per {total / 1e6:g}M':>14}")
