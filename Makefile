@@ -84,7 +84,8 @@ benchmark-mode-evidence: install
 benchmark-mixture-ceiling: install
 	$(PYTHON) benchmarks/mixture_ceiling.py
 
-# How much knowing the hidden mode pays: PPO told the mode against plain PPO, 5 seeds x 500k agent-steps (about 25 minutes).
+# How much knowing the hidden mode pays: PPO told the mode against plain PPO and against a control told a random label,
+# 5 seeds x 500k agent-steps each (about 35 minutes).
 benchmark-mode-value: install
 	$(PYTHON) benchmarks/mode_value.py
 

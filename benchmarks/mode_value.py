@@ -25,6 +25,11 @@ gain of that size at PPO's spread over seeds (``seeds_needed``).
 ``--hide signs window.sign``: what knowing the mode pays to a team that cannot see the signs, where the
 strategy shows. Give it its own ``-f``.
 
+Told PPO reads an input that plain PPO does not have, constant over an episode: whatever such an input costs PPO to
+learn with is in told minus plain PPO too. The control (``told_random``, ``--no-control`` skips it) is PPO told a label
+drawn at random per episode instead of the mode (``OraclePPO(random_label=True)``): the same input, no information.
+Told PPO against it is what the mode's information is worth apart from that cost; the control against PPO is the cost.
+
 Whether told PPO acts on what it is told, run by run: every told run plays the evaluation episodes again told a
 wrong strategy (the next one, cyclically, in the same weather: ``next_strategy``), and the mode-use table pairs the two
 over seeds. A policy that acts on the mode scores less when told a wrong one; one that ignores it scores the same.
@@ -70,8 +75,9 @@ from wildlife_reserve import reserve_v0
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode, next_strategy
 from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
 
-#: The two variants: (table name, zoo algorithm, hyperparameter overrides).
-VARIANTS = [("told_mode", "oracle_ppo", []), ("ppo", "ppo", [])]
+#: The variants: (table name, zoo algorithm, hyperparameter overrides): told PPO, plain PPO, and the control told a
+#: random label per episode instead of the mode (``OraclePPO(random_label=True)``).
+VARIANTS = [("told_mode", "oracle_ppo", []), ("ppo", "ppo", []), ("told_random", "oracle_ppo", ["random_label:True"])]
 #: Metrics of the table.
 METRICS = ("team_reward", "detection_rate", "coverage_efficiency")
 #: The station plans the scripted part chooses among: sweep all along, or guard the dens or the roads' entry points
@@ -175,17 +181,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hide", nargs="+", metavar="PART", default=None,
                         help="observation parts both variants train and play without (zeroed): names of the "
                              "reserve's observation_layout or window.<channel>, e.g. signs window.sign")
+    parser.add_argument("--no-control", action="store_true",
+                        help="skip the control (PPO told a random label per episode instead of the mode)")
     parser.add_argument("-params", "--hyperparams", nargs="+", metavar="KEY:VALUE", default=None,
                         help="hyperparameter overrides of ppo.yml for both variants (the zoo's -params)")
     args = parser.parse_args(argv)
     check_run_arguments(parser, args)
-    variants = VARIANTS
+    variants = VARIANTS[:2] if args.no_control else VARIANTS
     if args.hyperparams:
         try:
             parse_key_values(args.hyperparams, "-params")
         except ValueError as error:
             parser.error(str(error))
-        variants = [(name, algo, [*params, *args.hyperparams]) for name, algo, params in VARIANTS]
+        variants = [(name, algo, [*params, *args.hyperparams]) for name, algo, params in variants]
     if args.hide:
         env = reserve_v0.parallel_env(**dict(args.env_kwargs or {}))
         layout = env.observation_layout
@@ -235,9 +243,17 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.n_timesteps:,} agent-steps per run; "
           f"{args.eval_episodes} evaluation episodes from seed {args.eval_seed} per run (actions sampled); "
           f"mean +- std over seeds; wall time {time.perf_counter() - start:.0f} s with {args.n_jobs} jobs")
-    print(paired_table({name: results[name] for name, _, _ in VARIANTS}))
+    told, plain, control = (name for name, _, _ in VARIANTS)
+    print(paired_table({told: results[told], plain: results[plain]}))
     if scripted is not None:
         print(power_line(scripted, results))
+    if control in results:
+        print("\nThe control: PPO told a random label per episode instead of the mode (the same input, no information). "
+              "Told PPO against it, what the mode's information is worth; mean +- std over seeds; p: paired t-test over "
+              "seeds")
+        print(paired_table({told: results[told], control: results[control]}).split("\n\nseed")[0])
+        print("\nThe control against PPO: what an input constant over an episode costs PPO by itself")
+        print(paired_table({control: results[control], plain: results[plain]}))
     print(mode_weight_table(args))
     print(mode_use_table(args, results[VARIANTS[0][0]]))
     return 0
@@ -260,15 +276,25 @@ def mode_use_table(args: argparse.Namespace, told: list[dict]) -> str:
 
 def power_line(scripted: dict[str, list[dict]], results: dict[str, list[dict]]) -> str:
     """How many seeds a paired test of told PPO against PPO needs to find the scripted teams' gain in team reward
-    with 80% power at p < 0.05, if the differences spread over seeds as they did here."""
+    with 80% power at p < 0.05, if the differences spread over seeds as they did here (and, with the control, if told
+    PPO minus the control spreads as it did)."""
     gain = paired_over_seeds(scripted, "told", "not_told", "team_reward").difference.mean()
     spread = paired_over_seeds(results, VARIANTS[0][0], VARIANTS[1][0], "team_reward").difference.std(ddof=1)
     if not gain > 0 or not spread > 0:
         return f"\nPower: the scripted gain ({gain:.3f}) or the spread of PPO's differences ({spread:.3f}) is not > 0."
-    n = seeds_needed(gain, spread)
-    return (f"\nPower: a paired t-test over seeds finds a gain of {gain:.3f} (the scripted teams') in team reward with 80% "
-            f"power at p < 0.05 from {n if n is not None else 'more than 100,000'} seeds, if told minus plain PPO spreads "
-            f"over seeds as here (std {spread:.3f}).")
+    line = (f"\nPower: a paired t-test over seeds finds a gain of {gain:.3f} (the scripted teams') in team reward with 80% "
+            f"power at p < 0.05 from {_seeds(gain, spread)} seeds, if told minus plain PPO spreads over seeds as here "
+            f"(std {spread:.3f})")
+    control = VARIANTS[2][0]
+    if control in results:
+        spread = paired_over_seeds(results, VARIANTS[0][0], control, "team_reward").difference.std(ddof=1)
+        line += f"; from {_seeds(gain, spread)} if told PPO minus the control spreads as here (std {spread:.3f})"
+    return line + "."
+
+
+def _seeds(gain: float, spread: float) -> str:
+    n = seeds_needed(gain, spread) if spread > 0 else 2
+    return str(n) if n is not None else "more than 100,000"
 
 
 def mode_weight_table(args: argparse.Namespace) -> str:

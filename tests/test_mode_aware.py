@@ -152,10 +152,11 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0
     assert "ppo.yml settings with n_epochs:2 for both" in out
-    for variant in ("told_mode", "ppo"):  # the overrides reached the training of both
+    for variant in ("told_mode", "told_random", "ppo"):  # the overrides reached the training of every variant
         run = mode_value.latest_run(mode_value.run_folder(argparse.Namespace(log_folder=str(tmp_path)), variant, 0),
-                                    "oracle_ppo" if variant == "told_mode" else "ppo")
-        assert "n_epochs: 2" in (run / "WildlifeReserve-v0" / "config.yml").read_text()
+                                    "ppo" if variant == "ppo" else "oracle_ppo")
+        config = (run / "WildlifeReserve-v0" / "config.yml").read_text()
+        assert "n_epochs: 2" in config and ("random_label" in config) == (variant == "told_random")
     with pytest.raises(ValueError, match=r"needs a run told the mode \(oracle_ppo\), not ppo"):
         mode_value.evaluate_run("ppo", run, 1, 0, mode_value.WRONG_STRATEGY)  # run: the last one, plain PPO's
     out, mode_use = out.split("Does told PPO act on the mode?")
@@ -166,7 +167,13 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     assert "Not told: the best single plan" in scripted and "roads<0.75" in scripted
     assert "Power: " in trained
     assert "told_mode" in trained and "p (paired t)" in trained and "team_reward" in trained
-    trained, weights = trained.split("How strongly the told runs read the mode")
+    trained, control = trained.split("The control: PPO told a random label")
+    control, weights = control.split("How strongly the told runs read the mode")
+    told_against, against_ppo = control.split("The control against PPO")
+    assert told_against.split("\n")[1].split() == ["metric", "told_mode", "told_random", "difference", "p", "(paired",
+                                                   "t)", "higher", "on"]
+    assert "told_random" in against_ppo.split("\n")[1] and "ppo" in against_ppo.split("\n")[1]
+    assert len([line for line in against_ppo.splitlines() if line.startswith(("0 ", "1 "))]) == 2
     assert len([line for line in trained.splitlines() if line.startswith(("0 ", "1 "))]) == 2
     rows = [line.split() for line in weights.splitlines() if line.startswith(("0 ", "1 "))]
     assert [row[0] for row in rows] == ["0", "1"] and all(float(x) > 0 for row in rows for x in row[2:])
@@ -325,3 +332,69 @@ def test_mode_input_holds_the_other_network_s_weights_on_the_mode_at_zero_throug
 def test_mode_input_rejects_an_unknown_network():
     with pytest.raises(ValueError, match="mode_input"):
         OraclePPO("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=SMALL), mode_input="critic")
+
+
+def test_random_labels_are_one_per_copy_and_episode_independent_of_the_mode_and_seeded():
+    def labels_per_episode(seed):
+        venv = ModeObservationWrapper(make_vec_env(3, seed=0, env_kwargs=SMALL), random_labels=True)
+        venv.seed(seed)
+        obs = venv.reset()
+        per_copy = venv.per_copy
+        rows, current = [], None
+        for _ in range(500):  # 100 episodes of 5 steps in each of the 3 copies
+            label = obs[:, -N_MODES:].argmax(axis=1)
+            assert (obs[:, -N_MODES:].sum(axis=1) == 1).all()
+            assert (label.reshape(3, per_copy) == label[::per_copy, None]).all()  # shared by a copy's UAVs
+            if current is not None:
+                assert (label == current).all()  # constant over an episode
+            current = label
+            modes = true_modes(venv)
+            obs, _, dones, infos = venv.step(np.zeros(venv.num_envs, dtype=int))
+            for i in np.flatnonzero(dones):  # the finished episode's label on its terminal observation
+                assert infos[i]["terminal_observation"][-N_MODES:].argmax() == current[i]
+            if dones.any():
+                rows += list(zip(current[::per_copy], modes[::per_copy]))
+                current = None
+        return np.array(rows)
+
+    rows = labels_per_episode(7)
+    np.testing.assert_array_equal(rows[:, 0], labels_per_episode(7)[:, 0])  # the same seed, the same labels
+    assert not np.array_equal(rows[:, 0], labels_per_episode(8)[:, 0])
+    assert len(rows) == 300
+    # uniform over the modes' labels and independent of the mode: the chi-square tests on 300 episodes
+    from scipy.stats import chi2_contingency, chisquare
+
+    assert chisquare(np.bincount(rows[:, 0], minlength=N_MODES)).pvalue > 1e-3
+    table = np.zeros((N_MODES, N_MODES))
+    np.add.at(table, (rows[:, 0], rows[:, 1]), 1)
+    assert chi2_contingency(table + 0.5).pvalue > 1e-3
+    assert np.mean(rows[:, 0] == rows[:, 1]) < 0.3  # a true one-hot would agree every time
+
+
+def test_random_labels_reject_bad_values_and_relabel_beside_them():
+    with pytest.raises(ValueError, match="random_labels must be a bool"):
+        ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), random_labels="yes")
+    with pytest.raises(ValueError, match="not both"):
+        ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), relabel=list(range(N_MODES)),
+                               random_labels=True)
+    with pytest.raises(ValueError, match="random_label"):
+        OraclePPO("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=SMALL), random_label=1)
+
+
+def test_oracle_ppo_with_a_random_label_keeps_it_through_saving_loading_and_evaluation(tmp_path):
+    from sb3_emmarl.common.evaluation import evaluate_team
+    from sb3_emmarl.common.mode_aware import find_mode_wrapper
+
+    model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0,
+                      random_label=True)
+    assert find_mode_wrapper(model.get_env()).random_labels
+    model.learn(64)
+    model.save(tmp_path / "control")
+    loaded = OraclePPO.load(tmp_path / "control", env=make_vec_env(1, seed=1, env_kwargs=SMALL), device="cpu")
+    assert loaded.random_label and find_mode_wrapper(loaded.get_env()).random_labels
+    assert find_mode_wrapper(loaded.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL))).random_labels
+    told = OraclePPO.load(tmp_path / "control", device="cpu")
+    told.random_label = False  # the same networks, told the true mode: the wrapper follows the model's setting
+    assert not find_mode_wrapper(told.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL))).random_labels
+    records = evaluate_team(loaded, 3, seed=5, env_kwargs=SMALL)
+    assert len(records) == 3 and all(np.isfinite(r["team_reward"]) for r in records)

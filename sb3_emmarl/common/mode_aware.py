@@ -31,13 +31,22 @@ class ModeObservationWrapper(VecEnvWrapper):
     acts on the mode scores less when told a wrong one, and one that ignores it scores the same; this tells whether
     a told policy uses what it is told, run by run (``benchmarks/mode_value.py``'s mode-use table).
 
+    With ``random_labels``, the one-hot is that of a label drawn uniformly at random at each episode's start,
+    independently of the mode, and shared by the entries of one reserve copy (``agents_per_copy`` of the vector
+    environment; 1 if it has none), as the mode is: an input of the same form, constant over an episode, that
+    carries no information. A policy trained on it measures what such an input costs PPO by itself, so that told
+    PPO against it measures what the mode's information is worth (``benchmarks/mode_value.py``'s control).
+
     :param venv: a parameter-sharing vector environment of the reserve (flat ``Box`` observations)
     :param n_modes: number of modes (the one-hot's length)
     :param relabel: the mode told for each true mode (``n_modes`` ints in ``[0, n_modes)``, e.g.
         ``[next_strategy(m) for m in range(N_MODES)]``); None tells the true mode
+    :param random_labels: tell a random label per episode instead of the mode (not with ``relabel``)
+    :param seed: seed of the random labels (``seed()`` seeds them again, as SB3 seeds its environment)
     """
 
-    def __init__(self, venv: VecEnv, n_modes: int = N_MODES, relabel: Sequence[int] | None = None) -> None:
+    def __init__(self, venv: VecEnv, n_modes: int = N_MODES, relabel: Sequence[int] | None = None,
+                 random_labels: bool = False, seed: int = 0) -> None:
         space = venv.observation_space
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"ModeObservationWrapper needs flat Box observations, got {space}")
@@ -45,10 +54,29 @@ class ModeObservationWrapper(VecEnvWrapper):
             raise ValueError(f"n_modes must be an int >= 1, got {n_modes!r}")
         self.n_modes = int(n_modes)
         self.relabel = None if relabel is None else self._check_relabel(relabel)
+        if not isinstance(random_labels, (bool, np.bool_)):
+            raise ValueError(f"random_labels must be a bool, got {random_labels!r}")
+        if random_labels and relabel is not None:
+            raise ValueError("give relabel or random_labels, not both: a random label replaces every mode")
+        self.random_labels = bool(random_labels)
         low = np.concatenate([space.low, np.zeros(self.n_modes, dtype=space.dtype)])
         high = np.concatenate([space.high, np.ones(self.n_modes, dtype=space.dtype)])
         super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
         self.modes = np.zeros(venv.num_envs, dtype=np.int64)
+        self.per_copy = max(1, int(getattr(venv, "agents_per_copy", 1)))
+        self.labels = np.zeros(venv.num_envs, dtype=np.int64)  # with random_labels: each entry's label this episode
+        self._label_rng = np.random.default_rng(seed)
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed the environment, and the random labels with the same seed (when it is not None)."""
+        if seed is not None:
+            self._label_rng = np.random.default_rng(seed)
+        return self.venv.seed(seed)
+
+    def _draw_labels(self, entries: np.ndarray) -> None:
+        """New random labels for the copies of ``entries`` (one per copy, shared by its entries)."""
+        for copy in np.unique(entries // self.per_copy):
+            self.labels[copy * self.per_copy:(copy + 1) * self.per_copy] = self._label_rng.integers(self.n_modes)
 
     def _check_relabel(self, relabel: Sequence[int]) -> np.ndarray:
         values = list(relabel) if not isinstance(relabel, (str, bytes, dict)) else None
@@ -59,10 +87,13 @@ class ModeObservationWrapper(VecEnvWrapper):
                              f"true mode), got {relabel!r}")
         return np.asarray(values, dtype=np.int64)
 
-    def _one_hot(self, modes: np.ndarray) -> np.ndarray:
+    def _one_hot(self, modes: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
         if modes.min() < 0 or modes.max() >= self.n_modes:
             raise ValueError(f"modes must be in [0, {self.n_modes - 1}], got {modes}")
-        told = modes if self.relabel is None else self.relabel[modes]
+        if self.random_labels:
+            told = self.labels if labels is None else labels
+        else:
+            told = modes if self.relabel is None else self.relabel[modes]
         return np.eye(self.n_modes, dtype=self.observation_space.dtype)[told]
 
     def _read_modes(self, infos: list[dict[str, Any]]) -> np.ndarray:
@@ -74,15 +105,20 @@ class ModeObservationWrapper(VecEnvWrapper):
     def reset(self) -> VecEnvObs:
         observations = self.venv.reset()
         self.modes = self._read_modes(self.venv.unwrapped.reset_infos)
+        if self.random_labels:
+            self._draw_labels(np.arange(self.num_envs))
         return np.concatenate([observations, self._one_hot(self.modes)], axis=1)
 
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
-        for i in np.flatnonzero(dones):
+        done = np.flatnonzero(dones)
+        for i in done:
             if "terminal_observation" in infos[i]:
                 finished = np.array([infos[i]["metrics"]["mode"]])
                 infos[i]["terminal_observation"] = np.concatenate([infos[i]["terminal_observation"],
-                                                                   self._one_hot(finished)[0]])
+                                                                   self._one_hot(finished, self.labels[i:i + 1])[0]])
+        if self.random_labels and len(done):
+            self._draw_labels(done)
         self.modes = self._read_modes(infos)
         return np.concatenate([observations, self._one_hot(self.modes)], axis=1), rewards, dones, infos
 
@@ -92,7 +128,8 @@ def find_mode_wrapper(venv: VecEnv) -> ModeObservationWrapper | None:
     return unwrap_vec_wrapper(venv, ModeObservationWrapper)
 
 
-def wrap_with_mode(env: Any, verbose: int = 0) -> VecEnv:
-    """``env`` as a vector environment whose observations end with the true mode (kept if already wrapped)."""
+def wrap_with_mode(env: Any, verbose: int = 0, random_labels: bool = False) -> VecEnv:
+    """``env`` as a vector environment whose observations end with the true mode, or with a random label per episode
+    (``random_labels``; see :class:`ModeObservationWrapper`); a vector environment already wrapped is kept."""
     venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    return venv if find_mode_wrapper(venv) is not None else ModeObservationWrapper(venv)
+    return venv if find_mode_wrapper(venv) is not None else ModeObservationWrapper(venv, random_labels=random_labels)

@@ -287,6 +287,7 @@ RULES: dict[str, Rule] = {
     # the weights that read what an algorithm appends to the observation (sb3_emmarl.common.initialization)
     "zero_mode_weights": boolean(),
     "mode_input": choice("both", "policy", "value"),
+    "random_label": boolean(),
     "zero_belief_weights": boolean(),
     # MAPPO (and QMIX / VDN: the agent's one-hot index as an input)
     "agent_id": boolean(),

@@ -6,6 +6,7 @@ from typing import Any
 
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
@@ -33,19 +34,28 @@ class OraclePPO(PPO):
     policy acts as PPO's does, with a critic that knows the mode). The two halves tell apart what the mode does for
     the actions and what it does for the advantages.
 
+    With ``random_label=True`` the observation carries, instead of the mode, a label drawn at random per episode
+    (the same one-hot form, constant over the episode, shared by a reserve's UAVs, independent of the mode): a control
+    that pays whatever such an input costs PPO to learn with, and learns nothing from it. Told PPO against this control
+    is what the mode's information is worth apart from that cost (``benchmarks/mode_value.py``).
+
     :param zero_mode_weights: start the weights that read the mode at zero (with SB3's ``FlattenExtractor``;
         another features extractor reads the one-hot as it reads the rest); False keeps SB3's orthogonal
         initialisation for them
     :param mode_input: ``"both"``, ``"policy"`` or ``"value"``: the networks whose first layers read the one-hot; the
         other network's weights on it are held at zero (their gradient is masked); needs SB3's ``FlattenExtractor``
+    :param random_label: append a random label per episode instead of the mode (the control above); saved with the
+        model, so that ``load`` and :meth:`wrap_env` give it random labels again
     Every other argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
     """
 
     def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, zero_mode_weights: bool = True,
-                 mode_input: str = "both", **kwargs: Any) -> None:
+                 mode_input: str = "both", random_label: bool = False, **kwargs: Any) -> None:
         self.zero_mode_weights = RULES["zero_mode_weights"]("zero_mode_weights", zero_mode_weights)
         self.mode_input = RULES["mode_input"]("mode_input", mode_input)
-        env = wrap_with_mode(env, kwargs.get("verbose", 0)) if env is not None and not isinstance(env, str) else env
+        self.random_label = RULES["random_label"]("random_label", random_label)
+        if env is not None and not isinstance(env, str):
+            env = wrap_with_mode(env, kwargs.get("verbose", 0), self.random_label)
         super().__init__(policy, env, *args, **kwargs)
 
     def _setup_model(self) -> None:
@@ -61,16 +71,19 @@ class OraclePPO(PPO):
                                  f"must read the one-hot directly), got {type(self.policy.features_extractor).__name__}")
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:
-        """``venv`` with the true mode appended to its observations (for evaluation and recording)."""
-        return wrap_with_mode(venv)
+        """``venv`` with the true mode (or the random label) appended to its observations (for evaluation and
+        recording)."""
+        return wrap_with_mode(venv, random_labels=self.random_label)
 
     def set_env(self, env: Any, force_reset: bool = True) -> None:
-        super().set_env(wrap_with_mode(env, self.verbose), force_reset=force_reset)
+        super().set_env(wrap_with_mode(env, self.verbose, self.random_label), force_reset=force_reset)
 
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> OraclePPO:
-        """As SB3's ``load``; ``env`` gets the mode appended to its observations."""
-        env = wrap_with_mode(env) if env is not None else None
+        """As SB3's ``load``; ``env`` gets the mode (or the saved model's random label) appended to its observations."""
+        if env is not None:
+            data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
+            env = wrap_with_mode(env, random_labels=bool((data or {}).get("random_label", False)))
         return super().load(path, env=env, device=device, custom_objects=custom_objects,
                             print_system_info=print_system_info, force_reset=force_reset, **kwargs)
