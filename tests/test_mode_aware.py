@@ -372,7 +372,7 @@ def test_random_labels_are_one_per_copy_and_episode_independent_of_the_mode_and_
 
 
 def test_random_labels_reject_bad_values_and_relabel_beside_them():
-    with pytest.raises(ValueError, match="random_labels must be a bool"):
+    with pytest.raises(ValueError, match="random_labels must be true or false, got 'yes'"):
         ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), random_labels="yes")
     with pytest.raises(ValueError, match="not both"):
         ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), relabel=list(range(N_MODES)),

@@ -16,6 +16,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
+from sb3_emmarl.common.validation import boolean
 from wildlife_reserve.reserve.modes import N_MODES
 
 
@@ -54,11 +55,9 @@ class ModeObservationWrapper(VecEnvWrapper):
             raise ValueError(f"n_modes must be an int >= 1, got {n_modes!r}")
         self.n_modes = int(n_modes)
         self.relabel = None if relabel is None else self._check_relabel(relabel)
-        if not isinstance(random_labels, (bool, np.bool_)):
-            raise ValueError(f"random_labels must be a bool, got {random_labels!r}")
-        if random_labels and relabel is not None:
+        self.random_labels = boolean()("random_labels", random_labels)
+        if self.random_labels and relabel is not None:
             raise ValueError("give relabel or random_labels, not both: a random label replaces every mode")
-        self.random_labels = bool(random_labels)
         low = np.concatenate([space.low, np.zeros(self.n_modes, dtype=space.dtype)])
         high = np.concatenate([space.high, np.ones(self.n_modes, dtype=space.dtype)])
         super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
