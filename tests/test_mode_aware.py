@@ -398,3 +398,15 @@ def test_oracle_ppo_with_a_random_label_keeps_it_through_saving_loading_and_eval
     assert not find_mode_wrapper(told.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL))).random_labels
     records = evaluate_team(loaded, 3, seed=5, env_kwargs=SMALL)
     assert len(records) == 3 and all(np.isfinite(r["team_reward"]) for r in records)
+
+
+def test_wrap_with_mode_refuses_an_environment_wrapped_to_tell_the_other_thing():
+    told = wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL))
+    with pytest.raises(ValueError, match="already wrapped to tell the mode, but random_labels=True"):
+        wrap_with_mode(told, random_labels=True)
+    with pytest.raises(ValueError, match="already wrapped to tell the mode"):
+        OraclePPO("MlpPolicy", told, random_label=True)
+    control = wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL), random_labels=True)
+    assert wrap_with_mode(control, random_labels=True) is control
+    with pytest.raises(ValueError, match="already wrapped to tell a random label per episode, but random_labels=False"):
+        OraclePPO("MlpPolicy", control)

@@ -211,3 +211,26 @@ def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path,
     train_kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
     assert [event[0] for event in events] == ["compile", "compile", "learn"]
     assert train_kwargs.items() <= events[0][1].items() and events[1][1] == {**events[0][1], "adversarial": True}
+
+
+@pytest.mark.parametrize("random_label", [True, False])
+def test_the_zoos_oracle_ppo_trains_and_evaluates_on_what_its_random_label_asks(tmp_path, monkeypatch, random_label):
+    """``-params random_label:True`` reaches the zoo's own environments (training and evaluation), not only the model:
+    until 0.18.8 the zoo wrapped them told the true mode, which the model then kept, so its control trained told."""
+    from sb3_emmarl.common.mode_aware import find_mode_wrapper
+
+    seen = []
+    learn = exp_manager.ReserveExperimentManager.learn
+    monkeypatch.setattr(exp_manager.ReserveExperimentManager, "learn",
+                        lambda self, model: (seen.append(model), learn(self, model))[1])
+    create_envs = exp_manager.ReserveExperimentManager.create_envs
+    monkeypatch.setattr(exp_manager.ReserveExperimentManager, "create_envs",
+                        lambda self, *a, **k: (lambda env: (seen.append(env), env)[1])(create_envs(self, *a, **k)))
+    params = ["n_steps:32", "batch_size:64"] + (["random_label:True"] if random_label else [])
+    assert train_main(["--algo", "oracle_ppo", "-n", "64", "--seed", "1", "-f", str(tmp_path), "--eval-freq", "32",
+                       "--eval-episodes", "1", "--team-eval-episodes", "0", "--verbose", "0", "-params", *params,
+                       *TINY]) == 0
+    model, envs = seen[-1], seen[:-1]
+    assert len(envs) == 2  # the training and the evaluation environment
+    assert find_mode_wrapper(model.get_env()).random_labels is random_label
+    assert all(find_mode_wrapper(env).random_labels is random_label for env in envs)

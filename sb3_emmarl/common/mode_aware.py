@@ -129,6 +129,18 @@ def find_mode_wrapper(venv: VecEnv) -> ModeObservationWrapper | None:
 
 def wrap_with_mode(env: Any, verbose: int = 0, random_labels: bool = False) -> VecEnv:
     """``env`` as a vector environment whose observations end with the true mode, or with a random label per episode
-    (``random_labels``; see :class:`ModeObservationWrapper`); a vector environment already wrapped is kept."""
+    (``random_labels``; see :class:`ModeObservationWrapper`).
+
+    A vector environment already wrapped is kept if its wrapper tells what is asked (the mode, or random labels), and
+    refused otherwise: a model built to be told one would silently be trained or evaluated on the other.
+    """
     venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    return venv if find_mode_wrapper(venv) is not None else ModeObservationWrapper(venv, random_labels=random_labels)
+    wrapper = find_mode_wrapper(venv)
+    if wrapper is None:
+        return ModeObservationWrapper(venv, random_labels=random_labels)
+    if wrapper.random_labels != bool(random_labels):
+        told = {True: "a random label per episode", False: "the mode"}
+        raise ValueError(f"the environment is already wrapped to tell {told[wrapper.random_labels]}, but "
+                         f"random_labels={bool(random_labels)} asks for {told[bool(random_labels)]}: give the "
+                         f"environment without its ModeObservationWrapper, or one that tells what is asked")
+    return venv

@@ -256,6 +256,7 @@ class ReserveExperimentManager(ExperimentManager):
         if self.vec_env_class.__name__ == "SubprocVecEnv":
             self.num_cpus = min(os.cpu_count() or 1, max(1, self.n_envs // self.agents_per_copy))
         self._message_slots = int(processed[0].get("max_messages", 8))
+        self._random_label = bool(processed[0].get("random_label", False))  # oracle_ppo's control: its envs' labels
         self._check_buffer_memory(processed[0], prototype)
         prototype.close()
         return processed
@@ -316,7 +317,7 @@ class ReserveExperimentManager(ExperimentManager):
             )
             env = self._maybe_normalize(env, eval_env)
             if ZOO_ALGOS[self.algo] is OraclePPO:
-                env = wrap_with_mode(env)
+                env = wrap_with_mode(env, random_labels=self._random_label)
             elif ZOO_ALGOS[self.algo] is MessagePPO:  # evaluations need the messages too
                 env = wrap_with_messages(env, self._message_slots)
         return FiniteCheck(env)
