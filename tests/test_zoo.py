@@ -224,8 +224,12 @@ def test_the_zoos_oracle_ppo_trains_and_evaluates_on_what_its_random_label_asks(
     monkeypatch.setattr(exp_manager.ReserveExperimentManager, "learn",
                         lambda self, model: (seen.append(model), learn(self, model))[1])
     create_envs = exp_manager.ReserveExperimentManager.create_envs
-    monkeypatch.setattr(exp_manager.ReserveExperimentManager, "create_envs",
-                        lambda self, *a, **k: (lambda env: (seen.append(env), env)[1])(create_envs(self, *a, **k)))
+
+    def recording_create_envs(self, *args, **kwargs):
+        seen.append(create_envs(self, *args, **kwargs))
+        return seen[-1]
+
+    monkeypatch.setattr(exp_manager.ReserveExperimentManager, "create_envs", recording_create_envs)
     params = ["n_steps:32", "batch_size:64"] + (["random_label:True"] if random_label else [])
     assert train_main(["--algo", "oracle_ppo", "-n", "64", "--seed", "1", "-f", str(tmp_path), "--eval-freq", "32",
                        "--eval-episodes", "1", "--team-eval-episodes", "0", "--verbose", "0", "-params", *params,

@@ -55,8 +55,7 @@ class OraclePPO(PPO):
         self.mode_input = RULES["mode_input"]("mode_input", mode_input)
         self.random_label = RULES["random_label"]("random_label", random_label)
         loading = not kwargs.get("_init_setup_model", True)  # SB3's load: env is wrapped as the saved model asks
-        if env is not None and not isinstance(env, str) and not (loading and isinstance(env, VecEnv)
-                                                                   and find_mode_wrapper(env) is not None):
+        if env is not None and not isinstance(env, str) and not (loading and find_mode_wrapper(env) is not None):
             env = wrap_with_mode(env, kwargs.get("verbose", 0), self.random_label)
         super().__init__(policy, env, *args, **kwargs)
 
