@@ -39,6 +39,12 @@ learned drops out of the difference.
 ``-params key:value ...`` gives both variants the same hyperparameter overrides of ``ppo.yml`` (the zoo's
 ``-params``), for example ``-params n_epochs:10 ent_coef:0.03``. Give it its own ``-f``.
 
+Whether PPO can act on the mode at all, wherever it pays: ``--env-kwargs coverage_sectors:True
+"reward_weights:{'coverage':0.2}"`` makes the coverage term pay only in the sector of the episode's poacher strategy,
+which nothing a UAV observes shows (the reserve's ``coverage_sectors``): the mode alone decides where about half of
+what a trained team earns lies, and the mode-use table tells whether the told runs go there (docs/results.md, "On
+0.18.9"). Give it its own ``-f``.
+
 ``--scripted-only`` stops after the scripted part: with ``--env-kwargs`` it tells in a few minutes how much a
 candidate reserve's mode can pay, before any training on it.
 

@@ -54,6 +54,8 @@ from typing import Any
 import numpy as np
 
 from wildlife_reserve import reserve_v0
+from wildlife_reserve.reserve.config import MAX_CYCLES
+from wildlife_reserve.reserve.reserve import compile_kernels
 
 OUTCOMES = ("ran", "clean_error", "silent_acceptance", "false_rejection", "unclean_exception", "bad_output", "hang",
             "memory")
@@ -287,6 +289,7 @@ VALUES: dict[str, list[tuple[Any, bool]]] = {
     "continuous_actions": _bools(),
     "agent_ids": _bools(),
     "compass": _bools(),
+    "coverage_sectors": _bools(),
     "region": _region(),
     "terrain": _terrain(),
     "risk": _risk(),
@@ -524,11 +527,11 @@ def _vm_size() -> int | None:
 
 
 def warm_up() -> None:
-    """Build, reset and step a small reserve once, so that the first case does not carry numba's one-time loading."""
-    env = reserve_v0.parallel_env(n_uavs=2, grid_size=20)
-    env.reset(seed=0)
-    env.step(dict.fromkeys(env.agents, 0))
-    env.close()
+    """Compile the reserve's kernels (``compile_kernels``) for both widths of its visit stamps, int16 and the int32 of
+    episodes of 32,767 steps or more, so that no case carries numba's one-time compilation: a valid case with
+    ``max_cycles=100_000`` otherwise compiled the int32 kernels inside its time limit (52 s under tracemalloc)."""
+    for max_cycles in (200, MAX_CYCLES):
+        compile_kernels(n_uavs=2, grid_size=20, max_cycles=max_cycles)
 
 
 def run_cases(cases: Iterable[Case], time_limit: float = TIME_LIMIT, memory_limit: int = MEMORY_LIMIT,

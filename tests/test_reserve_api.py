@@ -15,6 +15,7 @@ COMBINATIONS = {
     "continuous": {"continuous_actions": True},
     "agent_ids_continuous": {"agent_ids": True, "continuous_actions": True},
     "compass_agent_ids": {"compass": True, "agent_ids": True},
+    "coverage_sectors_new_maps": {"coverage_sectors": True, "terrain_seed": None},
     "sensor_noise": {"sensor_noise": 0.5},
     "comm_loss": {"comm_loss": 0.5},
     "adversarial": {"adversarial": True},

@@ -37,6 +37,7 @@ BAD = [
     ({"render_mode": "ascii"}, r"render_mode must be None, 'human' or 'rgb_array', got 'ascii'"),
     ({"agent_ids": "yes"}, r"agent_ids must be a bool \(True or False\), got 'yes' \(str\)"),
     ({"compass": 1}, r"compass must be a bool \(True or False\), got 1 \(int\)"),
+    ({"coverage_sectors": "true"}, r"coverage_sectors must be a bool \(True or False\), got 'true' \(str\)"),
 ]
 
 

@@ -338,6 +338,60 @@ def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_el
                 assert any((np.round(target) == p).all() for p in points[distance == distance.min()])
 
 
+def test_sectors_split_cells_by_angle_into_equal_counts():
+    from wildlife_reserve.reserve.terrain import sectors
+
+    cells = np.zeros((10, 10), dtype=bool)
+    # Angles around the centre (5, 5), ascending: north (-pi/2), east (0), south (pi/2), west (pi).
+    for cell in [(5, 0), (5, 1), (0, 5), (1, 5), (5, 9), (5, 8), (9, 5), (8, 5)]:
+        cells[cell] = True
+    out = sectors(cells, 4)
+    assert (out[~cells] == -1).all()
+    assert out[0, 5] == out[1, 5] == 0 and out[5, 9] == out[5, 8] == 1
+    assert out[9, 5] == out[8, 5] == 2 and out[5, 0] == out[5, 1] == 3
+    assert sorted(np.bincount(sectors(cells, 3)[cells])) == [2, 3, 3]
+    assert (sectors(cells, 1)[cells] == 0).all()
+    assert (sectors(np.zeros((4, 4), dtype=bool), 4) == -1).all()
+    env = reserve_v0.parallel_env()
+    env.reset(seed=0)
+    counts = np.bincount(sectors(env.high_risk, 4)[env.high_risk], minlength=4)
+    assert counts.sum() == env.high_risk.sum() and counts.max() - counts.min() <= 1
+
+
+@pytest.mark.parametrize("terrain_seed", [0, None])
+def test_coverage_sectors_pay_coverage_in_the_strategys_sector_only_and_change_nothing_else(terrain_seed):
+    from wildlife_reserve.reserve.config import DEFAULT_REWARD_WEIGHTS
+    from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
+    from wildlife_reserve.reserve.terrain import sectors
+
+    only_coverage = {term: 0.0 for term in DEFAULT_REWARD_WEIGHTS} | {"coverage": 1.0}
+    kwargs = {"n_uavs": 4, "grid_size": 40, "max_cycles": 40, "terrain_seed": terrain_seed,
+              "reward_weights": only_coverage}
+    plain, paid = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(coverage_sectors=True, **kwargs)
+    for mode in range(N_MODES):
+        rng = np.random.default_rng(mode)
+        observed = [plain.reset(seed=mode, options={"mode": mode})[0], paid.reset(seed=mode, options={"mode": mode})[0]]
+        sector = sectors(paid.high_risk, len(STRATEGIES)) == mode // len(WEATHERS)
+        assert sector.any() and not sector.all()
+        np.testing.assert_array_equal(paid.high_risk, plain.high_risk)  # what the state counts is unchanged
+        inner = (slice(paid.r, paid.r + paid.height), slice(paid.r, paid.r + paid.width))
+        seen_at_reset = paid.visited[inner].copy()
+        totals = np.zeros(2)
+        while plain.agents:
+            for base, other in zip(observed[0].values(), observed[1].values()):
+                np.testing.assert_array_equal(other, base)  # the same episodes: only the reward differs
+            actions = {a: int(rng.integers(15)) for a in plain.agents}
+            steps = [plain.step(actions), paid.step(actions)]
+            observed = [steps[0][0], steps[1][0]]
+            totals += [steps[0][1]["uav_0"], steps[1][1]["uav_0"]]
+        visited = paid.visited[inner]
+        np.testing.assert_array_equal(visited, plain.visited[inner])
+        assert totals[0] == (visited & plain.high_risk & ~seen_at_reset).sum()
+        assert totals[1] == (visited & sector & ~seen_at_reset).sum()  # the strategy's sector alone pays
+        metrics = paid.episode_metrics()
+        assert metrics["coverage_efficiency"] == pytest.approx((visited & sector).sum() / sector.sum())
+
+
 def test_compass_on_hand_built_cells_and_without_roads():
     from wildlife_reserve.reserve.observation import compass
 

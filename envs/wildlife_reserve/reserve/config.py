@@ -191,6 +191,11 @@ class ReserveConfig:
     :param compass: add each UAV's offset to the nearest den and to the nearest road entry (4 floats, the map a
         ranger carries): where each poacher strategy strikes, in the UAV's own frame, so that a policy that knows or
         infers the strategy can head there; a bool
+    :param coverage_sectors: the coverage term pays, and ``coverage_efficiency`` counts, only the high-risk cells in
+        the sector of the episode's poacher strategy (the high-risk cells split into one sector per strategy, of equal
+        count, by angle around the map's centre: :func:`~wildlife_reserve.reserve.terrain.sectors`); nothing a UAV
+        observes tells the sectors apart, so the mode alone decides where that reward lies: a diagnostic of whether a
+        learner acts on the mode; a bool
     :param region: terrain preset, one of :data:`~wildlife_reserve.reserve.terrain.REGIONS` (a str)
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
@@ -231,6 +236,7 @@ class ReserveConfig:
     continuous_actions: bool = False
     agent_ids: bool = False
     compass: bool = False
+    coverage_sectors: bool = False
     region: str = "mixed"
     terrain: np.ndarray | None = None
     risk: np.ndarray | None = None
@@ -314,6 +320,7 @@ class ReserveConfig:
         self.continuous_actions = check_bool("continuous_actions", self.continuous_actions)
         self.agent_ids = check_bool("agent_ids", self.agent_ids)
         self.compass = check_bool("compass", self.compass)
+        self.coverage_sectors = check_bool("coverage_sectors", self.coverage_sectors)
         if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValueError(f"region must be one of {sorted(REGIONS)}, got {show(self.region, with_type=True)}")
         self.region = str(self.region)

@@ -42,7 +42,8 @@ first two scale `uav_speed`, comm > 1/3 broadcasts and comm < -1/3 queries.
 One shared team reward per step: `detection` per poacher detected, `coverage` per high-risk
 cell seen for the first time, `sign` per sign of poacher activity the team finds for the first
 time, minus `poaching` per poaching event, `collision` per pair of UAVs in one cell and `energy`
-per unit of battery spent. `shaping > 0` mixes in each UAV's own share.
+per unit of battery spent. `shaping > 0` mixes in each UAV's own share. With `coverage_sectors=True` (a diagnostic),
+`coverage` pays only for the high-risk cells in the sector of the episode's poacher strategy.
 
 ### Infos
 `infos[agent]["mode"]` (the hidden mode, for evaluation), `infos[agent]["heard_from"]` (the
@@ -84,7 +85,7 @@ from wildlife_reserve.reserve.constants import (
     POACHER_WAITING,
 )
 from wildlife_reserve.reserve.knowledge import TeamKnowledge
-from wildlife_reserve.reserve.modes import N_MODES, decode_mode
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode
 from wildlife_reserve.reserve.stream import Stream
 
 if TYPE_CHECKING:
@@ -103,7 +104,7 @@ _NO_CHOICES = np.zeros(0, dtype=np.int64)  # continuous actions: decoded before 
 _NO_JAMMER = np.zeros(2)  # what the step's compiled call gets for the jammer's cell without one (never written)
 #: What ``ReserveParallelEnv._set_map`` makes from a map.
 MAP_ATTRIBUTES = ("terrain", "risk", "hotspots", "high_risk", "n_high_risk", "cover", "_occ_pad", "_terrain_pad",
-                  "_risk_pad", "_high_risk_pad")
+                  "_risk_pad", "_high_risk_pad", "_sectors")
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
@@ -289,6 +290,12 @@ class ReserveParallelEnv(ParallelEnv):
         self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
         self._risk_pad = self._pad(self.risk, 0.0).ravel()
         self._high_risk_pad = self._pad(self.high_risk, False).ravel()
+        # With coverage_sectors, per strategy: the padded flat cells its coverage term pays for, and their count.
+        self._sectors = None
+        if self.config.coverage_sectors:
+            sector = terrain_lib.sectors(self.high_risk, len(STRATEGIES))
+            self._sectors = tuple((self._pad(sector == k, False).ravel(), int((sector == k).sum()))
+                                  for k in range(len(STRATEGIES)))
 
     def _map_state(self) -> dict[str, Any]:
         """The attributes :meth:`_set_map` sets (a fixed map's are kept and restored at every reset)."""
@@ -346,6 +353,8 @@ class ReserveParallelEnv(ParallelEnv):
             mode = int(np.random.default_rng(mode_seed).choice(N_MODES, p=cfg.mode_prior))
         self.strategy, self.weather = decode_mode(mode)
         self.mode = int(mode)
+        if self._sectors is not None:  # coverage pays in the strategy's sector only
+            self._high_risk_pad, self.n_high_risk = self._sectors[STRATEGIES.index(self.strategy)]
         if self.weather not in self._sensing_tables:  # made once per weather (read-only for the episodes)
             self._sensing_tables[self.weather] = self._sensing_state(self.weather)
         self.__dict__.update(self._sensing_tables[self.weather])

@@ -188,6 +188,24 @@ def risk_map(shape: tuple[int, int], hotspots: Hotspots) -> np.ndarray:
     return as_risk(risk)
 
 
+def sectors(cells: np.ndarray, n: int) -> np.ndarray:
+    """Split the True cells of ``cells`` into ``n`` sectors of equal count (up to one cell) by their angle around the
+    grid's centre: the cells ranked by ``arctan2(row - height / 2, col - width / 2)`` (ties in row-major order), the
+    first ``count / n`` of them sector 0, and so on.
+
+    :param cells: bool array ``(height, width)``
+    :param n: number of sectors, >= 1
+    :return: int array ``(height, width)``: each True cell's sector in ``[0, n)``, -1 elsewhere
+    """
+    rows, cols = np.nonzero(cells)
+    angle = np.arctan2(rows - cells.shape[0] / 2, cols - cells.shape[1] / 2)
+    rank = np.empty(len(rows), dtype=np.int64)
+    rank[np.argsort(angle, kind="stable")] = np.arange(len(rows))
+    out = np.full(cells.shape, -1, dtype=np.int64)
+    out[rows, cols] = rank * n // max(len(rows), 1)
+    return out
+
+
 def as_risk(values: np.ndarray) -> np.ndarray:
     """A risk map as the reserve keeps it: float32, values below :data:`RISK_FLOOR` set to 0."""
     risk = np.asarray(values, dtype=np.float32).copy()
