@@ -194,8 +194,8 @@ class ReserveConfig:
     :param coverage_sectors: the coverage term pays, and ``coverage_efficiency`` counts, only the high-risk cells in
         the sector of the episode's poacher strategy (the high-risk cells split into one sector per strategy, of equal
         count, by angle around the map's centre: :func:`~wildlife_reserve.reserve.terrain.sectors`); nothing a UAV
-        observes tells the sectors apart, so the mode alone decides where that reward lies: a diagnostic of whether a
-        learner acts on the mode; a bool
+        observes marks the sectors, so where that reward lies follows from the strategy alone: a diagnostic of whether
+        a learner acts on the mode it is told or infers; a bool
     :param region: terrain preset, one of :data:`~wildlife_reserve.reserve.terrain.REGIONS` (a str)
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
