@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-mode-value benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
+	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
 	experiments-quick experiments-full experiments-report
 
 install:
@@ -88,6 +88,17 @@ benchmark-mixture-ceiling: install
 # 5 seeds x 500k agent-steps each (about 35 minutes).
 benchmark-mode-value: install
 	$(PYTHON) benchmarks/mode_value.py
+
+# The figure the value-of-information target was set on, repeated on its own reserve: sb3-emmarl 0.1.0 (8044dff, checked
+# out as a git worktree), PPO told the mode, plain PPO and a random-label control, 10 seeds x 500k each (about 25 minutes).
+MV010_TREE ?= /tmp/sb3_emmarl_0_1_0
+MV010_FOLDER ?= logs/mode_value_0_1_0
+benchmark-mode-value-0-1-0: install
+	test -d $(MV010_TREE) || git worktree add --detach $(MV010_TREE) 8044dff
+	for seed in 0 1 2 3 4 5 6 7 8 9; do for variant in told ppo control; do \
+		echo "run --variant $$variant --seed $$seed --folder $(MV010_FOLDER)"; done; done | \
+		PYTHONPATH=$(MV010_TREE):$(MV010_TREE)/envs xargs -P 2 -L 1 $(PYTHON) benchmarks/mode_value_0_1_0.py
+	$(PYTHON) benchmarks/mode_value_0_1_0.py report --folder $(MV010_FOLDER)
 
 # Runs that survive: 20 SIGKILLs at random moments per algorithm (PPO, EM-PPO), resumed and compared with uninterrupted runs (about 25 minutes).
 benchmark-kill-resume: install

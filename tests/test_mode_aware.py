@@ -1,6 +1,7 @@
 """The true mode in the observation (ModeObservationWrapper, OraclePPO) and the value-of-information benchmark."""
 
 import argparse
+import json
 
 import numpy as np
 import pytest
@@ -410,3 +411,47 @@ def test_wrap_with_mode_refuses_an_environment_wrapped_to_tell_the_other_thing()
     assert wrap_with_mode(control, random_labels=True) is control
     with pytest.raises(ValueError, match="already wrapped to tell a random label per episode, but random_labels=False"):
         OraclePPO("MlpPolicy", control)
+
+
+def test_the_0_1_0_repeat_counts_the_issue_s_protocol_on_hand_built_runs():
+    repeat = load_benchmark("mode_value_0_1_0")
+    ppo = {s: np.zeros(40) for s in range(4)}
+    told = {s: np.r_[np.full(20, 10.0), np.zeros(20)] for s in range(3)}  # 10 higher on the first 20 episodes
+    told[3] = np.full(40, -1.0)
+    # 4 sets of 3 seeds x 2 blocks of 20: only seeds 0, 1, 2 on the first block are higher on every seed.
+    assert repeat.protocol_draws(told, ppo) == (1, 8)
+    assert repeat.protocol_draws(told, ppo, gain=10.5) == (0, 8)
+    assert repeat.protocol_draws(told, ppo, n_seeds=2, block=40) == (0, 6)  # 5 higher on average: below 7
+
+
+def test_the_0_1_0_repeat_reports_every_table_and_refuses_runs_that_do_not_pair(tmp_path, capsys):
+    repeat = load_benchmark("mode_value_0_1_0")
+
+    def episodes(reward):
+        return [{m: reward + e % 2 for m in repeat.METRICS} for e in range(repeat.ISSUE_EPISODES)]
+
+    def write(variant, seed, reward, folder=tmp_path):
+        data = {"variant": variant, "seed": seed, "records": episodes(reward)}
+        if variant == "told":
+            data["next_strategy_records"] = episodes(reward - 1.0 - seed**2)
+        (folder / f"{variant}_{seed}.json").write_text(json.dumps(data))
+
+    for seed in range(3):
+        write("told", seed, 10.0 + seed)
+        write("ppo", seed, 1.0)
+        write("control", seed, 2.0 + seed**2)
+    repeat.main(["report", "--folder", str(tmp_path)])
+    out = capsys.readouterr().out
+    for title in ("PPO told the mode or not", "Told the mode or a random label", "A random label or nothing",
+                  "the true mode or the next strategy", "The issue's protocol"):
+        assert title in out
+    assert "in 1 of 1 draws (100.0%)" in out and "median 10.000" in out
+    write("ppo", 3, 1.0)
+    with pytest.raises(SystemExit, match=r"same seeds; has told: \[0, 1, 2\], ppo: \[0, 1, 2, 3\]"):
+        repeat.main(["report", "--folder", str(tmp_path)])
+
+
+def test_the_0_1_0_repeat_trains_only_on_0_1_0(tmp_path):
+    with pytest.raises(SystemExit, match=r"run needs sb3-emmarl 0.1.0 on the path .* got 0\.18"):
+        load_benchmark("mode_value_0_1_0").main(["run", "--variant", "told", "--seed", "0", "--folder", str(tmp_path)])
+    assert not list(tmp_path.iterdir())
