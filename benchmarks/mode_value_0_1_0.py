@@ -105,7 +105,7 @@ def run(variant: str, seed: int, folder: Path, n_timesteps: int = 500_000) -> No
                 gamma=0.99, gae_lambda=0.95, learning_rate=3e-4, ent_coef=0.01, clip_range=0.2,
                 policy_kwargs=dict(net_arch=[128, 128]), seed=seed, verbose=0)
     model.learn(n_timesteps)
-    out = {"variant": variant, "seed": seed, "train_seconds": time.time() - start}
+    out = {"variant": variant, "seed": seed, "n_timesteps": n_timesteps, "train_seconds": time.time() - start}
     for key, episode_label in [("records", label)] + ([("next_strategy_records", "next_strategy")] if label == "mode" else []):
         out[key] = evaluate_team(model, n_episodes=EVAL_EPISODES, seed=EVAL_SEED,
                                  vec_env=make_vec_env(1, seed=EVAL_SEED, env_fn=env_fn(episode_label)))
@@ -117,12 +117,12 @@ def run(variant: str, seed: int, folder: Path, n_timesteps: int = 500_000) -> No
           f"trained in {out['train_seconds']:.0f} s")
 
 
-def load(folder: Path, variant: str, key: str = "records") -> dict[int, list[dict]]:
-    """``{seed: episode records}`` of every run of ``variant`` in ``folder``."""
+def load(folder: Path, variant: str) -> dict[int, dict]:
+    """``{seed: run}`` of every run of ``variant`` in ``folder`` (what ``run`` wrote)."""
     runs = {}
     for path in sorted(folder.glob(f"{variant}_*.json")):
         data = json.loads(path.read_text())
-        runs[int(data["seed"])] = data[key]
+        runs[int(data["seed"])] = data
     return runs
 
 
@@ -159,19 +159,23 @@ def report(folder: Path) -> None:
     from mode_value import paired_table  # the value-of-information benchmark's table, beside this script
     from scipy import stats
 
-    runs = {variant: load(folder, variant) for variant in VARIANTS}
-    seeds = sorted(runs["told"])
-    if not seeds or any(sorted(r) != seeds for r in runs.values()):
+    loaded = {variant: load(folder, variant) for variant in VARIANTS}
+    seeds = sorted(loaded["told"])
+    if not seeds or any(sorted(r) != seeds for r in loaded.values()):
         raise SystemExit(f"{folder} must hold runs of {', '.join(VARIANTS)} for the same seeds; has "
-                         + ", ".join(f"{v}: {sorted(r)}" for v, r in runs.items()))
+                         + ", ".join(f"{v}: {sorted(r)}" for v, r in loaded.items()))
+    budgets = {run["n_timesteps"] for r in loaded.values() for run in r.values()}
+    if len(budgets) != 1:
+        raise SystemExit(f"{folder} holds runs of different budgets {sorted(budgets)}: they do not pair")
+    runs = {variant: {seed: run["records"] for seed, run in r.items()} for variant, r in loaded.items()}
     means = {variant: seed_means(r, seeds) for variant, r in runs.items()}
-    header = (f"{len(seeds)} seeds x 500,000 agent-steps per run on sb3-emmarl 0.1.0 (0.1.0's ppo.yml); {EVAL_EPISODES} "
-              f"evaluation episodes from seed {EVAL_SEED} per run (actions sampled); mean +- std over seeds")
+    header = (f"{len(seeds)} seeds x {budgets.pop():,} agent-steps per run on sb3-emmarl 0.1.0 (0.1.0's ppo.yml); "
+              f"{EVAL_EPISODES} evaluation episodes from seed {EVAL_SEED} per run (actions sampled); mean +- std over seeds")
     for title, a, b in [("PPO told the mode or not", "told", "ppo"),
                         ("Told the mode or a random label (the same input without the information)", "told", "control"),
                         ("A random label or nothing", "control", "ppo")]:
         print(f"{title}: {header}\n{paired_table({a: means[a], b: means[b]}, METRICS)}\n")
-    wrong = seed_means(load(folder, "told", "next_strategy_records"), seeds)
+    wrong = seed_means({seed: run["next_strategy_records"] for seed, run in loaded["told"].items()}, seeds)
     print(f"The told runs told the true mode or the next strategy (the same weather), on the same episodes\n"
           f"{paired_table({'true_mode': means['told'], 'next_strategy': wrong}, METRICS)}\n")
     issue = seeds[:ISSUE_SEEDS]
@@ -179,9 +183,9 @@ def report(folder: Path) -> None:
           + paired_table({"told": seed_means(runs["told"], issue, ISSUE_EPISODES),
                           "ppo": seed_means(runs["ppo"], issue, ISSUE_EPISODES)}, METRICS) + "\n")
     rewards = {v: {s: np.array([r["team_reward"] for r in runs[v][s]]) for s in seeds} for v in ("told", "ppo")}
-    gains = np.array([rewards["told"][s].mean() - rewards["ppo"][s].mean() for s in seeds])
     hits, draws = protocol_draws(rewards["told"], rewards["ppo"])
-    spread = {v: [m["team_reward"] for m in means[v]] for v in VARIANTS}
+    spread = {v: np.array([m["team_reward"] for m in means[v]]) for v in VARIANTS}
+    gains = spread["told"] - spread["ppo"]
     print(f"Told minus PPO per seed: {np.array2string(gains, precision=3)}; median {np.median(gains):.3f}; "
           f"Wilcoxon signed-rank p = {stats.wilcoxon(gains).pvalue:.3g}\n"
           f"Team reward's spread over seeds (std): " + ", ".join(f"{v} {np.std(spread[v]):.3f}" for v in VARIANTS)

@@ -430,11 +430,11 @@ def test_the_0_1_0_repeat_reports_every_table_and_refuses_runs_that_do_not_pair(
     def episodes(reward):
         return [{m: reward + e % 2 for m in repeat.METRICS} for e in range(repeat.ISSUE_EPISODES)]
 
-    def write(variant, seed, reward, folder=tmp_path):
-        data = {"variant": variant, "seed": seed, "records": episodes(reward)}
+    def write(variant, seed, reward, n_timesteps=500_000):
+        data = {"variant": variant, "seed": seed, "n_timesteps": n_timesteps, "records": episodes(reward)}
         if variant == "told":
             data["next_strategy_records"] = episodes(reward - 1.0 - seed**2)
-        (folder / f"{variant}_{seed}.json").write_text(json.dumps(data))
+        (tmp_path / f"{variant}_{seed}.json").write_text(json.dumps(data))
 
     for seed in range(3):
         write("told", seed, 10.0 + seed)
@@ -445,7 +445,10 @@ def test_the_0_1_0_repeat_reports_every_table_and_refuses_runs_that_do_not_pair(
     for title in ("PPO told the mode or not", "Told the mode or a random label", "A random label or nothing",
                   "the true mode or the next strategy", "The issue's protocol"):
         assert title in out
-    assert "in 1 of 1 draws (100.0%)" in out and "median 10.000" in out
+    assert "in 1 of 1 draws (100.0%)" in out and "median 10.000" in out and "3 seeds x 500,000 agent-steps" in out
+    write("control", 2, 6.0, n_timesteps=2048)
+    with pytest.raises(SystemExit, match=r"runs of different budgets \[2048, 500000\]"):
+        repeat.main(["report", "--folder", str(tmp_path)])
     write("ppo", 3, 1.0)
     with pytest.raises(SystemExit, match=r"same seeds; has told: \[0, 1, 2\], ppo: \[0, 1, 2, 3\]"):
         repeat.main(["report", "--folder", str(tmp_path)])
