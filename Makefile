@@ -90,7 +90,7 @@ benchmark-mode-value: install
 	$(PYTHON) benchmarks/mode_value.py
 
 # The figure the value-of-information target was set on, repeated on its own reserve: sb3-emmarl 0.1.0 (8044dff, checked
-# out as a git worktree), PPO told the mode, plain PPO and a random-label control, 10 seeds x 500k each (about 25 minutes).
+# out as a git worktree), PPO told the mode, plain PPO and a random-label control, 10 seeds x 500k each (about 40 minutes).
 MV010_TREE ?= /tmp/sb3_emmarl_0_1_0
 MV010_FOLDER ?= logs/mode_value_0_1_0
 benchmark-mode-value-0-1-0: install
