@@ -6,6 +6,8 @@ the observation: the upper bound a method that infers the mode is measured again
 
 - :class:`ModeCueEnv`: the mode shows only through a weak cue at every step.
 - :class:`ModeDynamicsEnv`: the mode changes only what the actions do.
+- :class:`ModeReachEnv`: the mode changes what the actions do, and an episode ends when the goal is reached.
+- :class:`ModeGoalEnv`: the mode decides where the reward lies, shown only by a weak cue at every step.
 """
 
 from __future__ import annotations
@@ -113,3 +115,101 @@ class ModeDynamicsEnv(_ModeEnv):
         self.t += 1
         reward = float(1 - np.linalg.norm(self.position) / np.sqrt(2))
         return self._observe(self.position), reward, False, self.t >= self.length, self._info()
+
+
+class ModeReachEnv(ModeDynamicsEnv):
+    """Reach the origin when the mode decides which way each action moves the point; the episode ends on arrival.
+
+    As :class:`ModeDynamicsEnv` (action ``a`` moves the point along direction ``(a + mode) % 4``), but the point
+    starts at least ``2 * radius`` from the origin, each step pays the distance it gained towards the origin (it
+    costs what it lost), the step that brings the point within ``radius`` of the origin pays 1 more and ends the
+    episode (``terminated``), and an episode that never arrives is truncated after ``length`` steps. A policy that
+    steers by the wrong mode drifts away and pays for it: one transition tells the mode, a memoryless policy
+    cannot keep it.
+
+    :param step: distance of one move
+    :param noise: standard deviation of the position noise per step
+    :param radius: distance to the origin that counts as arrival
+    :param length: steps per episode at most
+    :param told: append the mode's one-hot to the observation
+    """
+
+    def __init__(self, step: float = 0.15, noise: float = 0.01, radius: float = 0.2, length: int = 50,
+                 told: bool = False) -> None:
+        if not 0 < radius < 0.5:
+            raise ValueError(f"radius must be in (0, 0.5), got {radius!r}")
+        super().__init__(step=step, noise=noise, length=length, told=told)
+        self.radius = float(radius)
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._start(seed)
+        self.position = self.np_random.uniform(-1, 1, 2)
+        while np.linalg.norm(self.position) < 2 * self.radius:
+            self.position = self.np_random.uniform(-1, 1, 2)
+        return self._observe(self.position), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        before = np.linalg.norm(self.position)
+        move = self.DIRECTIONS[(int(action) + self.mode) % 4] * self.step_size
+        self.position = np.clip(self.position + move + self.np_random.normal(0, self.noise, 2), -1, 1)
+        self.t += 1
+        distance = np.linalg.norm(self.position)
+        arrived = bool(distance < self.radius)
+        reward = float(before - distance) + float(arrived)
+        return self._observe(self.position), reward, arrived, self.t >= self.length and not arrived, self._info()
+
+
+class ModeGoalEnv(_ModeEnv):
+    """Go to the corner the mode names and stay there; a weak cue at every step is the only sign of which.
+
+    Observation: the position ``(x, y)`` (starting in ``[-0.3, 0.3]^2``) and a cue's one-hot over the ``4`` corners
+    ``(+-corner, +-corner)``, naming the mode's corner ``cue_accuracy`` of the time, else a uniform draw. Action:
+    ``Discrete(5)``: stay, or move by ``step`` right, up, left or down (the same in every mode), plus Gaussian noise.
+    Reward 1 on each step that ends within ``radius`` of the mode's corner. The mode decides where the reward lies,
+    not what the actions do: a policy that follows each step's cue wanders between corners, one that accumulates
+    the cues goes to one corner and stays.
+
+    :param cue_accuracy: chance that the cue names the mode's corner rather than a uniform draw
+    :param corner: the corners' distance from the origin along each axis
+    :param step: distance of one move
+    :param noise: standard deviation of the position noise per step
+    :param radius: distance to the corner within which a step pays
+    :param length: steps per episode
+    :param told: append the mode's one-hot to the observation
+    """
+
+    #: Unit moves of the five actions: stay, right, up, left, down.
+    MOVES = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    #: Signs of the four corners (mode k's corner is ``SIGNS[k] * corner``).
+    SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+
+    def __init__(self, cue_accuracy: float = 0.25, corner: float = 0.7, step: float = 0.15, noise: float = 0.01,
+                 radius: float = 0.3, length: int = 40, told: bool = False) -> None:
+        if not 0 <= cue_accuracy <= 1:
+            raise ValueError(f"cue_accuracy must be in [0, 1], got {cue_accuracy!r}")
+        if not 0 < corner <= 1 or not step > 0 or not noise >= 0 or not radius > 0:
+            raise ValueError(f"need 0 < corner <= 1, step > 0, noise >= 0 and radius > 0, got corner={corner!r}, "
+                             f"step={step!r}, noise={noise!r} and radius={radius!r}")
+        super().__init__(4, length, told, 6)
+        self.cue_accuracy, self.corner, self.step_size = float(cue_accuracy), float(corner), float(step)
+        self.noise, self.radius = float(noise), float(radius)
+        self.action_space = spaces.Discrete(5)
+        self.position = np.zeros(2)
+
+    def _observation(self) -> np.ndarray:
+        right = self.np_random.random() < self.cue_accuracy
+        cue = np.eye(4)[self.mode if right else int(self.np_random.integers(4))]
+        return self._observe(np.concatenate([self.position, cue]))
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._start(seed)
+        self.position = self.np_random.uniform(-0.3, 0.3, 2)
+        return self._observation(), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        move = self.MOVES[int(action)] * self.step_size
+        self.position = np.clip(self.position + move + self.np_random.normal(0, self.noise, 2), -1, 1)
+        self.t += 1
+        goal = self.SIGNS[self.mode] * self.corner
+        reward = float(np.linalg.norm(self.position - goal) < self.radius)
+        return self._observation(), reward, False, self.t >= self.length, self._info()

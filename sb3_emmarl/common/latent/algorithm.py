@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
 from sb3_emmarl.common.latent.counts import check_factors
+from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -208,6 +209,19 @@ class LatentAlgorithmMixin:
         stats = self.e_step.step(train=not self.freeze_e_step)
         for key, value in stats.items():
             self.logger.record(f"latent/{key}", value)
+
+    def _log_belief_use(self, observations: np.ndarray) -> None:
+        """Log whether the policy reads its belief, on augmented ``observations`` it acted on: ``latent/belief_use``
+        (:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`: how far its actions move when the belief is permuted
+        between components) and ``latent/belief_entropy`` (the beliefs' mean entropy, ``log K`` when uninformative)."""
+        if self.policy.latent_model is None:
+            return
+        k = self.latent_layout.n_components
+        flat = observations.reshape(-1, observations.shape[-1])
+        if len(flat) > BELIEF_USE_ROWS:  # (a fixed stride: no generator of the run's is drawn from)
+            flat = flat[:: -(-len(flat) // BELIEF_USE_ROWS)]
+        self.logger.record("latent/belief_use", belief_use(self.policy, flat, k))
+        self.logger.record("latent/belief_entropy", belief_entropy(flat[:, -k:]))
 
     # ------------------------------------------------------------------ SB3's conventions
     def predict(self, observation: np.ndarray | dict, state: tuple[np.ndarray, ...] | np.ndarray | None = None,

@@ -46,6 +46,7 @@ import torch as th
 import torch.nn.functional as F
 
 from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, check_rings, count_rates
+from sb3_emmarl.common.latent.diagnostics import assignment_agreement
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
 from sb3_emmarl.common.latent.parts import PartsMemory
 
@@ -402,7 +403,10 @@ class EStep:
         """One E-step on the kept transitions; ``train=False`` (E-step frozen) changes nothing and only reports.
 
         :return: statistics for the logger: marginal log-likelihood per transition, mean entropy of the
-            responsibilities and of the prior, transitions and episodes used, temperature, re-seeded components
+            responsibilities and of the prior, transitions and episodes used, temperature, re-seeded components, and
+            how many episodes keep their component from the E-step's first responsibilities to its last ones, as
+            they are and after the best relabelling (``assignment_kept``, ``assignment_matched``; see
+            :func:`~sb3_emmarl.common.latent.diagnostics.assignment_agreement`)
         """
         if not self.memory:
             return {}
@@ -413,6 +417,7 @@ class EStep:
                 self.model.decoder_log_std.copy_(change.log().clamp(*LOG_STD_BOUNDS))
         self.model.train(train)
         log_r, index, evidence = self.responsibilities(data)
+        first_assignment = log_r.argmax(-1)
         for epoch in range(self.n_epochs if train else 0):
             if epoch:
                 log_r, index, evidence = self.responsibilities(data)
@@ -448,6 +453,8 @@ class EStep:
             self.model.set_prior(log_r.exp())  # pi in closed form
             revived = self._revive_starved_components()
         prior = self.model.prior()
+        kept, matched = assignment_agreement(first_assignment.cpu().numpy(), log_r.argmax(-1).cpu().numpy(),
+                                             self.model.n_components)
         return {
             "log_likelihood": float(marginal / len(data)),
             "posterior_entropy": float(-(log_r.exp() * log_r).sum(-1).mean()),
@@ -456,6 +463,8 @@ class EStep:
             "n_transitions": float(len(data)),
             "n_episodes": float(len(log_r)),
             "revived_components": float(revived),
+            "assignment_kept": kept,
+            "assignment_matched": matched,
         }
 
     def _revive_starved_components(self) -> int:
