@@ -124,7 +124,7 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
               "curve": []}
     seconds, done = 0.0, 0
     for fraction in CHECKPOINTS:
-        steps = int(round(fraction * budget)) - done
+        steps = round(fraction * budget) - done
         start = time.perf_counter()
         model.learn(steps, reset_num_timesteps=done == 0)
         seconds += time.perf_counter() - start
@@ -196,10 +196,11 @@ def report(runs: list[dict]) -> str:
         steps = [p["steps"] for p in mine["told_ppo"][seeds[0]]["curve"]]
         at = int(np.argmax(told_curve >= TOLD_SHARE * told_curve[-1]))
 
-        def returns(variant: str, key: str = "return", index: int = at) -> np.ndarray:
-            return np.array([mine[variant][s]["curve"][index][key] for s in seeds])
+        def returns(variant: str, key: str = "return", mine=mine, seeds=seeds, at=at) -> np.ndarray:
+            return np.array([mine[variant][s]["curve"][at][key] for s in seeds])
 
-        em, told, ppo, permuted = returns("em_ppo"), returns("told_ppo"), returns("ppo"), returns("em_ppo", "permuted_return")
+        em, told, ppo = returns("em_ppo"), returns("told_ppo"), returns("ppo")
+        permuted = returns("em_ppo", "permuted_return")
         ratio = em / told
         gain, cost = em - ppo, em - permuted
         lines.append(f"{task}: {len(seeds)} seeds; told PPO's mean return by checkpoint "

@@ -4,12 +4,11 @@ The training case trains three models (minutes on two cores): marked ``expensive
 ``python -m pytest -m expensive tests/test_latent_tasks.py`` or ``make benchmark-latent-tasks`` (10 seeds) run it.
 """
 
-import pytest
-from scripts import load_benchmark
-
 import json
 
 import numpy as np
+import pytest
+from scripts import load_benchmark
 
 from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
@@ -69,7 +68,7 @@ def test_the_reach_task_pays_progress_and_ends_on_arrival():
     env.reset(seed=1)
     env.position = np.array([0.0, 0.45])
     for _ in range(4):  # one step of 0.15 towards the origin is action (3 - mode) % 4 (down)
-        obs, reward, terminated, truncated, info = env.step((3 - info_mode(env)) % 4)
+        _, reward, terminated, truncated, _ = env.step((3 - info_mode(env)) % 4)
         if terminated:
             break
     assert terminated and not truncated
