@@ -213,8 +213,8 @@ def report(runs: list[dict]) -> str:
         use = returns("em_ppo", "belief_use")
         lines.append(f"  em_ppo / told_ppo per seed: {' '.join(f'{x:.2f}' for x in ratio)}; at >= {TARGET}: "
                      f"{int((ratio >= TARGET).sum())} of {len(seeds)}")
-        lines.append(f"  em_ppo's belief after the first step: aligned accuracy {accuracy.mean():.3f} +- {accuracy.std():.3f}; "
-                     f"belief use (KL when permuted) {use.mean():.3f} +- {use.std():.3f}")
+        lines.append(f"  em_ppo's belief after the first step: aligned accuracy {accuracy.mean():.3f} +- "
+                     f"{accuracy.std():.3f}; belief use (KL when permuted) {use.mean():.3f} +- {use.std():.3f}")
         wilcoxon = float(stats.wilcoxon(cost - gain / 2).pvalue) if np.any(cost != gain / 2) else 1.0
         lines.append(f"  em_ppo - ppo {gain.mean():+.3f} (p {paired_p_value(em, ppo):.3g}); permuting costs "
                      f"{cost.mean():+.3f} (p {paired_p_value(em, permuted):.3g}); cost - half the gain "
