@@ -39,7 +39,7 @@ from sb3_emmarl.zoo.benchmark import paired_p_value
 
 #: Agent-steps per run of each task, for every variant alike (told PPO reaches 0.9 of its return at this budget within
 #: it, so the comparison is made at or before it; see ``report``).
-BUDGETS = {"cue": 100_000, "dynamics": 300_000, "reach": 200_000, "goal": 200_000}
+BUDGETS = {"cue": 100_000, "dynamics": 300_000, "reach": 150_000, "goal": 150_000}
 VARIANTS = ("em_ppo", "told_ppo", "ppo")
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.

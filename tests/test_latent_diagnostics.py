@@ -55,3 +55,40 @@ def test_em_ppo_logs_belief_use_belief_entropy_and_the_e_step_s_assignment_agree
         assert key in logged, key
     assert 0.0 <= logged["latent/assignment_kept"] <= logged["latent/assignment_matched"] <= 1.0
     assert 0.0 <= logged["latent/belief_entropy"] <= np.log(model.latent_layout.n_components) + 1e-6
+
+
+def test_the_belief_reaches_the_networks_as_probabilities_as_the_most_likely_one_hot_or_both():
+    from gymnasium import spaces
+
+    from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
+
+    space = spaces.Box(-1.0, 1.0, (5,), np.float32)
+    obs = th.tensor([[0.5, -0.5, 0.2, 0.7, 0.1]])
+    expected = {"probabilities": [[0.5, -0.5, 0.2, 0.7, 0.1]], "map": [[0.5, -0.5, 0.0, 1.0, 0.0]],
+                "both": [[0.5, -0.5, 0.2, 0.7, 0.1, 0.0, 1.0, 0.0]]}
+    for form, values in expected.items():
+        extractor = BeliefFeaturesExtractor(space, 2, belief_input=form)
+        np.testing.assert_allclose(extractor(obs).numpy(), values, atol=1e-6)
+        assert extractor.features_dim == len(values[0]) and extractor.belief_width == len(values[0]) - 2
+    dropped = BeliefFeaturesExtractor(space, 2, keep=2, belief_input="both")  # the no-latent ablation
+    np.testing.assert_allclose(dropped(obs).numpy(), [[0.5, -0.5]])
+    with pytest.raises(ValueError, match=r"belief_input must be one of \['probabilities', 'map', 'both'\]"):
+        BeliefFeaturesExtractor(space, 2, belief_input="log")
+
+
+@pytest.mark.parametrize("form", ["map", "both"])
+def test_em_ppo_with_another_belief_input_trains_saves_and_loads_it(form, tmp_path):
+    model = EMPPO("MlpPolicy", make_vec_env(ModeCueEnv, n_envs=2, seed=0), n_steps=32, batch_size=64, seed=0,
+                  belief_input=form, zero_belief_weights=True)
+    width = model.policy.features_extractor.belief_width
+    assert width == (8 if form == "both" else 4)
+    first = dict(model.policy.mlp_extractor.policy_net.named_parameters())["0.weight"]
+    assert th.all(first[:, -width:] == 0)  # every input from the belief starts at zero weight
+    model.learn(128)
+    model.save(tmp_path / "model")
+    loaded = EMPPO.load(tmp_path / "model")
+    assert loaded.policy.features_extractor.belief_input == form
+    obs = np.tile(np.eye(4, dtype=np.float32)[:1], (3, 1))
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    with pytest.raises(ValueError, match="belief_input"):
+        EMPPO("MlpPolicy", make_vec_env(ModeCueEnv, n_envs=2, seed=0), belief_input="log")

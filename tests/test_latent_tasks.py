@@ -98,7 +98,7 @@ def test_the_goal_task_pays_at_the_mode_s_corner_only_and_its_cue_is_right_as_of
             assert reward == float(corner == info["mode"])
             right += int(obs[2:].argmax() == info["mode"])
             steps += 1
-    assert abs(right / steps - (0.25 + 0.75 / 4)) < 0.05
+    assert abs(right / steps - (0.5 + 0.5 / 4)) < 0.05
     with pytest.raises(ValueError, match="need 0 < corner <= 1"):
         ModeGoalEnv(corner=2.0)
 

@@ -167,7 +167,9 @@ class ModeGoalEnv(_ModeEnv):
     ``Discrete(5)``: stay, or move by ``step`` right, up, left or down (the same in every mode), plus Gaussian noise.
     Reward 1 on each step that ends within ``radius`` of the mode's corner. The mode decides where the reward lies,
     not what the actions do: a policy that follows each step's cue wanders between corners, one that accumulates
-    the cues goes to one corner and stays.
+    the cues goes to one corner and stays. With the defaults the Bayes-optimal player (the exact posterior of the
+    cues so far, heading for its most likely corner) earns 0.92 of what a player told the mode earns (31.0 against
+    33.9 over 300 episodes); at ``cue_accuracy=0.25`` it would earn 0.70.
 
     :param cue_accuracy: chance that the cue names the mode's corner rather than a uniform draw
     :param corner: the corners' distance from the origin along each axis
@@ -183,7 +185,7 @@ class ModeGoalEnv(_ModeEnv):
     #: Signs of the four corners (mode k's corner is ``SIGNS[k] * corner``).
     SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 
-    def __init__(self, cue_accuracy: float = 0.25, corner: float = 0.7, step: float = 0.15, noise: float = 0.01,
+    def __init__(self, cue_accuracy: float = 0.5, corner: float = 0.7, step: float = 0.15, noise: float = 0.01,
                  radius: float = 0.3, length: int = 40, told: bool = False) -> None:
         if not 0 <= cue_accuracy <= 1:
             raise ValueError(f"cue_accuracy must be in [0, 1], got {cue_accuracy!r}")

@@ -22,12 +22,14 @@ def features_end_with_observation_tail(extractor: th.nn.Module, obs_dim: int, n_
     """Whether the extractor's features end with the observation's last ``n_tail`` values, unchanged.
 
     True for SB3's ``FlattenExtractor`` (the features are the flat observation) and for a
-    :class:`~sb3_emmarl.common.extractors.SplitFeaturesExtractor` that appends at least the last ``n_tail`` values.
+    :class:`~sb3_emmarl.common.extractors.SplitFeaturesExtractor` that appends at least the last ``n_tail`` values (or
+    as many values computed from them: the belief's forms of
+    :class:`~sb3_emmarl.common.latent.policies.BeliefFeaturesExtractor`).
     """
     if isinstance(extractor, FlattenExtractor):
         return True
     return (isinstance(extractor, SplitFeaturesExtractor) and extractor.keep == obs_dim
-            and extractor.keep - extractor.head_dim >= n_tail)
+            and extractor.features_dim - extractor.inner.features_dim >= n_tail)
 
 
 def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:

@@ -274,6 +274,7 @@ RULES: dict[str, Rule] = {
     "likelihood_temperature": number(0.0, 100.0, low_open=True),
     "fusion": boolean(),
     "estimator": choice("enumerate", "gumbel"),
+    "belief_input": choice("probabilities", "map", "both"),
     "team_pooling": boolean(),
     "reading_counts": boolean(),
     "count_factors": optional(Rule(lambda n, v: [integer(1, 64)(f"{n}[{i}]", x) for i, x in enumerate(v)]

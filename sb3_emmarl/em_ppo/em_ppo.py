@@ -56,6 +56,9 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
         readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
+    :param belief_input: how the policy's networks read the belief: ``"probabilities"`` as they are, ``"map"`` the
+        one-hot of the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
+        (docs/em.md, "Reading the belief")
     :param e_step_interval: rollouts between E-steps (every rollout's transitions are kept)
     :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`
     :param use_latent: False is the no-latent ablation (same networks without the belief input, no E-step)
@@ -98,6 +101,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         reading_counts: bool = True,
         count_factors: tuple[int, int] | None = None,
         e_step_interval: int = 1,
+        belief_input: str = "probabilities",
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
         freeze_e_step: bool = False,
@@ -115,7 +119,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model)
+                                               verbose, loading=not _init_setup_model, belief_input=belief_input)
         super().__init__(policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
                          n_epochs=n_epochs, gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, ent_coef=ent_coef,
                          policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log, verbose=verbose, seed=seed,
@@ -127,7 +131,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         super()._setup_model()
         self._setup_latent()
         if self.zero_belief_weights and self.policy.latent_model is not None:
-            zero_tail_weights(self.policy, self.latent_layout.n_components)
+            zero_tail_weights(self.policy, self.policy.features_extractor.belief_width)
 
     def _rollout_transitions(self):
         """The E-step's data from the rollout just collected: every step whose successor is in the same episode

@@ -57,6 +57,9 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
         readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
+    :param belief_input: how the policy's networks read the belief: ``"probabilities"`` as they are, ``"map"`` the
+        one-hot of the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
+        (docs/em.md, "Reading the belief")
     :param e_step_interval: ``train()`` calls between E-steps (default 500: with ``train_freq=4``, every 2,000 steps,
         as EM-PPO's every rollout of 2,048 and EM-DDPG's default)
     :param e_step_kwargs: overrides of the E-step defaults (``window`` defaults to 1,000 ``train()`` calls here: the
@@ -103,6 +106,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         reading_counts: bool = True,
         count_factors: tuple[int, int] | None = None,
         e_step_interval: int = 500,
+        belief_input: str = "probabilities",
         e_step_kwargs: dict[str, Any] | None = None,
         use_latent: bool = True,
         freeze_e_step: bool = False,
@@ -118,7 +122,8 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
                                                use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
                                                reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model, default_window=1000)
+                                               verbose, loading=not _init_setup_model, default_window=1000,
+                                               belief_input=belief_input)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                          train_freq=train_freq, gradient_steps=gradient_steps,

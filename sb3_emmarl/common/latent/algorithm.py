@@ -54,18 +54,21 @@ class LatentAlgorithmMixin:
                      fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
                      team_pooling: bool, reading_counts: bool, count_factors: tuple[int, int] | None,
                      e_step_interval: int, e_step_kwargs: dict[str, Any] | None, policy_kwargs: dict[str, Any] | None,
-                     verbose: int, loading: bool, default_window: int = E_STEP_DEFAULTS["window"]
-                     ) -> tuple[VecEnv | None, dict]:
+                     verbose: int, loading: bool, default_window: int = E_STEP_DEFAULTS["window"], *,
+                     belief_input: str = "probabilities") -> tuple[VecEnv | None, dict]:
         """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``.
 
         :param default_window: the E-step's ``window`` unless ``e_step_kwargs`` gives one (the off-policy algorithms
             count it in ``train()`` calls, not rollouts)
+        :param belief_input: how the networks read the belief
+            (:data:`~sb3_emmarl.common.latent.policies.BELIEF_INPUTS`)
         """
         n_components = RULES["n_components"]("n_components", n_components)
         count_factors = RULES["count_factors"]("count_factors", count_factors)
         self.count_factors = check_factors(count_factors, n_components)
         self.e_step_interval = RULES["e_step_interval"]("e_step_interval", e_step_interval)
         estimator = RULES["estimator"]("estimator", estimator)
+        self.belief_input = RULES["belief_input"]("belief_input", belief_input)
         likelihood_temperature = RULES["likelihood_temperature"]("likelihood_temperature", likelihood_temperature)
         decoder_hidden = tuple(RULES["decoder_hidden"]("decoder_hidden", decoder_hidden))
         e_step_kwargs = RULES["e_step_kwargs"]("e_step_kwargs", e_step_kwargs)
@@ -91,6 +94,7 @@ class LatentAlgorithmMixin:
                               count_bins=counter.n_bins if counter else 0)
         policy_kwargs["latent_kwargs"] = layout.to_dict()
         policy_kwargs["use_latent"] = self.use_latent
+        policy_kwargs["belief_input"] = self.belief_input
         return venv, policy_kwargs
 
     def _setup_latent(self) -> None:

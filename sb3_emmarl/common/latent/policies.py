@@ -11,45 +11,91 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.td3.policies import TD3Policy
 
 from sb3_emmarl.common.extractors import SplitFeaturesExtractor
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
 
+#: How the networks read the belief (``belief_input``): the probabilities as they are; the one-hot of the most likely
+#: component (the form of a told mode); or both, the one-hot after the probabilities.
+BELIEF_INPUTS = ("probabilities", "map", "both")
+
+
+class BeliefFeaturesExtractor(SplitFeaturesExtractor):
+    """:class:`~sb3_emmarl.common.extractors.SplitFeaturesExtractor` over ``[observation, belief]`` whose appended
+    belief takes the form ``belief_input`` names (:data:`BELIEF_INPUTS`).
+
+    :param observation_space: the augmented observation space
+    :param head_dim: the environment's observation size
+    :param extractor_class: the extractor over the environment's observation
+    :param extractor_kwargs: its keyword arguments
+    :param keep: values kept in all (``head_dim``: the belief is dropped, the no-latent ablation)
+    :param belief_input: ``"probabilities"``, ``"map"`` or ``"both"``
+    """
+
+    def __init__(self, observation_space: spaces.Box, head_dim: int,
+                 extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
+                 extractor_kwargs: dict[str, Any] | None = None, keep: int | None = None,
+                 belief_input: str = "probabilities") -> None:
+        if belief_input not in BELIEF_INPUTS:
+            raise ValueError(f"belief_input must be one of {list(BELIEF_INPUTS)}, got {belief_input!r}")
+        super().__init__(observation_space, head_dim, extractor_class, extractor_kwargs, keep)
+        self.belief_input = belief_input
+        self.n_belief = self.keep - self.head_dim
+        if belief_input == "both":
+            self._features_dim += self.n_belief
+        #: features that come from the belief (at the end of the features)
+        self.belief_width = self._features_dim - self.inner.features_dim
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        features = super().forward(observations)
+        if self.belief_input == "probabilities" or self.n_belief == 0:
+            return features
+        k = self.n_belief
+        most_likely = th.nn.functional.one_hot(features[..., -k:].argmax(-1), k).to(features.dtype)
+        if self.belief_input == "map":
+            return th.cat([features[..., :-k], most_likely], dim=-1)
+        return th.cat([features, most_likely], dim=-1)
+
 
 class LatentPolicyMixin:
     """Create the latent model with the policy and give every features extractor the latent layout.
 
     ``latent_kwargs`` holds the :class:`LatentLayout` fields; ``use_latent=False`` builds no model (the
-    no-latent ablation). A ``features_extractor_class`` in ``policy_kwargs`` (e.g. the message extractors of
+    no-latent ablation); ``belief_input`` is how the networks read the belief (:data:`BELIEF_INPUTS`). A
+    ``features_extractor_class`` in ``policy_kwargs`` (e.g. the message extractors of
     :mod:`sb3_emmarl.common.extractors`) reads the environment's observation; the belief is appended to its features.
     """
 
     def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
-                 use_latent: bool = True, **kwargs) -> None:
+                 use_latent: bool = True, belief_input: str = "probabilities", **kwargs) -> None:
         layout = LatentLayout.from_dict(latent_kwargs)
         # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
         object.__setattr__(self, "latent_layout", layout)
-        object.__setattr__(self, "_latent_config", (layout.to_dict(), bool(use_latent)))
+        object.__setattr__(self, "_latent_config", (layout.to_dict(), bool(use_latent), belief_input))
         super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
         # A submodule only now, after the networks' optimizers were built without its parameters.
         self.latent_model = LatentModel(layout) if use_latent else None
         self.to(self.device)
 
-    def make_features_extractor(self) -> SplitFeaturesExtractor:
+    def make_features_extractor(self) -> BeliefFeaturesExtractor:
         """``policy_kwargs``' features extractor (default: none) over the environment's observation, then the belief
-        (dropped when ``use_latent=False``, the no-latent ablation)."""
+        in the form ``belief_input`` names (dropped when ``use_latent=False``, the no-latent ablation)."""
         layout = self.latent_layout
-        return SplitFeaturesExtractor(self.observation_space, layout.obs_dim, self.features_extractor_class,
-                                      self.features_extractor_kwargs,
-                                      keep=layout.total_dim if self._latent_config[1] else layout.obs_dim)
+        _, use_latent, belief_input = self._latent_config
+        return BeliefFeaturesExtractor(self.observation_space, layout.obs_dim, self.features_extractor_class,
+                                       self.features_extractor_kwargs, keep=layout.total_dim if use_latent else layout.obs_dim,
+                                       belief_input=belief_input)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        latent_kwargs, use_latent = self._latent_config
-        data.update(latent_kwargs=latent_kwargs, use_latent=use_latent)
+        latent_kwargs, use_latent, belief_input = self._latent_config
+        data.update(latent_kwargs=latent_kwargs, use_latent=use_latent, belief_input=belief_input)
         return data
 
 
