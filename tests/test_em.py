@@ -10,6 +10,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMPPO
 from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
+from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -425,6 +426,9 @@ def test_evaluate_team_reports_latent_metrics_over_the_episode():
             assert 0.0 <= record[key] <= 1.0
         assert record["latent_kl"] >= 0.0 and 0.0 <= record["latent_nmi"] <= 1.0
     assert len({r["latent_nmi"] for r in records}) == 1  # one alignment over all evaluated episodes
+    assert len({r["belief_use"] for r in records}) == 1 and records[0]["belief_use"] > 0.0
+    zero_tail_weights(model.policy, 8)  # a policy blind to its belief
+    assert all(r["belief_use"] == pytest.approx(0.0, abs=1e-9) for r in evaluate_team(model, 2, seed=1, env_kwargs=SMALL))
 
 
 @pytest.mark.parametrize("algo", ["em_ppo", "em_ddpg"])

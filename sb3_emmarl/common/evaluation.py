@@ -12,6 +12,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
 
+from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve import reserve_v0
 
@@ -184,7 +185,11 @@ class LatentTracker:
     :meth:`annotate` aligns components to modes over all evaluated episodes (Hungarian matching) and adds
     to each record its episode's ``latent_accuracy`` (over all its steps), ``latent_accuracy_25``,
     ``latent_accuracy_50`` and ``latent_accuracy_100`` (at the step a quarter, half and all of the way
-    through the episode, over the team's agents), ``latent_kl`` and the overall ``latent_nmi``.
+    through the episode, over the team's agents), ``latent_kl``, the overall ``latent_nmi`` and, for a policy with
+    a distribution or an actor, the overall ``belief_use``: how far its actions move when the belief is permuted
+    between components, over one observation per evaluated step (at most
+    :data:`~sb3_emmarl.common.latent.diagnostics.BELIEF_USE_ROWS`; see
+    :func:`~sb3_emmarl.common.latent.diagnostics.belief_use`), 0 for a policy that ignores its belief.
     """
 
     def __init__(self, model: Any, vec_env: VecEnv) -> None:
@@ -194,6 +199,8 @@ class LatentTracker:
         self.modes: list[np.ndarray] = []
         self.episodes: list[np.ndarray] = []
         self.step_index: list[np.ndarray] = []
+        #: one augmented observation per step (the first entry's), for the policy's belief use
+        self.visited: list[np.ndarray] = []
 
     def observe(self, observations: np.ndarray, infos: list[dict], episode: int, starts: np.ndarray | None = None) -> None:
         if starts is not None:
@@ -204,6 +211,8 @@ class LatentTracker:
             self.modes.append(np.array([infos[i]["mode"] for i in keep], dtype=np.int64))
             self.episodes.append(np.full(len(keep), episode))
             self.step_index.append(self.steps[keep].copy())
+            if len(self.visited) < BELIEF_USE_ROWS:
+                self.visited.append(np.array(observations[keep[0]]))
 
     def annotate(self, records: list[dict[str, Any]]) -> None:
         from sb3_emmarl.common.latent.metrics import (
@@ -222,6 +231,10 @@ class LatentTracker:
         mapping = align_components(posteriors, modes)
         correct = mapping[posteriors.argmax(1)] == modes
         nmi = normalized_mutual_information(posteriors.argmax(1), modes)
+        policy = getattr(self.model, "policy", None)
+        use = None
+        if hasattr(policy, "get_distribution") or hasattr(policy, "actor"):
+            use = belief_use(policy, np.stack(self.visited), posteriors.shape[1])
         for record in records:
             mine = episodes == record["episode"]
             if not mine.any():
@@ -229,6 +242,8 @@ class LatentTracker:
             record["latent_accuracy"] = float(correct[mine].mean())
             record["latent_kl"] = latent_kl(posteriors[mine], modes[mine], mapping)
             record["latent_nmi"] = nmi
+            if use is not None:
+                record["belief_use"] = use
             length = int(steps[mine].max()) + 1  # steps acted on in this episode
             for fraction in EPISODE_FRACTIONS:
                 at = mine & (steps == fraction_step(fraction, length))
