@@ -25,7 +25,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 #: Observations read per measurement of :func:`belief_use` (a random subset of larger batches): the measurement is a
 #: mean, and two forward passes over a whole rollout of the reserve would cost as much as an epoch of PPO.
-BELIEF_USE_ROWS = 2048
+BELIEF_USE_ROWS = 1024
 
 
 def permute_beliefs(observations: np.ndarray | th.Tensor, n_components: int, shift: int = 1) -> np.ndarray | th.Tensor:
