@@ -18,7 +18,9 @@ return at the full budget, and at that checkpoint each variant's return, EM-PPO'
 seeds at 0.85 or more, and the permutation's cost against half of EM-PPO's gain over PPO (paired t and Wilcoxon).
 
 Example: ``python benchmarks/latent_tasks.py run --seeds 0 1 2 3 4 5 6 7 8 9 --folder logs/latent_tasks`` then
-``python benchmarks/latent_tasks.py report --folder logs/latent_tasks`` (or ``make benchmark-latent-tasks``).
+``python benchmarks/latent_tasks.py report --folder logs/latent_tasks`` (or ``make benchmark-latent-tasks``);
+``python benchmarks/latent_tasks.py trace --tasks goal`` prints EM-PPO's latent metrics over one run (when the belief
+becomes right, whether the components keep their identity, how much the policy reads the belief, its entropy).
 """
 
 from __future__ import annotations
@@ -141,6 +143,52 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     return record
 
 
+#: What ``trace`` prints per rollout: the latent metrics any EM-PPO run logs (``latent/...``, with
+#: :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the accuracy) and PPO's entropy.
+TRACE_KEYS = ("latent/accuracy_50", "latent/assignment_kept", "latent/assignment_matched", "latent/belief_entropy",
+              "latent/belief_use", "train/entropy_loss")
+
+
+def trace(task: str, seed: int, budget: int, rows: int = 12, **em_kwargs) -> list[dict]:
+    """Train EM-PPO (default arguments, or ``em_kwargs``) on one task and keep, at ``rows`` rollouts spread over the
+    run, the latent metrics of :data:`TRACE_KEYS` as the logger holds them at the rollout's end (the E-step's and
+    the update's of the rollout before)."""
+    import torch as th
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from sb3_emmarl import EMPPO
+    from sb3_emmarl.common.callbacks import LatentMetricsCallback
+
+    th.set_num_threads(1)
+    model = EMPPO("MlpPolicy", make_task(task, seed=seed), seed=seed, **em_kwargs)
+    every = max(1, budget // (model.n_steps * model.n_envs) // rows)
+    kept: list[dict] = []
+
+    class Keep(BaseCallback):
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_end(self) -> None:
+            rollout = self.num_timesteps // (model.n_steps * model.n_envs)
+            if rollout % every == 0:
+                values = self.logger.name_to_value
+                kept.append({"steps": self.num_timesteps, **{key: values.get(key) for key in TRACE_KEYS}})
+
+    model.learn(budget, callback=[LatentMetricsCallback(), Keep()])
+    return kept
+
+
+def trace_table(task: str, kept: list[dict]) -> str:
+    names = ("accuracy 50%", "kept", "matched", "belief H", "belief use", "policy H")
+    lines = [f"{task}: {'agent-steps':>12}" + "".join(f"{name:>14}" for name in names)]
+    for row in kept:
+        values = [row[key] for key in TRACE_KEYS]
+        values[-1] = None if values[-1] is None else -values[-1]
+        lines.append(" " * (len(task) + 2) + f"{row['steps']:>12,}" + "".join("             -" if v is None else f"{v:>14.3f}"
+                                                                     for v in values))
+    return "\n".join(lines)
+
+
 def ppo_settings() -> dict:
     """EM-PPO's default PPO settings (its constructor's defaults), for the PPO variants."""
     import inspect
@@ -238,7 +286,18 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("--folder", required=True)
     report_parser = commands.add_parser("report", help="the tables of the runs in --folder")
     report_parser.add_argument("--folder", required=True)
+    trace_parser = commands.add_parser("trace", help="EM-PPO's latent metrics over one run per task (TRACE_KEYS)")
+    trace_parser.add_argument("--tasks", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
+    trace_parser.add_argument("--seed", type=int, default=0)
+    trace_parser.add_argument("--n-epochs", type=int, default=None, help="EM-PPO's n_epochs (default: its default)")
     args = parser.parse_args(argv)
+    if args.command == "trace":
+        if args.n_epochs is not None and args.n_epochs < 1:
+            parser.error(f"--n-epochs must be >= 1, got {args.n_epochs}")
+        kwargs = {} if args.n_epochs is None else {"n_epochs": args.n_epochs}
+        for task in args.tasks:
+            print(trace_table(task, trace(task, args.seed, BUDGETS[task], **kwargs)), flush=True)
+        return 0
     folder = Path(args.folder)
     if args.command == "report":
         print(report(load_runs(folder)))

@@ -142,3 +142,15 @@ def test_the_benchmark_rejects_bad_flags_with_a_message(capsys):
         load_benchmark("latent_tasks").main(["run", "--folder", "x", "--seeds", "1", "1"])
     assert exit_info.value.code == 2
     assert "--seeds distinct and >= 0" in capsys.readouterr().err
+
+
+def test_the_trace_reads_the_latent_metrics_every_em_ppo_run_logs():
+    bench = load_benchmark("latent_tasks")
+    kept = bench.trace("cue", 0, 3 * 1024, rows=3, n_steps=128)
+    assert [row["steps"] for row in kept] == [1024, 2048, 3072]
+    last = kept[-1]
+    for key in bench.TRACE_KEYS:
+        assert last[key] is not None, key
+    assert 0.0 <= last["latent/assignment_kept"] <= last["latent/assignment_matched"] <= 1.0
+    text = bench.trace_table("cue", kept)
+    assert text.splitlines()[0].split()[:3] == ["cue:", "agent-steps", "accuracy"] and "3,072" in text
