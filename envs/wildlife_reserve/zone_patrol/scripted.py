@@ -1,0 +1,128 @@
+"""Scripted teams for ZonePatrol: one told the hidden mode, and blind ones that act on what the team has seen.
+
+A scripted team acts on a :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolWorld` (every copy at once). The
+told team flies every UAV to its post in the mode's zone (posts that tile the zone with the narrow sensor's reach)
+and uses the weather's sensor. A blind team knows what any of its UAVs has seen so far (tracks in the windows,
+detections, visibility readings: the team shares everything, as no learned team can), never the mode: it flies to
+zones by its ``search`` plan until a zone shows a track or a detection, then the whole team goes there, and picks
+its sensor by ``sensor`` (``"estimate"``: wide while the team's mean visibility reading is above one half, i.e.
+clear). :func:`blind_plans` lists the plans; the best is chosen on fitting episodes and compared on held-out ones
+(``benchmarks/zone_patrol_gate.py``).
+"""
+
+from __future__ import annotations
+
+from itertools import product
+
+import numpy as np
+
+from wildlife_reserve.zone_patrol.world import CLEAR, N_MOVES, NARROW, WIDE, ZonePatrolWorld
+
+#: How a blind team searches before a zone shows evidence: each UAV to its own zone (``"split"``), or the whole team
+#: through the zones one after another (``"together"``).
+SEARCHES = ("split", "together")
+SENSORS = ("estimate", "wide", "narrow")
+
+
+def blind_plans() -> list[tuple[str, str]]:
+    """Every ``(search, sensor)`` plan of a blind team."""
+    return list(product(SEARCHES, SENSORS))
+
+
+def posts(world: ZonePatrolWorld) -> np.ndarray:
+    """``(4, n_uavs, 2)``: each UAV's post in each zone, spread so that the posts tile the zone."""
+    cfg = world.config
+    reach = max(cfg.narrow_radius, 0)
+    step = 2 * reach + 1
+    spots = np.arange(reach, cfg.zone_size, step).clip(max=cfg.zone_size - 1)
+    grid = np.stack(np.meshgrid(spots, spots, indexing="ij"), -1).reshape(-1, 2)
+    chosen = grid[np.arange(cfg.n_uavs) % len(grid)]
+    return cfg.zone_origins()[:, None, :] + chosen[None]
+
+
+def move_towards(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The move (0-4) that shortens the longer of the row and column gaps to ``targets`` (0: there)."""
+    gap = targets - positions
+    rows_first = np.abs(gap[..., 0]) >= np.abs(gap[..., 1])
+    move = np.where(rows_first, np.where(gap[..., 0] < 0, 1, 2), np.where(gap[..., 1] < 0, 3, 4))
+    return np.where((gap == 0).all(-1), 0, move)
+
+
+class ToldTeam:
+    """Every UAV to its post in the mode's zone, with the weather's sensor."""
+
+    def reset(self, world: ZonePatrolWorld) -> None:
+        self.posts = posts(world)
+
+    def act(self, world: ZonePatrolWorld) -> np.ndarray:
+        targets = self.posts[world.zones]
+        sensor = np.where(world.weathers == CLEAR, WIDE, NARROW)[:, None]
+        return move_towards(world.positions, targets) + N_MOVES * sensor
+
+
+class BlindTeam:
+    """A team that does not know the mode (see the module's text).
+
+    :param search: ``"split"`` or ``"together"``
+    :param sensor: ``"estimate"``, ``"wide"`` or ``"narrow"``
+    """
+
+    def __init__(self, search: str = "split", sensor: str = "estimate") -> None:
+        if search not in SEARCHES or sensor not in SENSORS:
+            raise ValueError(f"search must be one of {list(SEARCHES)} and sensor one of {list(SENSORS)}, "
+                             f"got {search!r} and {sensor!r}")
+        self.search, self.sensor = search, sensor
+
+    def reset(self, world: ZonePatrolWorld) -> None:
+        c = world.n_copies
+        self.posts = posts(world)
+        self.evidence = np.zeros((c, 4))
+        self.visited = np.zeros((c, 4), dtype=bool)
+        self.readings = np.zeros(c)
+        self.n_readings = 0
+
+    def _observe(self, world: ZonePatrolWorld) -> None:
+        cfg = world.config
+        r, g = cfg.window_radius, cfg.grid_size
+        rows, cols = np.indices((g, g))
+        seen = np.zeros((world.n_copies, g, g), dtype=bool)
+        for u in range(cfg.n_uavs):
+            pos = world.positions[:, u]
+            seen |= (np.abs(rows[None] - pos[:, :1, None]) <= r) & (np.abs(cols[None] - pos[:, 1:, None]) <= r)
+        marks = (world.tracks > 0) & seen
+        origins = cfg.zone_origins()
+        for z, (top, left) in enumerate(origins):
+            block = marks[:, top:top + cfg.zone_size, left:left + cfg.zone_size]
+            self.evidence[:, z] += block.any((1, 2))
+            here = (world.positions[:, :, None, :] == self.posts[z][None]).all(-1).any(-1)  # (c, n)
+            self.visited[:, z] |= here.any(1)
+        self.readings += world.visibility.mean(1)
+        self.n_readings += 1
+
+    def act(self, world: ZonePatrolWorld) -> np.ndarray:
+        self._observe(world)
+        n = world.config.n_uavs
+        known = self.evidence.max(1) > 0
+        best = self.evidence.argmax(1)
+        if self.search == "split":
+            zones = np.broadcast_to(np.arange(n) % 4, (world.n_copies, n))
+        else:  # together: the first zone not yet visited
+            nxt = np.where(self.visited.all(1), 0, (~self.visited).argmax(1))
+            zones = np.broadcast_to(nxt[:, None], (world.n_copies, n))
+        zones = np.where(known[:, None], best[:, None], zones)
+        targets = self.posts[zones, np.arange(n)[None, :]]
+        if self.sensor == "estimate":
+            clear = self.readings / max(self.n_readings, 1) > 0.5
+            sensor = np.where(clear, WIDE, NARROW)[:, None]
+        else:
+            sensor = np.full((world.n_copies, 1), WIDE if self.sensor == "wide" else NARROW)
+        return move_towards(world.positions, targets) + N_MOVES * sensor
+
+
+def play(team, world: ZonePatrolWorld, rng: np.random.Generator, modes: np.ndarray | None = None) -> np.ndarray:
+    """One episode in every copy of ``world`` with ``team``; returns each copy's team reward."""
+    world.reset(rng, modes)
+    team.reset(world)
+    for _ in range(world.config.max_cycles):
+        world.step(team.act(world), rng)
+    return world.team_reward.copy()

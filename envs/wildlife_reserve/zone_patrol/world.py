@@ -1,0 +1,312 @@
+"""ZonePatrol's world: the state of ``n_copies`` independent copies as arrays, stepped together with numpy.
+
+The PettingZoo face (:mod:`~wildlife_reserve.zone_patrol.zone_patrol`) is one copy of this world; a vector
+environment can step many copies in one call (every array has the copies first). Nothing loops over cells or
+agents in Python; the loop over copies draws nothing (one generator serves the batch).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+#: Moves of the five movement actions: stay, up, down, left, right (row, column).
+MOVES = np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int64)
+#: Sensors: the action is ``move + N_MOVES * sensor``.
+WIDE, NARROW = 0, 1
+N_MOVES, N_SENSORS = 5, 2
+CLEAR, FOG = 0, 1
+N_WEATHERS = 2
+#: Window channels: tracks (remaining life / track_life; -1 off the grid), this UAV's detections this step, teammates.
+N_CHANNELS = 3
+
+
+def _check(name: str, value, low, high=None, kind: type = int):
+    if kind is int:
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    else:
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or value < low or (high is not None and value > high):
+        bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise ValueError(f"{name} must be {'an int' if kind is int else 'a finite number'} {bounds}, got {value!r}")
+    return kind(value)
+
+
+@dataclass(frozen=True)
+class ZonePatrolConfig:
+    """Every argument of ZonePatrol, validated once (each error names the argument and what is allowed).
+
+    :param grid_size: side of the square grid
+    :param n_uavs: UAVs in the team
+    :param max_cycles: steps per episode
+    :param zone_size: side of each of the four corner zones
+    :param spawn_prob: chance per step that an intruder appears in the mode's zone
+    :param intruder_life: steps an intruder stays before it escapes (undetected: ``escape_cost``)
+    :param intruder_move_prob: chance per step that an intruder steps to a neighbouring cell of its zone
+    :param track_life: steps a track lasts (an intruder leaves one on its cell every step)
+    :param initial_tracks: tracks lying in the mode's zone at the episode's start (of random ages)
+    :param wide_radius: Chebyshev reach of the wide sensor
+    :param narrow_radius: Chebyshev reach of the narrow sensor
+    :param wide_detect: ``(clear, fog)`` chance per step that the wide sensor detects an intruder within reach
+    :param narrow_detect: the same for the narrow sensor
+    :param visibility_noise: standard deviation of the visibility reading (1 in clear weather, 0 in fog, plus noise)
+    :param comm_range: Chebyshev distance within which teammates hear each other (``infos["heard_from"]``)
+    :param escape_cost: team reward lost per intruder that escapes
+    :param window_radius: radius of the observed window (``(2r + 1)^2`` cells per channel)
+    :param told: append the one-hot of the hidden mode to every observation (the told oracle)
+    """
+
+    grid_size: int = 28
+    n_uavs: int = 4
+    max_cycles: int = 60
+    zone_size: int = 6
+    spawn_prob: float = 0.5
+    intruder_life: int = 3
+    intruder_move_prob: float = 0.5
+    track_life: int = 12
+    initial_tracks: int = 4
+    wide_radius: int = 2
+    narrow_radius: int = 1
+    wide_detect: tuple[float, float] = (0.4, 0.03)
+    narrow_detect: tuple[float, float] = (0.3, 0.3)
+    visibility_noise: float = 1.0
+    comm_range: int = 4
+    escape_cost: float = 0.25
+    window_radius: int = 2
+    told: bool = False
+
+    def __post_init__(self) -> None:
+        _check("grid_size", self.grid_size, 6, 256)
+        _check("n_uavs", self.n_uavs, 1, 64)
+        _check("max_cycles", self.max_cycles, 1, 100_000)
+        _check("zone_size", self.zone_size, 1, self.grid_size // 2)
+        _check("spawn_prob", self.spawn_prob, 0.0, 1.0, float)
+        _check("intruder_life", self.intruder_life, 1, 10_000)
+        _check("intruder_move_prob", self.intruder_move_prob, 0.0, 1.0, float)
+        _check("track_life", self.track_life, 1, 10_000)
+        _check("initial_tracks", self.initial_tracks, 0, self.zone_size ** 2)
+        _check("wide_radius", self.wide_radius, 0, self.grid_size)
+        _check("narrow_radius", self.narrow_radius, 0, self.grid_size)
+        for name in ("wide_detect", "narrow_detect"):
+            value = getattr(self, name)
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != N_WEATHERS:
+                raise ValueError(f"{name} must be a pair (clear, fog) of chances in [0, 1], got {value!r}")
+            object.__setattr__(self, name, tuple(_check(f"{name}[{i}]", v, 0.0, 1.0, float) for i, v in enumerate(value)))
+        _check("visibility_noise", self.visibility_noise, 0.0, 100.0, float)
+        _check("comm_range", self.comm_range, 0, self.grid_size)
+        _check("escape_cost", self.escape_cost, 0.0, 1000.0, float)
+        _check("window_radius", self.window_radius, 0, self.grid_size)
+        if not isinstance(self.told, (bool, np.bool_)):
+            raise ValueError(f"told must be a bool, got {self.told!r}")
+
+    @classmethod
+    def from_kwargs(cls, **kwargs) -> ZonePatrolConfig:
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(kwargs) - names)
+        if unknown:
+            raise ValueError(f"unknown ZonePatrol argument(s) {unknown}; allowed: {sorted(names)}")
+        return cls(**kwargs)
+
+    @property
+    def n_modes(self) -> int:
+        """Hidden modes: 4 zones x 2 weathers (mode = 2 * zone + weather)."""
+        return 4 * N_WEATHERS
+
+    @property
+    def window_cells(self) -> int:
+        return (2 * self.window_radius + 1) ** 2
+
+    @property
+    def obs_dim(self) -> int:
+        """Window channels, own position (2), the visibility reading, the episode's progress, [the told one-hot]."""
+        return N_CHANNELS * self.window_cells + 4 + (self.n_modes if self.told else 0)
+
+    @property
+    def state_dim(self) -> int:
+        """UAV positions, the intruders' map, the tracks' map and the episode's progress."""
+        return 2 * self.n_uavs + 2 * self.grid_size ** 2 + 1
+
+    def zone_origins(self) -> np.ndarray:
+        """``(4, 2)`` top-left cells of the four corner zones."""
+        far = self.grid_size - self.zone_size
+        return np.array([[0, 0], [0, far], [far, 0], [far, far]], dtype=np.int64)
+
+
+#: Most intruders a copy holds at once (``intruder_life`` steps of at most one spawn per step, and a margin).
+def max_intruders(config: ZonePatrolConfig) -> int:
+    return config.intruder_life + 1
+
+
+class ZonePatrolWorld:
+    """``n_copies`` copies of ZonePatrol as arrays (copies first), stepped together.
+
+    :param config: the arguments
+    :param n_copies: copies
+    """
+
+    def __init__(self, config: ZonePatrolConfig, n_copies: int = 1) -> None:
+        self.config = config
+        self.n_copies = _check("n_copies", n_copies, 1, 1_000_000)
+        c, n, g, m = n_copies, config.n_uavs, config.grid_size, max_intruders(config)
+        self.positions = np.zeros((c, n, 2), dtype=np.int64)
+        self.intruders = np.zeros((c, m, 2), dtype=np.int64)
+        self.ages = np.zeros((c, m), dtype=np.int64)
+        self.alive = np.zeros((c, m), dtype=bool)
+        self.tracks = np.zeros((c, g, g), dtype=np.int64)
+        self.modes = np.zeros(c, dtype=np.int64)
+        self.t = 0
+        self.detections = np.zeros((c, n, m), dtype=bool)  # which UAV detected which intruder this step
+        self.caught = np.zeros(c, dtype=np.int64)
+        self.escaped = np.zeros(c, dtype=np.int64)
+        self.spawned = np.zeros(c, dtype=np.int64)
+        self.team_reward = np.zeros(c)
+        self.visibility = np.zeros((c, n))
+        self.sensors = np.zeros((c, n), dtype=np.int64)
+        r = config.window_radius
+        self._offsets = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij"), -1).reshape(-1, 2)
+
+    # ------------------------------------------------------------------ episode
+    @property
+    def zones(self) -> np.ndarray:
+        return self.modes // N_WEATHERS
+
+    @property
+    def weathers(self) -> np.ndarray:
+        return self.modes % N_WEATHERS
+
+    def reset(self, rng: np.random.Generator, modes: np.ndarray | None = None) -> None:
+        """New episodes in every copy: modes drawn uniformly (or given), UAVs near the centre, old tracks in the zone."""
+        cfg, c = self.config, self.n_copies
+        if modes is None:
+            modes = rng.integers(cfg.n_modes, size=c)
+        modes = np.asarray(modes, dtype=np.int64).reshape(c)
+        if modes.min() < 0 or modes.max() >= cfg.n_modes:
+            raise ValueError(f"mode must be an int in [0, {cfg.n_modes - 1}], got {modes.tolist()}")
+        self.modes = modes
+        centre = cfg.grid_size // 2
+        self.positions = centre - 2 + rng.integers(4, size=(c, cfg.n_uavs, 2))
+        self.alive[:] = False
+        self.ages[:] = 0
+        self.tracks[:] = 0
+        if cfg.initial_tracks:
+            origin = cfg.zone_origins()[self.zones]  # (c, 2)
+            cells = np.argsort(rng.random((c, cfg.zone_size ** 2)), axis=1)[:, :cfg.initial_tracks]
+            rows = origin[:, :1] + cells // cfg.zone_size
+            cols = origin[:, 1:] + cells % cfg.zone_size
+            life = rng.integers(1, cfg.track_life + 1, size=rows.shape)
+            self.tracks[np.arange(c)[:, None], rows, cols] = life
+        self.t = 0
+        self.detections[:] = False
+        self.caught[:] = 0
+        self.escaped[:] = 0
+        self.spawned[:] = 0
+        self.team_reward[:] = 0.0
+        self.sensors[:] = WIDE
+        self.visibility = self._read_visibility(rng)
+
+    def _read_visibility(self, rng: np.random.Generator) -> np.ndarray:
+        clear = (self.weathers == CLEAR).astype(np.float64)[:, None]
+        return clear + self.config.visibility_noise * rng.standard_normal((self.n_copies, self.config.n_uavs))
+
+    def step(self, actions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One step of every copy; ``actions`` ``(n_copies, n_uavs)`` ints in ``[0, 10)``. Returns the team rewards."""
+        cfg = self.config
+        actions = np.asarray(actions, dtype=np.int64)
+        self.positions = np.clip(self.positions + MOVES[actions % N_MOVES], 0, cfg.grid_size - 1)
+        self.sensors = actions // N_MOVES
+        # Detection: each UAV's sensor against each live intruder within its reach.
+        radius = np.where(self.sensors == WIDE, cfg.wide_radius, cfg.narrow_radius)  # (c, n)
+        chance = np.where(self.sensors == WIDE, np.array(cfg.wide_detect)[self.weathers][:, None],
+                          np.array(cfg.narrow_detect)[self.weathers][:, None])
+        gap = np.abs(self.positions[:, :, None, :] - self.intruders[:, None, :, :]).max(-1)  # (c, n, m)
+        in_reach = (gap <= radius[:, :, None]) & self.alive[:, None, :]
+        self.detections = in_reach & (rng.random(in_reach.shape) < chance[:, :, None])
+        found = self.detections.any(1)
+        self.alive &= ~found
+        # The rest age, and escape at the end of their lives.
+        self.ages += self.alive
+        escaped = self.alive & (self.ages >= cfg.intruder_life)
+        self.alive &= ~escaped
+        # Tracks fade; live intruders wander within their zone and leave a track on their cell.
+        np.maximum(self.tracks - 1, 0, out=self.tracks)
+        origin = cfg.zone_origins()[self.zones][:, None, :]  # (c, 1, 2)
+        wander = rng.random(self.alive.shape) < cfg.intruder_move_prob
+        steps = MOVES[1 + rng.integers(4, size=self.alive.shape)] * wander[..., None]
+        self.intruders = np.clip(self.intruders + steps, origin, origin + cfg.zone_size - 1)
+        # A new intruder in the mode's zone, in a free slot.
+        spawn = rng.random(self.n_copies) < cfg.spawn_prob
+        cell = rng.integers(cfg.zone_size, size=(self.n_copies, 2))
+        free = ~self.alive
+        slot = free.argmax(1)
+        spawn &= free.any(1)
+        rows = np.flatnonzero(spawn)
+        self.intruders[rows, slot[rows]] = origin[rows, 0] + cell[rows]
+        self.ages[rows, slot[rows]] = 0
+        self.alive[rows, slot[rows]] = True
+        live_c, live_m = np.nonzero(self.alive)
+        self.tracks[live_c, self.intruders[live_c, live_m, 0], self.intruders[live_c, live_m, 1]] = cfg.track_life
+        n_found, n_escaped = found.sum(1), escaped.sum(1)
+        self.caught += n_found
+        self.escaped += n_escaped
+        self.spawned += spawn
+        rewards = n_found - cfg.escape_cost * n_escaped
+        self.team_reward += rewards
+        self.visibility = self._read_visibility(rng)
+        self.t += 1
+        return rewards.astype(np.float64)
+
+    # ------------------------------------------------------------------ what the UAVs see
+    def observations(self) -> np.ndarray:
+        """``(n_copies, n_uavs, obs_dim)`` float32 observations (see the card)."""
+        cfg = self.config
+        c, n, g = self.n_copies, cfg.n_uavs, cfg.grid_size
+        cells = self.positions[:, :, None, :] + self._offsets[None, None]  # (c, n, w, 2)
+        inside = ((cells >= 0) & (cells < g)).all(-1)
+        rows, cols = np.clip(cells[..., 0], 0, g - 1), np.clip(cells[..., 1], 0, g - 1)
+        c_idx = np.arange(c)[:, None, None]
+        tracks = np.where(inside, self.tracks[c_idx, rows, cols] / cfg.track_life, -1.0)
+        # This UAV's detections, at the detected intruders' cells.
+        hits = np.zeros((c, n, g, g), dtype=np.float32)
+        cc, nn, mm = np.nonzero(self.detections)
+        hits[cc, nn, self.intruders[cc, mm, 0], self.intruders[cc, mm, 1]] = 1.0
+        seen = np.where(inside, hits[c_idx, np.arange(n)[None, :, None], rows, cols], 0.0)
+        occupied = np.zeros((c, g, g), dtype=np.float32)
+        np.add.at(occupied, (np.repeat(np.arange(c), n), self.positions[..., 0].ravel(), self.positions[..., 1].ravel()), 1.0)
+        mates = np.where(inside, occupied[c_idx, rows, cols], 0.0)
+        mates[:, :, len(self._offsets) // 2] -= 1.0  # not itself
+        mates = np.minimum(mates, 1.0)
+        own = self.positions / max(g - 1, 1) * 2.0 - 1.0
+        parts = [tracks, seen, mates, own, np.clip(self.visibility, -3, 4)[..., None] / 4.0,
+                 np.full((c, n, 1), self.t / cfg.max_cycles)]
+        if cfg.told:
+            parts.append(np.repeat(np.eye(cfg.n_modes)[self.modes][:, None, :], n, axis=1))
+        return np.concatenate(parts, axis=-1).astype(np.float32)
+
+    def links(self) -> list[list[list[int]]]:
+        """``[copy][uav]``: the teammates within ``comm_range`` (the UAV's ``heard_from``)."""
+        gap = np.abs(self.positions[:, :, None, :] - self.positions[:, None, :, :]).max(-1)
+        near = (gap <= self.config.comm_range) & ~np.eye(self.config.n_uavs, dtype=bool)[None]
+        return [[np.flatnonzero(row).tolist() for row in copy] for copy in near]
+
+    def states(self) -> np.ndarray:
+        """``(n_copies, state_dim)`` float32 global states (for centralised critics)."""
+        cfg = self.config
+        c, g = self.n_copies, cfg.grid_size
+        intruders = np.zeros((c, g, g), dtype=np.float32)
+        cc, mm = np.nonzero(self.alive)
+        intruders[cc, self.intruders[cc, mm, 0], self.intruders[cc, mm, 1]] = 1.0
+        own = (self.positions / max(g - 1, 1) * 2.0 - 1.0).reshape(c, -1)
+        return np.concatenate([own, intruders.reshape(c, -1), (self.tracks / cfg.track_life).reshape(c, -1),
+                               np.full((c, 1), self.t / cfg.max_cycles)], axis=1).astype(np.float32)
+
+    def metrics(self) -> list[dict[str, float]]:
+        """Each copy's episode metrics so far."""
+        out = []
+        for i in range(self.n_copies):
+            total = self.caught[i] + self.escaped[i]
+            out.append({"team_reward": float(self.team_reward[i]), "detections": float(self.caught[i]),
+                        "escapes": float(self.escaped[i]), "intruders": float(self.spawned[i]),
+                        "detection_rate": float(self.caught[i] / total) if total else 0.0, "mode": int(self.modes[i])})
+        return out

@@ -1,0 +1,215 @@
+"""
+# Zone Patrol
+
+| Import             | `from wildlife_reserve import zone_patrol_v0`                           |
+|--------------------|-------------------------------------------------------------------------|
+| Actions            | Discrete                                                                |
+| Parallel API       | Yes                                                                     |
+| Manual control     | No                                                                      |
+| Agents             | `agents= ['uav_0', 'uav_1', 'uav_2', 'uav_3']` (default `n_uavs=4`)     |
+| Action shape       | `Discrete(10)`: `move + 5 * sensor`                                     |
+| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`told=True`: 8 more)            |
+| Observation values | [-1, 1]                                                                 |
+| State shape        | `(2 n_uavs + 2 grid_size^2 + 1,)`: 1577 by default                      |
+
+A small team task where a hidden mode decides the best action. Each episode draws a mode, a **zone** (one of four
+corner zones of `zone_size x zone_size` cells) x a **weather** (clear or fog); the UAVs never observe it
+(`infos[agent]["mode"]`, `2 * zone + weather`, is for evaluation only). Intruders appear in the mode's zone only
+(each step with chance `spawn_prob`), wander in it and escape after `intruder_life` steps unless a UAV detects
+them. The zones lie far apart (crossing from the centre to a zone takes about a third of an episode), so a team that
+does not know the zone must split and converge on evidence, while a team told it stacks in it. The weather decides
+which sensor works: the wide one (reach `wide_radius`) sees well in clear weather and almost nothing in fog; the
+narrow one (reach `narrow_radius`) sees alike in both. A scripted team told the mode earns 1.6 times what the best
+blind scripted team earns, though that team shares everything its UAVs see (`benchmarks/zone_patrol_gate.py`).
+
+The evidence builds up: intruders leave tracks that fade after `track_life` steps, and older tracks lie in the zone
+at the start; the visibility reading (1 in clear weather, 0 in fog, plus noise of deviation `visibility_noise`) shows
+the weather over many steps, not in one.
+
+### Observations
+Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window (`r = window_radius`) of three channels
+(tracks, as their remaining life over `track_life`, -1 off the grid; this UAV's detections this step; teammates),
+then its own position (row, column, scaled to [-1, 1]), the visibility reading (clipped to [-3, 4], over 4) and the
+episode's progress (`t / max_cycles`); with `told=True`, the one-hot of the mode last.
+
+### Actions
+`move + 5 * sensor`, with move in {stay, up, down, left, right} and sensor in {wide, narrow}.
+
+### Rewards
+One shared team reward per step: +1 per intruder detected, minus `escape_cost` per intruder that escaped.
+
+### Infos
+`infos[agent]["mode"]` (the hidden mode, for evaluation), `infos[agent]["heard_from"]` (the indices of the teammates
+within `comm_range`, whose messages reach this UAV: the same meaning as the reserve's, so EM's fusion works
+unchanged) and, on the last step, `infos[agent]["metrics"]` (team reward, detections, escapes, intruders, detection
+rate, mode).
+
+### Arguments
+Every field of :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`, by keyword; a bad value raises
+`ValueError` naming the argument. `reset(seed, options={"mode": m})` fixes the mode of the episode.
+
+### Version History
+* v0: initial release (sb3-emmarl 0.19.0)
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import wrappers
+from pettingzoo.utils.conversions import parallel_to_aec_wrapper
+
+from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, ZonePatrolConfig, ZonePatrolWorld
+
+#: The render modes (``metadata["render_modes"]``).
+RENDER_MODES = ("human", "rgb_array")
+
+
+def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
+    """The AEC form, with PettingZoo's order-enforcing wrapper."""
+    return wrappers.OrderEnforcingWrapper(raw_env(**kwargs))
+
+
+def raw_env(**kwargs: Any) -> parallel_to_aec_wrapper:
+    """The AEC form (PettingZoo's conversion of the parallel environment)."""
+    return parallel_to_aec_wrapper(parallel_env(**kwargs))
+
+
+def parallel_env(**kwargs: Any) -> ZonePatrolParallelEnv:
+    """The parallel environment (keyword arguments: :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`)."""
+    return ZonePatrolParallelEnv(**kwargs)
+
+
+class ZonePatrolParallelEnv(ParallelEnv):
+    """ZonePatrol as a PettingZoo ``ParallelEnv`` (one copy of :class:`ZonePatrolWorld`; see the module's card).
+
+    :param render_mode: None, ``"rgb_array"`` (an RGB image of the grid) or ``"human"`` (the image in a pygame window)
+    :param kwargs: :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig` fields
+    """
+
+    metadata = {"name": "zone_patrol_v0", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
+                "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        if render_mode not in (None, *RENDER_MODES):
+            raise ValueError(f"render_mode must be None or one of {list(RENDER_MODES)}, got {render_mode!r}")
+        self.config = ZonePatrolConfig.from_kwargs(**kwargs)
+        self.render_mode = render_mode
+        self.possible_agents = [f"uav_{i}" for i in range(self.config.n_uavs)]
+        self.agents: list[str] = []
+        self.world = ZonePatrolWorld(self.config, 1)
+        self._rng, _ = seeding.np_random(None)
+        self._started = False
+        self._window: Any = None
+        size = self.config.state_dim
+        self.state_space = spaces.Box(-1.0, 1.0, (size,), np.float32)
+
+    @functools.cache  # noqa: B019 (PettingZoo's habit: one space object per agent)
+    def observation_space(self, agent: str) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (self.config.obs_dim,), np.float32)
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent: str) -> spaces.Discrete:
+        return spaces.Discrete(N_MOVES * N_SENSORS)
+
+    @property
+    def mode(self) -> int:
+        """The hidden mode of the current episode (for evaluation)."""
+        return int(self.world.modes[0])
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        mode = None
+        if options is not None and "mode" in options:
+            mode = options["mode"]
+            if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.config.n_modes:
+                raise ValueError(f"options['mode'] must be an int in [0, {self.config.n_modes - 1}], got {mode!r}")
+            mode = np.array([mode])
+        if seed is not None:
+            self._rng, _ = seeding.np_random(int(seed))
+        self.world.reset(self._rng, mode)
+        self.agents = list(self.possible_agents)
+        self._started = True
+        observations = self.world.observations()[0]
+        links = self.world.links()[0]
+        infos = {a: {"mode": self.mode, "heard_from": tuple(links[i])} for i, a in enumerate(self.agents)}
+        return {a: observations[i] for i, a in enumerate(self.agents)}, infos
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        if not self.agents:
+            raise RuntimeError("the episode is over: call reset()")
+        n_actions = N_MOVES * N_SENSORS
+        joint = np.zeros((1, self.config.n_uavs), dtype=np.int64)
+        for i, agent in enumerate(self.agents):
+            action = actions.get(agent, 0) if isinstance(actions, dict) else None
+            if action is None and not isinstance(actions, dict):
+                raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
+            value = np.asarray(action)
+            if value.shape != () or not np.issubdtype(value.dtype, np.integer) or not 0 <= int(value) < n_actions:
+                raise ValueError(f"action of {agent} must be an int in [0, {n_actions - 1}], got {action!r}")
+            joint[0, i] = int(value)
+        reward = float(self.world.step(joint, self._rng)[0])
+        observations = self.world.observations()[0]
+        links = self.world.links()[0]
+        done = self.world.t >= self.config.max_cycles
+        infos = {a: {"mode": self.mode, "heard_from": tuple(links[i])} for i, a in enumerate(self.agents)}
+        if done:
+            metrics = self.world.metrics()[0]
+            for info in infos.values():
+                info["metrics"] = dict(metrics)
+        obs = {a: observations[i] for i, a in enumerate(self.agents)}
+        rewards = {a: reward for a in self.agents}
+        terminations = {a: False for a in self.agents}
+        truncations = {a: done for a in self.agents}
+        if done:
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def state(self) -> np.ndarray:
+        if not self._started:
+            raise RuntimeError("call reset() before state()")
+        return self.world.states()[0]
+
+    def render(self) -> np.ndarray | None:
+        """An RGB image of the grid (``rgb_array``; ``human`` shows it in a pygame window and returns None): zones
+        grey, tracks brown, intruders red, UAVs blue."""
+        if self.render_mode is None:
+            return None
+        if not self._started:
+            raise RuntimeError("call reset() before render()")
+        image = self._image()
+        if self.render_mode == "rgb_array":
+            return image
+        import pygame
+
+        if self._window is None:
+            pygame.init()
+            self._window = pygame.display.set_mode(image.shape[1::-1])
+        self._window.blit(pygame.surfarray.make_surface(image.swapaxes(0, 1)), (0, 0))
+        pygame.event.pump()
+        pygame.display.flip()
+        return None
+
+    def _image(self) -> np.ndarray:
+        cfg, world = self.config, self.world
+        image = np.full((cfg.grid_size, cfg.grid_size, 3), 255, dtype=np.uint8)
+        for top, left in cfg.zone_origins():
+            image[top:top + cfg.zone_size, left:left + cfg.zone_size] = 220
+        image[world.tracks[0] > 0] = (170, 120, 60)
+        alive = world.alive[0]
+        image[world.intruders[0, alive, 0], world.intruders[0, alive, 1]] = (220, 30, 30)
+        image[world.positions[0, :, 0], world.positions[0, :, 1]] = (30, 60, 220)
+        return np.kron(image, np.ones((8, 8, 1), dtype=np.uint8))
+
+    def close(self) -> None:
+        if self._window is not None:
+            import pygame
+
+            pygame.display.quit()
+            self._window = None

@@ -1,0 +1,139 @@
+"""ZonePatrol: PettingZoo's API, seeding and rendering tests, its mechanics on hand-built cases, bad arguments, and
+the scripted teams' gate."""
+
+import numpy as np
+import pytest
+from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test, seed_test
+from scripts import load_benchmark
+
+from wildlife_reserve import zone_patrol_v0
+from wildlife_reserve.zone_patrol.scripted import BlindTeam, ToldTeam, play, posts
+from wildlife_reserve.zone_patrol.world import NARROW, WIDE, ZonePatrolConfig, ZonePatrolWorld
+
+CONFIGS = [{}, {"n_uavs": 1}, {"n_uavs": 6, "grid_size": 12, "zone_size": 3, "max_cycles": 20},
+           {"told": True, "window_radius": 1}, {"initial_tracks": 0, "spawn_prob": 1.0, "intruder_life": 1}]
+
+
+@pytest.mark.parametrize("kwargs", CONFIGS)
+def test_pettingzoo_s_api_and_seed_tests_pass(kwargs):
+    parallel_api_test(zone_patrol_v0.parallel_env(**kwargs), num_cycles=70)
+    api_test(zone_patrol_v0.env(**kwargs), num_cycles=70)
+    seed_test(lambda: zone_patrol_v0.env(**kwargs), num_cycles=70)
+    parallel_seed_test(lambda: zone_patrol_v0.parallel_env(**kwargs), num_cycles=70)
+
+
+def test_render_and_max_cycles_tests_pass(monkeypatch):
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    render_test(zone_patrol_v0.env)
+    max_cycles_test(zone_patrol_v0)
+
+
+def test_the_same_seed_plays_the_same_episode_and_the_infos_carry_the_mode_and_links():
+    def episode(seed):
+        env = zone_patrol_v0.parallel_env()
+        obs, infos = env.reset(seed=seed)
+        trace, rng = [obs["uav_0"]], np.random.default_rng(0)
+        while env.agents:
+            obs, rewards, _, _, infos = env.step({a: int(rng.integers(10)) for a in env.agents})
+            trace += [obs["uav_0"], np.array([rewards["uav_0"]])]
+        return np.concatenate(trace), infos
+
+    (a, infos), (b, _), (c, _) = episode(7), episode(7), episode(8)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    info = infos["uav_0"]
+    assert 0 <= info["mode"] < 8 and all(0 <= j < 4 and j != 0 for j in info["heard_from"])
+    assert info["metrics"]["mode"] == info["mode"]
+    assert info["metrics"]["detections"] - 0.25 * info["metrics"]["escapes"] == pytest.approx(info["metrics"]["team_reward"])
+
+
+def test_a_mode_can_be_fixed_and_told_observations_end_with_its_one_hot():
+    env = zone_patrol_v0.parallel_env(told=True)
+    obs, infos = env.reset(seed=0, options={"mode": 5})
+    assert infos["uav_2"]["mode"] == 5 and env.mode == 5
+    assert obs["uav_2"].shape == (87,) and obs["uav_2"][-8:].argmax() == 5
+    assert env.state().shape == env.state_space.shape == (2 * 4 + 2 * 28 * 28 + 1,)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"grid_size": 3}, "grid_size must be an int in"), ({"n_uavs": 0}, "n_uavs must be an int in"),
+    ({"spawn_prob": 1.5}, "spawn_prob must be a finite number in"), ({"wide_detect": (0.5,)}, "wide_detect must be a pair"),
+    ({"narrow_detect": (0.2, float("nan"))}, r"narrow_detect\[1\] must be a finite number"),
+    ({"zone_size": 20}, "zone_size must be an int in"), ({"told": 1}, "told must be a bool"),
+    ({"speed": 3}, r"unknown ZonePatrol argument\(s\) \['speed'\]"), ({"render_mode": "ansi"}, "render_mode must be"),
+])
+def test_bad_arguments_raise_a_value_error_naming_them(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        zone_patrol_v0.parallel_env(**kwargs)
+
+
+def test_bad_actions_options_and_calls_out_of_order_are_refused():
+    env = zone_patrol_v0.parallel_env()
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step({})
+    with pytest.raises(RuntimeError, match="reset"):
+        env.state()
+    with pytest.raises(ValueError, match=r"options\['mode'\] must be an int in \[0, 7\]"):
+        env.reset(options={"mode": 8})
+    env.reset(seed=0)
+    for bad in (10, -1, 2.5, "3", True):
+        with pytest.raises(ValueError, match=r"action of uav_0 must be an int in \[0, 9\]"):
+            env.step({"uav_0": bad})
+    env.step({"uav_0": np.int64(3)})  # numpy integers are actions
+
+
+def world_with_one_intruder(weather, sensor_reach_gap, **kwargs):
+    config = ZonePatrolConfig(initial_tracks=0, spawn_prob=0.0, intruder_move_prob=0.0, n_uavs=1, **kwargs)
+    world = ZonePatrolWorld(config, 1)
+    world.reset(np.random.default_rng(0), np.array([weather]))  # zone 0
+    world.alive[0, 0], world.intruders[0, 0], world.ages[0, 0] = True, (2, 2), 0
+    world.positions[0, 0] = (2, 2 + sensor_reach_gap)
+    return world
+
+
+@pytest.mark.parametrize("weather, sensor, gap, caught", [(0, WIDE, 2, True), (0, WIDE, 3, False), (1, WIDE, 2, False),
+                                                         (1, NARROW, 1, True), (0, NARROW, 2, False)])
+def test_each_sensor_detects_within_its_reach_with_its_weather_s_chance(weather, sensor, gap, caught):
+    world = world_with_one_intruder(weather, gap, wide_detect=(1.0, 0.0), narrow_detect=(1.0, 1.0))
+    reward = world.step(np.array([[5 * sensor]]), np.random.default_rng(1))  # stay, with the sensor
+    assert (reward[0] == 1.0) == caught and world.caught[0] == int(caught)
+    if caught:
+        assert world.observations()[0, 0, 25:50].sum() == 1.0  # the detection in this UAV's window
+
+
+def test_an_undetected_intruder_escapes_at_the_end_of_its_life_and_its_track_fades():
+    world = world_with_one_intruder(0, 10, intruder_life=2, track_life=3)
+    rng = np.random.default_rng(0)
+    assert world.step(np.array([[0]]), rng)[0] == 0.0
+    assert world.tracks[0, 2, 2] == 3
+    assert world.step(np.array([[0]]), rng)[0] == -0.25 and world.escaped[0] == 1
+    assert world.tracks[0, 2, 2] == 2  # no new track once it has gone
+    for remaining in (1, 0, 0):
+        world.step(np.array([[0]]), rng)
+        assert world.tracks[0, 2, 2] == remaining
+
+
+def test_posts_tile_each_zone_with_the_narrow_reach():
+    world = ZonePatrolWorld(ZonePatrolConfig(), 1)
+    cells = posts(world)  # (4 zones, 4 UAVs, 2)
+    origins = world.config.zone_origins()
+    for zone in range(4):
+        covered = np.zeros((6, 6), dtype=bool)
+        for row, col in cells[zone] - origins[zone]:
+            covered[max(row - 1, 0):row + 2, max(col - 1, 0):col + 2] = True
+        assert covered.all()
+
+
+def test_the_told_team_beats_the_best_blind_team_and_a_blind_team_finds_the_zone():
+    config = ZonePatrolConfig()
+    told = play(ToldTeam(), ZonePatrolWorld(config, 64), np.random.default_rng(0))
+    blind = play(BlindTeam("split", "estimate"), ZonePatrolWorld(config, 64), np.random.default_rng(0))
+    assert told.mean() > 1.3 * blind.mean() > 0
+    with pytest.raises(ValueError, match="search must be one of"):
+        BlindTeam("circle")
+
+
+def test_the_gate_benchmark_prints_the_comparison_at_a_small_size(capsys):
+    assert load_benchmark("zone_patrol_gate").main(["--fit", "8", "--episodes", "16", "--no-speed"]) == 0
+    text = capsys.readouterr().out
+    assert "the best blind plan on the fitting episodes" in text and "paired t p =" in text and "7 (3, fog)" in text
