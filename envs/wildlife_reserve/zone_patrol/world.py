@@ -158,6 +158,7 @@ class ZonePatrolWorld:
         self.modes = np.zeros(c, dtype=np.int64)
         self.t = 0
         self.detections = np.zeros((c, n, m), dtype=bool)  # which UAV detected which intruder this step
+        self.detected_cells = np.zeros((c, m, 2), dtype=np.int64)  # and where
         self.caught = np.zeros(c, dtype=np.int64)
         self.escaped = np.zeros(c, dtype=np.int64)
         self.spawned = np.zeros(c, dtype=np.int64)
@@ -166,6 +167,7 @@ class ZonePatrolWorld:
         self.sensors = np.zeros((c, n), dtype=np.int64)
         r = config.window_radius
         self._offsets = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij"), -1).reshape(-1, 2)
+        self._subsets: list[tuple[int, ...]] | None = None
 
     # ------------------------------------------------------------------ episode
     @property
@@ -223,6 +225,7 @@ class ZonePatrolWorld:
         gap = np.abs(self.positions[:, :, None, :] - self.intruders[:, None, :, :]).max(-1)  # (c, n, m)
         in_reach = (gap <= radius[:, :, None]) & self.alive[:, None, :]
         self.detections = in_reach & (rng.random(in_reach.shape) < chance[:, :, None])
+        self.detected_cells = self.intruders.copy()  # where the detections were made (the slots move on below)
         found = self.detections.any(1)
         self.alive &= ~found
         # The rest age, and escape at the end of their lives.
@@ -258,25 +261,32 @@ class ZonePatrolWorld:
         return rewards.astype(np.float64)
 
     # ------------------------------------------------------------------ what the UAVs see
+    def _window_index(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Window cell of relative ``offsets`` ``(..., 2)``, and whether each lies in the window."""
+        r = self.config.window_radius
+        inside = (np.abs(offsets) <= r).all(-1)
+        return (offsets[..., 0] + r) * (2 * r + 1) + offsets[..., 1] + r, inside
+
     def observations(self) -> np.ndarray:
         """``(n_copies, n_uavs, obs_dim)`` float32 observations (see the card)."""
         cfg = self.config
         c, n, g = self.n_copies, cfg.n_uavs, cfg.grid_size
+        w = len(self._offsets)
         cells = self.positions[:, :, None, :] + self._offsets[None, None]  # (c, n, w, 2)
         inside = ((cells >= 0) & (cells < g)).all(-1)
         rows, cols = np.clip(cells[..., 0], 0, g - 1), np.clip(cells[..., 1], 0, g - 1)
-        c_idx = np.arange(c)[:, None, None]
-        tracks = np.where(inside, self.tracks[c_idx, rows, cols] / cfg.track_life, -1.0)
-        # This UAV's detections, at the detected intruders' cells.
-        hits = np.zeros((c, n, g, g), dtype=np.float32)
+        tracks = np.where(inside, self.tracks[np.arange(c)[:, None, None], rows, cols] / cfg.track_life, -1.0)
+        # This UAV's detections this step, at the cells where it made them.
+        seen = np.zeros((c, n, w))
         cc, nn, mm = np.nonzero(self.detections)
-        hits[cc, nn, self.intruders[cc, mm, 0], self.intruders[cc, mm, 1]] = 1.0
-        seen = np.where(inside, hits[c_idx, np.arange(n)[None, :, None], rows, cols], 0.0)
-        occupied = np.zeros((c, g, g), dtype=np.float32)
-        np.add.at(occupied, (np.repeat(np.arange(c), n), self.positions[..., 0].ravel(), self.positions[..., 1].ravel()), 1.0)
-        mates = np.where(inside, occupied[c_idx, rows, cols], 0.0)
-        mates[:, :, len(self._offsets) // 2] -= 1.0  # not itself
-        mates = np.minimum(mates, 1.0)
+        index, near = self._window_index(self.detected_cells[cc, mm] - self.positions[cc, nn])
+        seen[cc[near], nn[near], index[near]] = 1.0
+        # Teammates (a cell with any teammate reads 1; never the UAV itself).
+        mates = np.zeros((c, n, w))
+        index, near = self._window_index(self.positions[:, None, :, :] - self.positions[:, :, None, :])  # (c, n, n)
+        near &= ~np.eye(n, dtype=bool)[None]
+        cc, uu, _ = np.nonzero(near)
+        mates[cc, uu, index[near]] = 1.0
         own = self.positions / max(g - 1, 1) * 2.0 - 1.0
         parts = [tracks, seen, mates, own, np.clip(self.visibility, -3, 4)[..., None] / 4.0,
                  np.full((c, n, 1), self.t / cfg.max_cycles)]
@@ -284,11 +294,22 @@ class ZonePatrolWorld:
             parts.append(np.repeat(np.eye(cfg.n_modes)[self.modes][:, None, :], n, axis=1))
         return np.concatenate(parts, axis=-1).astype(np.float32)
 
-    def links(self) -> list[list[list[int]]]:
-        """``[copy][uav]``: the teammates within ``comm_range`` (the UAV's ``heard_from``)."""
+    def near(self) -> np.ndarray:
+        """``(n_copies, n_uavs, n_uavs)``: whether teammate ``j`` is within ``comm_range`` of UAV ``i`` (never itself)."""
         gap = np.abs(self.positions[:, :, None, :] - self.positions[:, None, :, :]).max(-1)
-        near = (gap <= self.config.comm_range) & ~np.eye(self.config.n_uavs, dtype=bool)[None]
-        return [[np.flatnonzero(row).tolist() for row in copy] for copy in near]
+        return (gap <= self.config.comm_range) & ~np.eye(self.config.n_uavs, dtype=bool)[None]
+
+    def links(self) -> list[list[tuple[int, ...]]]:
+        """``[copy][uav]``: the teammates within ``comm_range`` (the UAV's ``heard_from``), each a sorted tuple."""
+        n = self.config.n_uavs
+        if self._subsets is None:  # every set of teammates as a tuple, by its bit mask (n <= 16 here)
+            self._subsets = [tuple(j for j in range(n) if mask >> j & 1) for mask in range(1 << n)] if n <= 16 else []
+        near = self.near()
+        if not self._subsets:
+            return [[tuple(np.flatnonzero(row).tolist()) for row in copy] for copy in near]
+        masks = near @ (1 << np.arange(n))
+        subsets = self._subsets
+        return [[subsets[m] for m in row] for row in masks.tolist()]
 
     def states(self) -> np.ndarray:
         """``(n_copies, state_dim)`` float32 global states (for centralised critics)."""

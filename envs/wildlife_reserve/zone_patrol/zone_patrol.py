@@ -136,7 +136,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
         self._started = True
         observations = self.world.observations()[0]
         links = self.world.links()[0]
-        infos = {a: {"mode": self.mode, "heard_from": tuple(links[i])} for i, a in enumerate(self.agents)}
+        infos = {a: {"mode": self.mode, "heard_from": links[i]} for i, a in enumerate(self.agents)}
         return {a: observations[i] for i, a in enumerate(self.agents)}, infos
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
@@ -158,7 +158,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
         observations = self.world.observations()[0]
         links = self.world.links()[0]
         done = self.world.t >= self.config.max_cycles
-        infos = {a: {"mode": self.mode, "heard_from": tuple(links[i])} for i, a in enumerate(self.agents)}
+        infos = {a: {"mode": self.mode, "heard_from": links[i]} for i, a in enumerate(self.agents)}
         if done:
             metrics = self.world.metrics()[0]
             for info in infos.values():
