@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
 from sb3_emmarl.common.latent.counts import check_factors
-from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_entropy, belief_use
+from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -221,11 +221,8 @@ class LatentAlgorithmMixin:
         if self.policy.latent_model is None:
             return
         k = self.latent_layout.n_components
-        flat = observations.reshape(-1, observations.shape[-1])
-        if len(flat) > BELIEF_USE_ROWS:  # (a fixed stride: no generator of the run's is drawn from)
-            flat = flat[:: -(-len(flat) // BELIEF_USE_ROWS)]
-        self.logger.record("latent/belief_use", belief_use(self.policy, flat, k))
-        self.logger.record("latent/belief_entropy", belief_entropy(flat[:, -k:]))
+        self.logger.record("latent/belief_use", belief_use(self.policy, observations, k))
+        self.logger.record("latent/belief_entropy", belief_entropy(observations.reshape(-1, observations.shape[-1])[:, -k:]))
 
     # ------------------------------------------------------------------ SB3's conventions
     def predict(self, observation: np.ndarray | dict, state: tuple[np.ndarray, ...] | np.ndarray | None = None,

@@ -23,8 +23,8 @@ import torch as th
 from scipy.optimize import linear_sum_assignment
 from stable_baselines3.common.policies import BasePolicy
 
-#: Observations read per measurement of :func:`belief_use` (a random subset of larger batches): the measurement is a
-#: mean, and two forward passes over a whole rollout of the reserve would cost as much as an epoch of PPO.
+#: Observations read per measurement of :func:`belief_use` (evenly spaced rows of larger batches): the measurement is
+#: a mean, and a forward pass per component over a whole rollout of the reserve would cost as much as an epoch of PPO.
 BELIEF_USE_ROWS = 1024
 
 
@@ -41,24 +41,23 @@ def permute_beliefs(observations: np.ndarray | th.Tensor, n_components: int, shi
 
 
 def belief_use(policy: BasePolicy, observations: np.ndarray | th.Tensor, n_components: int,
-               max_rows: int = BELIEF_USE_ROWS, generator: np.random.Generator | None = None) -> float:
+               max_rows: int = BELIEF_USE_ROWS) -> float:
     """How much the policy's actions depend on the belief (see the module's text), averaged over every cyclic shift
     of the components and over at most ``max_rows`` of the augmented ``observations`` ``(N, obs_dim + K)``.
 
     :param policy: an SB3 policy with ``get_distribution`` (actor-critic) or ``actor`` (TD3/DDPG)
     :param observations: augmented observations, the belief last
     :param n_components: ``K``
-    :param max_rows: observations read at most (a random subset drawn with ``generator`` beyond that)
-    :param generator: numpy generator of the subset (default: the first ``max_rows``)
+    :param max_rows: observations read at most (evenly spaced rows beyond that: nothing is drawn from a generator, so
+        measuring leaves a run's random numbers as they were)
     :return: mean KL (stochastic policies) or mean squared action change (deterministic actors); 0.0 when ``K = 1``
     """
-    obs = th.as_tensor(np.asarray(observations, dtype=np.float32).reshape(-1, np.shape(observations)[-1]),
-                       device=policy.device)
-    if n_components < 2 or len(obs) == 0:
+    flat = np.asarray(observations, dtype=np.float32).reshape(-1, np.shape(observations)[-1])
+    if n_components < 2 or len(flat) == 0:
         return 0.0
-    if len(obs) > max_rows:
-        rows = generator.choice(len(obs), max_rows, replace=False) if generator is not None else np.arange(max_rows)
-        obs = obs[th.as_tensor(rows, device=obs.device)]
+    if len(flat) > max_rows:
+        flat = flat[:: -(-len(flat) // max_rows)]
+    obs = th.as_tensor(flat, device=policy.device)
     shifts = range(1, n_components)
     with th.no_grad():
         if hasattr(policy, "get_distribution"):
