@@ -147,11 +147,10 @@ class EMPPO(LatentAlgorithmMixin, PPO):
 
     def train(self) -> None:
         """The E-step on the recent episodes (when there is a latent model), then PPO's update, the M-step
-        (skipped when ``freeze_m_step``). Logs beforehand whether the rollout's policy read its belief
-        (``latent/belief_use``, ``latent/belief_entropy``)."""
-        if self.e_step is not None:
-            self._run_e_step(self._rollout_transitions())
-        self._log_belief_use(self.rollout_buffer.observations)
+        (skipped when ``freeze_m_step``). With each E-step it logs whether the rollout's policy read its belief
+        (``latent/belief_use``, ``latent/belief_entropy``: a few forward passes, so at the E-step's pace)."""
+        if self.e_step is not None and self._run_e_step(self._rollout_transitions()):
+            self._log_belief_use(self.rollout_buffer.observations)
         if self.freeze_m_step:
             self._update_learning_rate(self.policy.optimizer)
             self.logger.record("train/m_step_frozen", 1.0)

@@ -201,18 +201,19 @@ class LatentAlgorithmMixin:
                                  self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones),
                                  buffer.next_observations[rows])
 
-    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None]) -> None:
+    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None]) -> bool:
         """Remember the rollout's transitions (and reading counts); every ``e_step_interval`` rollouts, run the E-step
-        and log it."""
+        and log it. Returns whether it ran."""
         if self.e_step is None:
-            return
+            return False
         self.e_step.add(*data)
         self._n_rollouts += 1
         if self._n_rollouts % self.e_step_interval:
-            return
+            return False
         stats = self.e_step.step(train=not self.freeze_e_step)
         for key, value in stats.items():
             self.logger.record(f"latent/{key}", value)
+        return True
 
     def _log_belief_use(self, observations: np.ndarray) -> None:
         """Log whether the policy reads its belief, on augmented ``observations`` it acted on: ``latent/belief_use``

@@ -11,7 +11,7 @@ components keep their identity from one E-step to the next.
   matching): ``kept`` well below ``matched`` means the components were relabelled, which a policy that learnt to
   read component ``k`` as a mode cannot follow.
 
-EM-PPO logs :func:`belief_use` and the entropy of the beliefs at every update (``latent/belief_use``,
+EM-PPO logs :func:`belief_use` and the entropy of the beliefs with every E-step (``latent/belief_use``,
 ``latent/belief_entropy``), the E-step its agreement (``latent/assignment_kept``, ``latent/assignment_matched``);
 :func:`~sb3_emmarl.common.evaluation.evaluate_team` adds ``belief_use`` to each episode's record.
 """
