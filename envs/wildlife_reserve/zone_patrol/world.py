@@ -1,8 +1,9 @@
-"""ZonePatrol's world: the state of ``n_copies`` independent copies as arrays, stepped together with numpy.
+"""ZonePatrol's world: the state of ``n_copies`` independent copies as arrays, stepped together.
 
 The PettingZoo face (:mod:`~wildlife_reserve.zone_patrol.zone_patrol`) is one copy of this world; a vector
-environment can step many copies in one call (every array has the copies first). Nothing loops over cells or
-agents in Python; the loop over copies draws nothing (one generator serves the batch).
+environment can step many copies in one call (every array has the copies first). The random numbers of a step are
+drawn by numpy in one go (one generator serves the batch); the step and the observations are compiled loops
+(:mod:`~wildlife_reserve.zone_patrol.kernels`).
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-#: Moves of the five movement actions: stay, up, down, left, right (row, column).
-MOVES = np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int64)
+from wildlife_reserve.zone_patrol import kernels
+
 #: Sensors: the action is ``move + N_MOVES * sensor``.
 WIDE, NARROW = 0, 1
 N_MOVES, N_SENSORS = 5, 2
@@ -165,8 +166,8 @@ class ZonePatrolWorld:
         self.team_reward = np.zeros(c)
         self.visibility = np.zeros((c, n))
         self.sensors = np.zeros((c, n), dtype=np.int64)
-        r = config.window_radius
-        self._offsets = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij"), -1).reshape(-1, 2)
+        self._radii = np.array([config.wide_radius, config.narrow_radius], dtype=np.int64)
+        self._chances = np.array([config.wide_detect, config.narrow_detect])  # (sensor, weather)
         self._subsets: list[tuple[int, ...]] | None = None
 
     # ------------------------------------------------------------------ episode
@@ -213,86 +214,40 @@ class ZonePatrolWorld:
         return clear + self.config.visibility_noise * rng.standard_normal((self.n_copies, self.config.n_uavs))
 
     def step(self, actions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """One step of every copy; ``actions`` ``(n_copies, n_uavs)`` ints in ``[0, 10)``. Returns the team rewards."""
-        cfg = self.config
-        actions = np.asarray(actions, dtype=np.int64)
-        self.positions = np.clip(self.positions + MOVES[actions % N_MOVES], 0, cfg.grid_size - 1)
-        self.sensors = actions // N_MOVES
-        # Detection: each UAV's sensor against each live intruder within its reach.
-        radius = np.where(self.sensors == WIDE, cfg.wide_radius, cfg.narrow_radius)  # (c, n)
-        chance = np.where(self.sensors == WIDE, np.array(cfg.wide_detect)[self.weathers][:, None],
-                          np.array(cfg.narrow_detect)[self.weathers][:, None])
-        gap = np.abs(self.positions[:, :, None, :] - self.intruders[:, None, :, :]).max(-1)  # (c, n, m)
-        in_reach = (gap <= radius[:, :, None]) & self.alive[:, None, :]
-        self.detections = in_reach & (rng.random(in_reach.shape) < chance[:, :, None])
-        self.detected_cells = self.intruders.copy()  # where the detections were made (the slots move on below)
-        found = self.detections.any(1)
-        self.alive &= ~found
-        # The rest age, and escape at the end of their lives.
-        self.ages += self.alive
-        escaped = self.alive & (self.ages >= cfg.intruder_life)
-        self.alive &= ~escaped
-        # Tracks fade; live intruders wander within their zone and leave a track on their cell.
-        np.maximum(self.tracks - 1, 0, out=self.tracks)
-        origin = cfg.zone_origins()[self.zones][:, None, :]  # (c, 1, 2)
-        wander = rng.random(self.alive.shape) < cfg.intruder_move_prob
-        steps = MOVES[1 + rng.integers(4, size=self.alive.shape)] * wander[..., None]
-        self.intruders = np.clip(self.intruders + steps, origin, origin + cfg.zone_size - 1)
-        # A new intruder in the mode's zone, in a free slot.
-        spawn = rng.random(self.n_copies) < cfg.spawn_prob
-        cell = rng.integers(cfg.zone_size, size=(self.n_copies, 2))
-        free = ~self.alive
-        slot = free.argmax(1)
-        spawn &= free.any(1)
-        rows = np.flatnonzero(spawn)
-        self.intruders[rows, slot[rows]] = origin[rows, 0] + cell[rows]
-        self.ages[rows, slot[rows]] = 0
-        self.alive[rows, slot[rows]] = True
-        live_c, live_m = np.nonzero(self.alive)
-        self.tracks[live_c, self.intruders[live_c, live_m, 0], self.intruders[live_c, live_m, 1]] = cfg.track_life
-        n_found, n_escaped = found.sum(1), escaped.sum(1)
-        self.caught += n_found
-        self.escaped += n_escaped
-        self.spawned += spawn
-        rewards = n_found - cfg.escape_cost * n_escaped
+        """One step of every copy; ``actions`` ``(n_copies, n_uavs)`` ints in ``[0, 10)``. Returns the team rewards.
+
+        In order: the UAVs move and set their sensors; each sensor detects each live intruder within its reach with
+        its weather's chance (detected intruders leave); the others age and escape at the end of their lives; tracks
+        fade; intruders wander within their zone; a new one may appear in the mode's zone; every live intruder leaves
+        a track on its cell (:func:`~wildlife_reserve.zone_patrol.kernels.advance`, one compiled pass)."""
+        cfg, c, m = self.config, self.n_copies, self.alive.shape[1]
+        draws = (rng.random((c, cfg.n_uavs, m)), rng.random((c, m)), rng.integers(4, size=(c, m)), rng.random(c),
+                 rng.integers(cfg.zone_size, size=(c, 2)))
+        found, escaped, spawned = (np.zeros(c, dtype=np.int64) for _ in range(3))
+        kernels.advance(np.ascontiguousarray(actions, dtype=np.int64), self.positions, self.sensors, self.intruders,
+                        self.ages, self.alive, self.tracks, self.detections, self.detected_cells,
+                        cfg.zone_origins()[self.zones], self.weathers, *draws, self._radii, self._chances,
+                        cfg.grid_size, cfg.zone_size, cfg.intruder_life, cfg.intruder_move_prob, cfg.spawn_prob,
+                        cfg.track_life, found, escaped, spawned)
+        self.caught += found
+        self.escaped += escaped
+        self.spawned += spawned
+        rewards = found - cfg.escape_cost * escaped
         self.team_reward += rewards
         self.visibility = self._read_visibility(rng)
         self.t += 1
         return rewards.astype(np.float64)
 
     # ------------------------------------------------------------------ what the UAVs see
-    def _window_index(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Window cell of relative ``offsets`` ``(..., 2)``, and whether each lies in the window."""
-        r = self.config.window_radius
-        inside = (np.abs(offsets) <= r).all(-1)
-        return (offsets[..., 0] + r) * (2 * r + 1) + offsets[..., 1] + r, inside
-
     def observations(self) -> np.ndarray:
-        """``(n_copies, n_uavs, obs_dim)`` float32 observations (see the card)."""
+        """``(n_copies, n_uavs, obs_dim)`` float32 observations (see the card;
+        :func:`~wildlife_reserve.zone_patrol.kernels.observe`)."""
         cfg = self.config
-        c, n, g = self.n_copies, cfg.n_uavs, cfg.grid_size
-        w = len(self._offsets)
-        cells = self.positions[:, :, None, :] + self._offsets[None, None]  # (c, n, w, 2)
-        inside = ((cells >= 0) & (cells < g)).all(-1)
-        rows, cols = np.clip(cells[..., 0], 0, g - 1), np.clip(cells[..., 1], 0, g - 1)
-        tracks = np.where(inside, self.tracks[np.arange(c)[:, None, None], rows, cols] / cfg.track_life, -1.0)
-        # This UAV's detections this step, at the cells where it made them.
-        seen = np.zeros((c, n, w))
-        cc, nn, mm = np.nonzero(self.detections)
-        index, near = self._window_index(self.detected_cells[cc, mm] - self.positions[cc, nn])
-        seen[cc[near], nn[near], index[near]] = 1.0
-        # Teammates (a cell with any teammate reads 1; never the UAV itself).
-        mates = np.zeros((c, n, w))
-        index, near = self._window_index(self.positions[:, None, :, :] - self.positions[:, :, None, :])  # (c, n, n)
-        near &= ~np.eye(n, dtype=bool)[None]
-        cc, uu, _ = np.nonzero(near)
-        mates[cc, uu, index[near]] = 1.0
-        own = self.positions / max(g - 1, 1) * 2.0 - 1.0
-        parts = [tracks, seen, mates, own, np.clip(self.visibility, -3, 4)[..., None] / 4.0,
-                 np.full((c, n, 1), self.t / cfg.max_cycles)]
-        if cfg.told:
-            parts.append(np.repeat(np.eye(cfg.n_modes)[self.modes][:, None, :], n, axis=1))
-        return np.concatenate(parts, axis=-1).astype(np.float32)
+        out = np.empty((self.n_copies, cfg.n_uavs, cfg.obs_dim), dtype=np.float32)
+        kernels.observe(self.positions, self.tracks, self.detections, self.detected_cells, self.visibility,
+                        self.t / cfg.max_cycles, cfg.window_radius, cfg.track_life,
+                        self.modes if cfg.told else self.modes[:0], out)
+        return out
 
     def near(self) -> np.ndarray:
         """``(n_copies, n_uavs, n_uavs)``: whether teammate ``j`` is within ``comm_range`` of UAV ``i`` (never itself)."""
