@@ -156,3 +156,33 @@ def test_episodes_are_pinned_by_a_digest():
             for array in (rewards, world.observations(), world.states(), links):
                 digest.update(np.ascontiguousarray(array).tobytes())
     assert digest.hexdigest() == "806e273477ab14ea68724e66a49a47d46c6d929b0671ba87e29c7346296f1a60"
+
+
+def test_the_batched_and_supersuit_vector_environments_give_the_same_data():
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    traces = {}
+    for kind in ("batched", "supersuit"):
+        venv = make_vec_env(2, seed=4, env_fn=zone_patrol_v0.parallel_env, vec_env_type=kind, with_state=True,
+                            env_kwargs={"max_cycles": 20})
+        rng, trace = np.random.default_rng(0), [venv.reset()]
+        for _ in range(45):
+            obs, rewards, dones, infos = venv.step(rng.integers(10, size=venv.num_envs))
+            trace += [obs, rewards, dones.astype(float), infos[1]["state"], np.array((*infos[1]["heard_from"], -1))]
+            if dones.any():
+                trace += [infos[0]["terminal_observation"], np.array([infos[0]["metrics"]["team_reward"]])]
+        traces[kind] = trace
+        venv.close()
+    assert len(traces["batched"]) == len(traces["supersuit"])
+    for a, b in zip(traces["batched"], traces["supersuit"]):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_step_arrays_refuses_what_step_refuses():
+    env = zone_patrol_v0.parallel_env()
+    env.reset(seed=0)
+    for bad in (np.array([0, 1, 2]), np.array([0, 1, 2, 10]), np.array([0.0, 1.0, 2.0, 3.0])):
+        with pytest.raises(ValueError, match=r"actions must be 4 ints in \[0, 9\]"):
+            env.step_arrays(bad)
+    obs, rewards, terminated, truncated, info, heard = env.step_arrays(np.array([0, 1, 2, 3]))
+    assert obs.shape == (4, env.obs_dim) and rewards.shape == (4,) and info["mode"] == env.mode and len(heard) == 4

@@ -118,6 +118,11 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return spaces.Discrete(N_MOVES * N_SENSORS)
 
     @property
+    def obs_dim(self) -> int:
+        """Size of one UAV's observation (the array API's, as the reserve's)."""
+        return self.config.obs_dim
+
+    @property
     def mode(self) -> int:
         """The hidden mode of the current episode (for evaluation)."""
         return int(self.world.modes[0])
@@ -140,36 +145,58 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return {a: observations[i] for i, a in enumerate(self.agents)}, infos
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not isinstance(actions, dict):
+            raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
+        self._check_running()
+        joint = np.zeros(self.config.n_uavs, dtype=np.int64)
+        for i, agent in enumerate(self.agents):
+            joint[i] = self._check_action(agent, actions.get(agent, 0))
+        agents = list(self.agents)
+        observations, rewards, terminated, truncated, info, heard = self.step_arrays(joint)
+        infos = {a: {**info, "heard_from": heard[i]} for i, a in enumerate(agents)}
+        return ({a: observations[i] for i, a in enumerate(agents)}, {a: float(rewards[i]) for i, a in enumerate(agents)},
+                {a: terminated for a in agents}, {a: truncated for a in agents}, infos)
+
+    def step_arrays(self, actions: np.ndarray, out: np.ndarray | None = None) -> tuple[
+            np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
+        """:meth:`step` on arrays, in agent order, without the per-agent dictionaries (the reserve's array API, which
+        the batched vector environment, ``sb3_emmarl.common.vec_env.ReserveVecEnv``, steps).
+
+        :param actions: ``(n_uavs,)`` ints in ``[0, 10)``
+        :param out: a float32 ``(n_uavs, obs_dim)`` array to write the observations into (returned), or None
+        :return: observations, rewards ``(n_uavs,)`` (the team reward, every UAV alike), terminated, truncated, the info
+            every UAV shares (``mode``, and ``metrics`` on the last step) and each UAV's ``heard_from``
+        """
+        self._check_running()
+        joint = np.asarray(actions)
+        n = self.config.n_uavs
+        if joint.shape != (n,) or not np.issubdtype(joint.dtype, np.integer) or joint.min() < 0 \
+                or joint.max() >= N_MOVES * N_SENSORS:
+            raise ValueError(f"actions must be {n} ints in [0, {N_MOVES * N_SENSORS - 1}], got {actions!r}")
+        reward = float(self.world.step(joint[None], self._rng)[0])
+        observations = self.world.observations()[0]
+        if out is not None:
+            out[:] = observations
+            observations = out
+        done = self.world.t >= self.config.max_cycles
+        info: dict[str, Any] = {"mode": self.mode}
+        if done:
+            info["metrics"] = self.world.metrics()[0]
+            self.agents = []
+        return observations, np.full(n, reward), False, done, info, self.world.links()[0]
+
+    def _check_running(self) -> None:
         if not self._started:
             raise RuntimeError("call reset() before step()")
         if not self.agents:
             raise RuntimeError("the episode is over: call reset()")
+
+    def _check_action(self, agent: str, action: Any) -> int:
+        value = np.asarray(action)
         n_actions = N_MOVES * N_SENSORS
-        joint = np.zeros((1, self.config.n_uavs), dtype=np.int64)
-        for i, agent in enumerate(self.agents):
-            action = actions.get(agent, 0) if isinstance(actions, dict) else None
-            if action is None and not isinstance(actions, dict):
-                raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
-            value = np.asarray(action)
-            if value.shape != () or not np.issubdtype(value.dtype, np.integer) or not 0 <= int(value) < n_actions:
-                raise ValueError(f"action of {agent} must be an int in [0, {n_actions - 1}], got {action!r}")
-            joint[0, i] = int(value)
-        reward = float(self.world.step(joint, self._rng)[0])
-        observations = self.world.observations()[0]
-        links = self.world.links()[0]
-        done = self.world.t >= self.config.max_cycles
-        infos = {a: {"mode": self.mode, "heard_from": links[i]} for i, a in enumerate(self.agents)}
-        if done:
-            metrics = self.world.metrics()[0]
-            for info in infos.values():
-                info["metrics"] = dict(metrics)
-        obs = {a: observations[i] for i, a in enumerate(self.agents)}
-        rewards = {a: reward for a in self.agents}
-        terminations = {a: False for a in self.agents}
-        truncations = {a: done for a in self.agents}
-        if done:
-            self.agents = []
-        return obs, rewards, terminations, truncations, infos
+        if value.shape != () or not np.issubdtype(value.dtype, np.integer) or not 0 <= int(value) < n_actions:
+            raise ValueError(f"action of {agent} must be an int in [0, {n_actions - 1}], got {action!r}")
+        return int(value)
 
     def state(self) -> np.ndarray:
         if not self._started:
