@@ -184,5 +184,5 @@ def test_step_arrays_refuses_what_step_refuses():
     for bad in (np.array([0, 1, 2]), np.array([0, 1, 2, 10]), np.array([0.0, 1.0, 2.0, 3.0])):
         with pytest.raises(ValueError, match=r"actions must be 4 ints in \[0, 9\]"):
             env.step_arrays(bad)
-    obs, rewards, terminated, truncated, info, heard = env.step_arrays(np.array([0, 1, 2, 3]))
+    obs, rewards, _, _, info, heard = env.step_arrays(np.array([0, 1, 2, 3]))
     assert obs.shape == (4, env.obs_dim) and rewards.shape == (4,) and info["mode"] == env.mode and len(heard) == 4
