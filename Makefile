@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
+	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-zone-patrol-gate benchmark-zone-patrol-value benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
 	experiments-quick experiments-full experiments-report
 
 install:
@@ -123,3 +123,15 @@ benchmark-baselines: install
 # The paper's table 6: PPO with graph attention and with a transformer over the messages, against PPO and EM-PPO, 3 seeds x 200k agent-steps (about 25 minutes).
 benchmark-message-policies: install
 	$(PYTHON) zoo/compare.py --variants ppo em_ppo ppo_gat ppo_transformer --seeds 0 1 2 -n 200000 --n-jobs 2
+
+# ZonePatrol's gate, no training: the told scripted team against the best blind one on 300 held-out episodes, and the
+# stepping speed against the reserve (about a minute).
+benchmark-zone-patrol-gate: install
+	$(PYTHON) benchmarks/zone_patrol_gate.py
+
+# What knowing the mode pays a learned team on ZonePatrol: told PPO, PPO, the random-label control and EM-PPO, 10 seeds
+# x 1M agent-steps (hours on 2 cores; a killed run resumes), then the report.
+ZONE_PATROL_FOLDER ?= logs/zone_patrol_value
+benchmark-zone-patrol-value: install
+	$(PYTHON) benchmarks/zone_patrol_value.py run --folder $(ZONE_PATROL_FOLDER)
+	$(PYTHON) benchmarks/zone_patrol_value.py report --folder $(ZONE_PATROL_FOLDER)

@@ -1,6 +1,8 @@
 """ZonePatrol: PettingZoo's API, seeding and rendering tests, its mechanics on hand-built cases, bad arguments, and
 the scripted teams' gate."""
 
+import json
+
 import numpy as np
 import pytest
 from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test, seed_test
@@ -186,3 +188,19 @@ def test_step_arrays_refuses_what_step_refuses():
             env.step_arrays(bad)
     obs, rewards, _, _, info, heard = env.step_arrays(np.array([0, 1, 2, 3]))
     assert obs.shape == (4, env.obs_dim) and rewards.shape == (4,) and info["mode"] == env.mode and len(heard) == 4
+
+
+def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path, capsys):
+    bench = load_benchmark("zone_patrol_value")
+    assert bench.main(["run", "--seeds", "0", "1", "-n", "4096", "--eval-episodes", "8", "--n-jobs", "1",
+                       "--folder", str(tmp_path)]) == 0
+    runs = [json.loads(p.read_text()) for p in sorted(tmp_path.glob("*.json"))]
+    assert sorted((r["variant"], r["seed"]) for r in runs) == sorted((v, s) for v in bench.VARIANTS for s in (0, 1))
+    told = next(r for r in runs if r["variant"] == "told")
+    assert len(told["team_reward"]) == len(told["wrong_zone"]) == len(told["wrong_weather"]) == 8
+    assert bench.WRONG["wrong_zone"][5] == 7 and bench.WRONG["wrong_weather"][5] == 4  # zone 2, fog
+    assert bench.main(["report", "--folder", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "told -" in text and "random team" in text and "collapsed runs" in text
+    with pytest.raises(SystemExit, match="no runs in"):
+        bench.main(["report", "--folder", str(tmp_path / "empty")])
