@@ -20,9 +20,10 @@ TEAM_METRICS: tuple[str, ...] = (
     "time_to_first_detection",
     "signs_found",
 )
-#: What ``evaluate_team`` adds for a model with a latent belief (see ``LatentTracker``).
+#: What ``evaluate_team`` adds for a model with a latent belief (see ``LatentTracker``): how well the belief tells the
+#: mode, and how far the policy's actions move when the belief is permuted (``belief_use``).
 LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", *(f"latent_accuracy_{fraction_label(f)}" for f in EPISODE_FRACTIONS),
-                                   "latent_kl", "latent_nmi")
+                                   "latent_kl", "latent_nmi", "belief_use")
 
 
 def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] | None = None) -> dict[str, tuple[float, float]]:
