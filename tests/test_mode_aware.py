@@ -455,6 +455,10 @@ def test_the_0_1_0_repeat_reports_every_table_and_refuses_runs_that_do_not_pair(
 
 
 def test_the_0_1_0_repeat_trains_only_on_0_1_0(tmp_path):
-    with pytest.raises(SystemExit, match=r"run needs sb3-emmarl 0.1.0 on the path .* got 0\.18"):
+    import re
+
+    from sb3_emmarl.version import __version__
+
+    with pytest.raises(SystemExit, match=rf"run needs sb3-emmarl 0.1.0 on the path .* got {re.escape(__version__)} "):
         load_benchmark("mode_value_0_1_0").main(["run", "--variant", "told", "--seed", "0", "--folder", str(tmp_path)])
     assert not list(tmp_path.iterdir())
