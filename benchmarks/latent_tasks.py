@@ -27,9 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -209,13 +207,10 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     if path.exists():
         return f"{path.name}: kept"
     record = run(task, variant, seed, budget, eval_episodes)
+    from sb3_emmarl.common.checkpoints import write_text
     from sb3_emmarl.version import __version__
 
-    record["version"] = __version__
-    handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(handle, "w") as out:
-        json.dump(record, out)
-    os.replace(temporary, path)
+    write_text(path, json.dumps({**record, "version": __version__}))
     last = record["curve"][-1]
     return (f"{path.name}: return {last['return']:.3f}" + (f", permuted {last['permuted_return']:.3f}, accuracy "
                                                            f"{last['latent_accuracy']:.3f}" if variant == "em_ppo" else ""))

@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -142,13 +140,10 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
     if path.exists():
         return f"{path.name}: kept"
     record = run(variant, seed, budget, episodes)
+    from sb3_emmarl.common.checkpoints import write_text
     from sb3_emmarl.version import __version__
 
-    record["version"] = __version__
-    handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(handle, "w") as out:
-        json.dump(record, out)
-    os.replace(temporary, path)
+    write_text(path, json.dumps({**record, "version": __version__}))
     return f"{path.name}: team reward {np.mean(record['team_reward']):.3f} ({record['seconds']:.0f} s)"
 
 
