@@ -135,8 +135,8 @@ class ZonePatrolConfig:
         return np.array([[0, 0], [0, far], [far, 0], [far, far]], dtype=np.int64)
 
 
-#: Most intruders a copy holds at once (``intruder_life`` steps of at most one spawn per step, and a margin).
 def max_intruders(config: ZonePatrolConfig) -> int:
+    """Most intruders a copy holds at once (``intruder_life`` steps of at most one spawn per step, and a margin)."""
     return config.intruder_life + 1
 
 
