@@ -21,10 +21,7 @@ import torch as th
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
-
-#: Settings of the zoo's YAML files that are not the algorithm's arguments.
-ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
+from sb3_emmarl.zoo.exp_manager import zoo_hyperparams, zoo_model
 
 
 def zoo_settings(algo: str) -> dict:
@@ -43,10 +40,7 @@ def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_c
     if env is None:
         env = make_vec_env(n_copies=int(n_copies or settings["n_envs"]), seed=seed,
                            env_kwargs=settings.get("env_kwargs") or {}, vec_env_type=vec_env_type, num_cpus=num_cpus)
-    kwargs = {k: v for k, v in settings.items() if k not in ZOO_ONLY}
-    if isinstance(kwargs.get("policy_kwargs"), str):
-        kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"dict": dict})  # rl-zoo's format: "dict(...)"
-    return ZOO_ALGOS[algo](settings["policy"], env, seed=seed, **kwargs)
+    return zoo_model(algo, env, seed)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,13 +1,17 @@
 """What knowing the hidden mode pays a learned team on ZonePatrol, and how much of it EM-PPO recovers.
 
-Four variants train with the same PPO settings (:data:`PPO_SETTINGS`) on 8 copies of ZonePatrol through the batched
-vector environment, each run in its own process with one torch thread: PPO told the mode (``told``:
+Four variants train with the same PPO settings (the zoo's, ``ppo.yml``'s ``ZonePatrol-v0`` section) on 8 copies of
+ZonePatrol through the batched vector environment, each run in its own process with one torch thread: PPO told the
+mode (``told``:
 ``OraclePPO``, the one-hot of the mode appended to every observation), plain PPO (``ppo``), the control told a random
 label per episode instead (``control``: ``OraclePPO(random_label=True)``, the same input without the information) and
-EM-PPO (``em_ppo``: its generic latent model, 8 components, fusion along the links). Each run then plays the same
+EM-PPO (``em_ppo``: ``em_ppo.yml``'s settings, its generic latent model, 8 components, fusion along the links).
+Reported beside them when asked for (``--variants``): EM-PPO without fusion, RecurrentPPO (``ppo_lstm.yml``) and
+MAPPO (``mappo.yml``), each with its zoo settings. Each run then plays the same
 ``--eval-episodes`` held-out team episodes (8 copies from seed 50,000; actions sampled, torch seeded), scored as team
-episodes (one team reward per episode of a copy). ``told`` runs play them again told a wrong zone (the next one, the
-same weather) and a wrong weather; ``em_ppo`` runs with their belief permuted between components. Told, control and
+episodes (one team reward per episode of a copy). ``told`` runs play them again told each wrong zone (the same
+weather) and the wrong weather (the same zone); EM-PPO runs with their belief permuted between components, and report
+how often their belief tells the mode at mid-episode (aligned accuracy). Told, control and
 EM-PPO runs report how far their actions move when the one-hot or the belief is permuted over the visited
 observations (:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`: the swap KL). A run is *collapsed* when its
 mean team reward is below the random team's on the same episodes (rule fixed before any run).
@@ -33,39 +37,43 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-VARIANTS = ("told", "ppo", "control", "em_ppo")
-#: PPO settings of every variant (32 entries x 128 steps = 4,096 agent-steps per rollout).
-PPO_SETTINGS = {"n_steps": 128, "batch_size": 1024, "n_epochs": 10, "learning_rate": 3e-4, "gamma": 0.99,
-                "gae_lambda": 0.95, "ent_coef": 0.01, "clip_range": 0.2, "policy_kwargs": {"net_arch": [128, 128]}}
-N_COPIES = 8
+#: Each variant's zoo algorithm (its settings: the zoo YAML's ``ZonePatrol-v0`` section) and its arguments beyond them.
+ALGOS = {"told": ("oracle_ppo", {}), "ppo": ("ppo", {}), "control": ("oracle_ppo", {"random_label": True}),
+         "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"fusion": False}), "ppo_lstm": ("ppo_lstm", {}),
+         "mappo": ("mappo", {})}
+VARIANTS = tuple(ALGOS)
+#: The variants ``run`` trains unless ``--variants`` says otherwise (the protocol's four; the rest are reported beside).
+DEFAULT_VARIANTS = ("told", "ppo", "control", "em_ppo")
 EVAL_SEED = 50_000
 #: Agent-steps per run unless ``-n`` says otherwise.
 BUDGET = 1_000_000
 
 
-def make_env(seed: int, n_copies: int = N_COPIES):
+def make_env(seed: int, n_copies: int | None = None):
+    """``n_copies`` ZonePatrol copies (default: the zoo YAML's ``n_envs``) through the batched vector environment."""
+    from sb3_emmarl.common.environments import ZONE_PATROL_ID
     from sb3_emmarl.common.vec_env import make_vec_env
+    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
     from wildlife_reserve import zone_patrol_v0
 
+    n_copies = n_copies or int(zoo_hyperparams("ppo", ZONE_PATROL_ID)["n_envs"])
     return make_vec_env(n_copies, seed=seed, env_fn=zone_patrol_v0.parallel_env, vec_env_type="batched")
 
 
 def build(variant: str, seed: int):
-    from stable_baselines3 import PPO
+    """The variant's model with its zoo YAML's settings on ZonePatrol."""
+    from sb3_emmarl.common.environments import ZONE_PATROL_ID
+    from sb3_emmarl.zoo.exp_manager import zoo_model
 
-    from sb3_emmarl import EMPPO, OraclePPO
-
-    env = make_env(seed)
-    if variant == "ppo":
-        return PPO("MlpPolicy", env, seed=seed, **PPO_SETTINGS)
-    if variant == "em_ppo":
-        return EMPPO("MlpPolicy", env, seed=seed, n_components=8, **PPO_SETTINGS)
-    return OraclePPO("MlpPolicy", env, seed=seed, random_label=variant == "control", **PPO_SETTINGS)
+    algo, overrides = ALGOS[variant]
+    return zoo_model(algo, make_env(seed), seed, ZONE_PATROL_ID, **overrides)
 
 
-def play(model, venv, episodes: int, seed: int, random: bool = False) -> tuple[list[float], np.ndarray]:
+def play(model, venv, episodes: int, seed: int, random: bool = False,
+         beliefs: list | None = None) -> tuple[list[float], np.ndarray]:
     """Team rewards of ``episodes`` team episodes (the first agent of each copy reports its copy's), and one visited
-    observation per step (as the model saw it); ``random`` plays uniformly random actions instead."""
+    observation per step (as the model saw it); ``random`` plays uniformly random actions instead. ``beliefs``, if
+    given, receives ``(belief, mode)`` of every UAV at mid-episode (the observations' last 8 values)."""
     import torch as th
 
     per_copy = int(getattr(venv, "agents_per_copy", 1))
@@ -76,6 +84,7 @@ def play(model, venv, episodes: int, seed: int, random: bool = False) -> tuple[l
         th.manual_seed(seed)
         obs = venv.reset()
         state, starts = None, np.ones(venv.num_envs, dtype=bool)
+        steps = np.zeros(venv.num_envs, dtype=np.int64)
         while len(rewards) < episodes:
             if len(visited) < 1024:
                 visited.append(np.array(obs[0]))
@@ -84,6 +93,9 @@ def play(model, venv, episodes: int, seed: int, random: bool = False) -> tuple[l
             else:
                 actions, state = model.predict(obs, state=state, episode_start=starts, deterministic=False)
             obs, _, starts, infos = venv.step(actions)
+            steps = np.where(starts, 0, steps + 1)
+            if beliefs is not None:
+                beliefs.extend((obs[i, -8:], infos[i]["mode"]) for i in np.flatnonzero(steps == MID_EPISODE))
             for i in np.flatnonzero(starts):
                 if i % per_copy == 0:
                     rewards.append(float(infos[i]["metrics"]["team_reward"]))
@@ -98,9 +110,12 @@ def wrong(relabel: list[int]):
     return lambda: ModeObservationWrapper(make_env(EVAL_SEED), relabel=relabel)
 
 
-#: Told a wrong zone (the next one, the same weather), or a wrong weather (the same zone). Modes are 2 * zone + weather.
-WRONG = {"wrong_zone": [(2 * ((m // 2 + 1) % 4)) + m % 2 for m in range(8)],
+#: Told each wrong zone (``shift`` zones on, the same weather) and the wrong weather (the same zone); modes are
+#: 2 * zone + weather.
+WRONG = {**{f"wrong_zone_{shift}": [(2 * ((m // 2 + shift) % 4)) + m % 2 for m in range(8)] for shift in (1, 2, 3)},
          "wrong_weather": [2 * (m // 2) + 1 - m % 2 for m in range(8)]}
+#: The step of an episode at which EM-PPO's belief is scored (ZonePatrol's default episodes last 60 steps).
+MID_EPISODE = 30
 
 
 def run(variant: str, seed: int, budget: int, episodes: int) -> dict:
@@ -114,13 +129,20 @@ def run(variant: str, seed: int, budget: int, episodes: int) -> dict:
     model.learn(budget)
     record = {"variant": variant, "seed": seed, "budget": budget, "seconds": time.perf_counter() - start}
     wrap = getattr(model, "wrap_env", lambda v: v)
-    record["team_reward"], visited = play(model, wrap(make_env(EVAL_SEED)), episodes, EVAL_SEED)
-    if variant != "ppo":
+    beliefs: list = []
+    record["team_reward"], visited = play(model, wrap(make_env(EVAL_SEED)), episodes, EVAL_SEED,
+                                          beliefs=beliefs if variant.startswith("em_ppo") else None)
+    if beliefs:
+        from sb3_emmarl.common.latent.metrics import align_components, latent_accuracy
+
+        posteriors, modes = np.stack([b for b, _ in beliefs]), np.array([m for _, m in beliefs])
+        record["belief_accuracy"] = latent_accuracy(posteriors, modes, align_components(posteriors, modes, 8))
+    if variant in ("told", "control") or variant.startswith("em_ppo"):
         record["swap_kl"] = belief_use(model.policy, visited, 8)
     if variant == "told":
         for name, relabel in WRONG.items():
             record[name] = play(model, wrong(relabel)(), episodes, EVAL_SEED)[0]
-    if variant == "em_ppo":
+    if variant.startswith("em_ppo"):
         from stable_baselines3.common.vec_env import VecEnvWrapper
 
         class Permuted(VecEnvWrapper):
@@ -166,32 +188,38 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
     def means(variant: str, key: str = "team_reward", seeds: list[int] | None = None) -> np.ndarray:
         return np.array([np.mean(by[variant][s][key]) for s in seeds])
 
-    for a, b in (("told", "ppo"), ("told", "control"), ("control", "ppo"), ("em_ppo", "ppo"), ("told", "em_ppo")):
+    for a, b in (("told", "ppo"), ("told", "control"), ("control", "ppo"), ("em_ppo", "ppo"), ("told", "em_ppo"),
+                 ("em_ppo", "em_ppo_nofusion"), ("ppo_lstm", "ppo"), ("mappo", "ppo")):
         seeds = sorted(set(by[a]) & set(by[b]))
         if len(seeds) >= 2:
             lines.append(paired(a, means(a, seeds=seeds), b, means(b, seeds=seeds)) + f" (seeds {seeds})")
     told_seeds = sorted(by["told"])
     if len(told_seeds) >= 2:
-        for name in WRONG:
-            lines.append(paired("told right", means("told", seeds=told_seeds), f"told a {name.replace('_', ' ')}",
-                                means("told", name, told_seeds)))
-    seeds = sorted(set(by["told"]) & set(by["ppo"]) & set(by["em_ppo"]))
-    if len(seeds) >= 2:
-        em, told, ppo = means("em_ppo", seeds=seeds), means("told", seeds=seeds), means("ppo", seeds=seeds)
-        if (told - ppo).mean() == 0:
-            lines.append("(em_ppo - ppo) / (told - ppo): undefined, told and ppo score alike")
-        else:
-            draws = np.random.default_rng(0).integers(len(seeds), size=(10_000, len(seeds)))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                boot = (em[draws] - ppo[draws]).mean(1) / (told[draws] - ppo[draws]).mean(1)
-            low, high = np.nanpercentile(boot, [5, 95])
-            lines.append(f"(em_ppo - ppo) / (told - ppo) = {(em - ppo).mean() / (told - ppo).mean():.3f}, 90% bootstrap "
-                         f"interval over seeds [{low:.3f}, {high:.3f}]")
-        lines.append(paired("em_ppo", em, "em_ppo, belief permuted", means("em_ppo", "permuted", seeds)))
-    for variant in ("told", "control", "em_ppo"):
+        right = means("told", seeds=told_seeds)
+        zones = np.mean([means("told", f"wrong_zone_{shift}", told_seeds) for shift in (1, 2, 3)], axis=0)
+        for name, wrong_means in (("told a wrong zone (mean of the three)", zones),
+                                  ("told the wrong weather", means("told", "wrong_weather", told_seeds))):
+            lines.append(paired("told right", right, name, wrong_means))
+        seeds = sorted(set(told_seeds) & set(by["ppo"]))
+        if len(seeds) >= 2:
+            loss = means("told", seeds=seeds) - np.mean(
+                [means("told", f"wrong_zone_{shift}", seeds) for shift in (1, 2, 3)], axis=0)
+            gain = means("told", seeds=seeds) - means("ppo", seeds=seeds)
+            excess = loss - gain / 2
+            p = float(stats.ttest_1samp(excess, 0.0, alternative="greater").pvalue) if np.any(excess != 0) else 1.0
+            lines.append(f"told right - told a wrong zone = {loss.mean():.3f}, (told - ppo) / 2 = {gain.mean() / 2:.3f}: "
+                         f"one-sided paired t p (the first above the second) {p:.3g}")
+    for variant in ("told", "control", "em_ppo", "em_ppo_nofusion"):
         if by[variant]:
             kl = np.array([by[variant][s]["swap_kl"] for s in sorted(by[variant])])
             lines.append(f"{variant}: swap KL {kl.mean():.4f} +- {kl.std():.4f}")
+    for variant in ("em_ppo", "em_ppo_nofusion"):
+        if by[variant]:
+            acc = np.array([by[variant][s]["belief_accuracy"] for s in sorted(by[variant])])
+            lines.append(f"{variant}: belief tells the mode at mid-episode {acc.mean():.3f} +- {acc.std():.3f} "
+                         f"(lowest {acc.min():.3f})")
+    lines.append("training seconds per run (median): " + ", ".join(
+        f"{v} {np.median([r['seconds'] for r in by[v].values()]):.0f}" for v in VARIANTS if by[v]))
     if random_team is not None:
         collapsed = [f"{r['variant']} seed {r['seed']}" for r in runs if np.mean(r["team_reward"]) < random_team]
         lines.append(f"random team {random_team:.3f}; collapsed runs (below it): {', '.join(collapsed) or 'none'}")
@@ -202,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run_parser = commands.add_parser("run", help="train and evaluate the runs missing from --folder")
-    run_parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    run_parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS), choices=list(VARIANTS))
     run_parser.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     run_parser.add_argument("-n", type=int, default=BUDGET, help="agent-steps per run")
     run_parser.add_argument("--eval-episodes", type=int, default=200)

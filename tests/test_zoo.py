@@ -105,7 +105,7 @@ def test_malformed_yaml_stops_with_its_name(tmp_path, capsys):
     ("args", "message"),
     [
         (["--algo", "sac"], "argument --algo: invalid choice: 'sac'"),
-        (["--env", "CartPole-v1"], "--env must be WildlifeReserve-v0"),
+        (["--env", "CartPole-v1"], "argument --env: invalid choice: 'CartPole-v1'"),
         (["--env-kwargs", "n_uavs=3"], "--env-kwargs expects key:value pairs, got 'n_uavs=3'"),
         (["--env-kwargs", "region:forest"], "--env-kwargs region: 'forest' is not a valid Python value"),
         (["-n", "0"], "argument -n/--n-timesteps: must be an int in [1, 10000000000] or -1, got 0"),

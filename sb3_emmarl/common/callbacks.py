@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_emmarl.common.metrics import TEAM_METRICS
+from sb3_emmarl.common.metrics import team_metric_keys
 
 #: Tensorboard prefix of every reserve metric.
 METRICS_PREFIX = "reserve"
@@ -20,11 +20,12 @@ class TeamMetricsCallback(BaseCallback):
     ``reserve/policy_entropy``: the mean entropy of the policy over the last update's minibatches
     (``-train/entropy_loss``), so it appears from the second rollout on.
 
-    :param metrics: which episode metrics to log
+    :param metrics: which episode metrics to log (None: the episode's team metrics,
+        :func:`~sb3_emmarl.common.metrics.team_metric_keys`: the reserve's, or another environment's own, e.g. ZonePatrol's)
     :param verbose: verbosity
     """
 
-    def __init__(self, metrics: tuple[str, ...] = TEAM_METRICS, verbose: int = 0) -> None:
+    def __init__(self, metrics: tuple[str, ...] | None = None, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.metrics = metrics
         self.agents_per_copy = 1
@@ -37,7 +38,7 @@ class TeamMetricsCallback(BaseCallback):
             if done and i % self.agents_per_copy == 0:
                 metrics = self.locals["infos"][i].get("metrics")
                 if metrics is not None:
-                    for key in self.metrics:
+                    for key in self.metrics or team_metric_keys(metrics):
                         self.logger.record_mean(f"{METRICS_PREFIX}/{key}", float(metrics[key]))
         return True
 

@@ -1,4 +1,5 @@
-"""The single-agent (centralised) view of the wildlife reserve, used by the Centralized PPO baseline.
+"""The single-agent (centralised) view of the wildlife reserve (and of ZonePatrol), used by the Centralized PPO
+baseline.
 
 One policy sees the global state and picks the joint action of every UAV at once, so any
 single-agent Stable-Baselines3 algorithm can train on the reserve:
@@ -11,7 +12,8 @@ single-agent Stable-Baselines3 algorithm can train on the reserve:
 
     model = PPO("MlpPolicy", CentralizedReserveEnv(n_uavs=3, grid_size=20)).learn(10_000)
 
-:func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v0", **env_kwargs)``.
+:func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v0", **env_kwargs)``,
+and ZonePatrol's (:class:`CentralizedZonePatrolEnv`) as ``gymnasium.make("ZonePatrol-v0", **env_kwargs)``.
 """
 
 from __future__ import annotations
@@ -22,12 +24,9 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from wildlife_reserve import reserve_v0
-from wildlife_reserve.reserve.constants import N_COMMS, N_MOVES
+from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, check_env_id
+from wildlife_reserve import reserve_v0, zone_patrol_v0
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
-
-#: The Gymnasium id of :class:`CentralizedReserveEnv` (see :func:`register_envs`).
-ENV_ID = "WildlifeReserve-v0"
 #: Values of one UAV's continuous action: ``(d_row, d_col, comm)``.
 CONTINUOUS_ACTION_DIM = 3
 
@@ -40,7 +39,8 @@ class CentralizedReserveEnv(gymnasium.Env):
     UAV at once and receives the team reward.
 
     - Observation: the global state, ``Box(-1, 1, (4 n_uavs + 4 n_poachers + 3 n_leopards + belief_size^2 + 1,))``.
-    - Action: ``MultiDiscrete([15] * n_uavs)`` (``move + 5 * comm`` per UAV, in agent order), or with
+    - Action: ``MultiDiscrete([n] * n_uavs)`` (one UAV's ``n`` actions each, ``move + 5 * comm`` on the reserve, in
+      agent order), or with
       ``continuous_actions=True`` a ``Box(-1, 1, (3 * n_uavs,))`` read as ``(d_row, d_col, comm)`` per UAV.
     - Reward: the mean of the agents' rewards, i.e. the team reward when ``shaping=0`` (the default).
     - ``terminated`` / ``truncated``: the parallel env's (every UAV ends at the same step).
@@ -57,18 +57,22 @@ class CentralizedReserveEnv(gymnasium.Env):
         "render_fps": ReserveParallelEnv.metadata["render_fps"],
     }
 
+    #: The parallel environment's constructor (a subclass names another environment's).
+    parallel_env_fn = staticmethod(reserve_v0.parallel_env)
+
     def __init__(self, **env_kwargs: Any) -> None:
         super().__init__()
-        self.parallel_env: ReserveParallelEnv = reserve_v0.parallel_env(**env_kwargs)
+        self.parallel_env: ReserveParallelEnv = self.parallel_env_fn(**env_kwargs)
         self.possible_agents = list(self.parallel_env.possible_agents)
         self.n_uavs = len(self.possible_agents)
-        self.continuous_actions = self.parallel_env.config.continuous_actions
+        self.continuous_actions = bool(getattr(self.parallel_env.config, "continuous_actions", False))
         self.render_mode = self.parallel_env.render_mode
         self.observation_space = self.parallel_env.state_space
         if self.continuous_actions:
             self.action_space = spaces.Box(low=-1.0, high=1.0, shape=(CONTINUOUS_ACTION_DIM * self.n_uavs,), dtype=np.float32)
         else:
-            self.action_space = spaces.MultiDiscrete([N_MOVES * N_COMMS] * self.n_uavs)
+            self.n_actions = int(self.parallel_env.action_space(self.possible_agents[0]).n)
+            self.action_space = spaces.MultiDiscrete([self.n_actions] * self.n_uavs)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode of the parallel env.
@@ -112,7 +116,7 @@ class CentralizedReserveEnv(gymnasium.Env):
             return {agent: per_uav[i] for i, agent in enumerate(self.possible_agents)}
         if not np.issubdtype(joint.dtype, np.integer):
             if not (np.issubdtype(joint.dtype, np.number) and np.all(np.mod(joint, 1) == 0)):
-                raise ValueError(f"the joint action must hold integers in [0, {N_MOVES * N_COMMS - 1}], got {joint!r}")
+                raise ValueError(f"the joint action must hold integers in [0, {self.n_actions - 1}], got {joint!r}")
         return {agent: int(joint[i]) for i, agent in enumerate(self.possible_agents)}
 
     def render(self) -> np.ndarray | None:
@@ -125,11 +129,35 @@ class CentralizedReserveEnv(gymnasium.Env):
         super().close()
 
 
-def register_envs() -> None:
-    """Register :class:`CentralizedReserveEnv` with Gymnasium as ``"WildlifeReserve-v0"``.
+class CentralizedZonePatrolEnv(CentralizedReserveEnv):
+    """ZonePatrol as one single-agent Gymnasium environment: the global state, the joint action
+    ``MultiDiscrete([n_actions] * n_uavs)``, the team reward (see :class:`CentralizedReserveEnv`).
 
-    Idempotent: calling it again does nothing. There is no ``max_episode_steps``: the environment
-    truncates itself after ``max_cycles`` steps.
+    :param env_kwargs: arguments of ``zone_patrol_v0.parallel_env``
     """
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="sb3_emmarl.common.centralized:CentralizedReserveEnv")
+
+    parallel_env_fn = staticmethod(zone_patrol_v0.parallel_env)
+
+
+#: The centralised view of each environment id.
+CENTRALIZED_ENVS: dict[str, type[CentralizedReserveEnv]] = {ENV_ID: CentralizedReserveEnv,
+                                                            ZONE_PATROL_ID: CentralizedZonePatrolEnv}
+
+
+def centralized_env(env_id: str = ENV_ID, **env_kwargs: Any) -> CentralizedReserveEnv:
+    """The centralised view of ``env_id`` built with ``env_kwargs``.
+
+    :raise ValueError: for an unknown id
+    """
+    return CENTRALIZED_ENVS[check_env_id(env_id)](**env_kwargs)
+
+
+def register_envs() -> None:
+    """Register the centralised views with Gymnasium (``"WildlifeReserve-v0"``, ``"ZonePatrol-v0"``).
+
+    Idempotent: calling it again does nothing. There is no ``max_episode_steps``: the environments
+    truncate themselves after their episode length.
+    """
+    for env_id, env_class in CENTRALIZED_ENVS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=f"{__name__}:{env_class.__name__}")

@@ -14,7 +14,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, Ve
 
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
 from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve import reserve_v0
+from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 
 
 class Predictor(Protocol):
@@ -50,8 +50,8 @@ class RandomPolicy:
 
 def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centralized: bool = False,
                   vec_normalize_path: str | None = None, model: Any = None,
-                  vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None) -> VecEnv:
-    """One reserve for evaluation: the parameter-sharing view, or the centralised one.
+                  vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None, env_id: str = ENV_ID) -> VecEnv:
+    """One copy of the environment for evaluation: the parameter-sharing view, or the centralised one.
 
     :param seed: seed of the first episode (later episodes follow from it)
     :param env_kwargs: the reserve's arguments
@@ -60,17 +60,19 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
     :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG, oracle PPO) gets its wrapper on top
     :param vec_env_wrapper: the wrapper the model was trained under (rl-zoo's ``vec_env_wrapper``, e.g.
         ``HideObservationParts``), applied where training applied it: on the plain parameter-sharing view
+    :param env_id: the environment (:data:`~sb3_emmarl.common.environments.ENV_MODULES`; default the reserve)
     """
     env_kwargs = dict(env_kwargs or {})
     if centralized and vec_env_wrapper is not None:
         raise ValueError("vec_env_wrapper applies to the parameter-sharing view, not to the centralised one")
     if centralized:
-        from sb3_emmarl.common.centralized import CentralizedReserveEnv
+        from sb3_emmarl.common.centralized import centralized_env
 
-        venv: VecEnv = VecMonitor(DummyVecEnv([lambda: CentralizedReserveEnv(**env_kwargs)]))
+        venv: VecEnv = VecMonitor(DummyVecEnv([lambda: centralized_env(env_id, **env_kwargs)]))
         venv.seed(seed)
     else:
-        venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs, vec_env_wrapper=vec_env_wrapper)
+        venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs, vec_env_wrapper=vec_env_wrapper,
+                            env_fn=parallel_env_fn(env_id), vec_env_type="batched")
     if vec_normalize_path is not None:
         venv = VecNormalize.load(vec_normalize_path, venv)
         venv.training = False
@@ -80,12 +82,12 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
     return venv
 
 
-def is_centralized(model: Predictor, env_kwargs: dict[str, Any] | None = None) -> bool:
+def is_centralized(model: Predictor, env_kwargs: dict[str, Any] | None = None, env_id: str = ENV_ID) -> bool:
     """Whether a model acts on the global state (the centralised view) rather than on one UAV's observation."""
     space = getattr(model, "observation_space", None)
     if space is None:
         return False
-    prototype = reserve_v0.parallel_env(**dict(env_kwargs or {}))
+    prototype = parallel_env_fn(env_id)(**dict(env_kwargs or {}))
     return space.shape == prototype.state_space.shape and space.shape != prototype.observation_space("uav_0").shape
 
 
@@ -118,6 +120,7 @@ def evaluate_team(
     vec_env: VecEnv | None = None,
     vec_normalize_path: str | None = None,
     vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,
+    env_id: str = ENV_ID,
 ) -> list[dict[str, Any]]:
     """Play ``n_episodes`` evaluation episodes and return each one's team metrics and true mode.
 
@@ -141,6 +144,7 @@ def evaluate_team(
     :param vec_normalize_path: ``VecNormalize`` statistics saved in training, if the model used them
     :param vec_env_wrapper: the ``vec_env_wrapper`` the model was trained under, if any (see :func:`make_eval_env`);
         not with ``vec_env``
+    :param env_id: the environment (default the reserve; ``"ZonePatrol-v0"``: ZonePatrol), not with ``vec_env``
     :return: one dict per episode: every metric of the episode, ``mode``, ``episode`` and ``seed``
     """
     if n_episodes < 1:
@@ -149,8 +153,8 @@ def evaluate_team(
         raise ValueError("give vec_env_wrapper or vec_env, not both: a vec_env you build carries its own wrappers")
     own_env = vec_env is None
     if own_env:
-        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model,
-                                vec_env_wrapper)
+        vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs, env_id), vec_normalize_path, model,
+                                vec_env_wrapper, env_id)
     elif hasattr(model, "wrap_env"):  # kept when it is already there
         vec_env = model.wrap_env(vec_env)
     per_copy = int(getattr(vec_env, "agents_per_copy", 1))

@@ -26,18 +26,32 @@ LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", *(f"latent_accuracy_{fract
                                    "latent_kl", "latent_nmi", "belief_use")
 
 
+#: Keys of an evaluation record that describe the episode rather than measure it.
+RECORD_KEYS: tuple[str, ...] = ("mode", "episode", "seed")
+
+
+def team_metric_keys(record: dict[str, object]) -> tuple[str, ...]:
+    """The team metrics of an episode record: :data:`TEAM_METRICS` when it holds them all (the reserve), else its own
+    numeric metrics in their order (another environment's, e.g. ZonePatrol's), leaving out :data:`RECORD_KEYS` and
+    :data:`LATENT_METRICS`."""
+    if all(key in record for key in TEAM_METRICS):
+        return TEAM_METRICS
+    return tuple(key for key, value in record.items() if key not in RECORD_KEYS and key not in LATENT_METRICS
+                 and isinstance(value, (int, float, np.number)) and not isinstance(value, bool))
+
+
 def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] | None = None) -> dict[str, tuple[float, float]]:
     """Mean and (population) standard deviation of each metric over episodes.
 
     :param records: one metrics dict per episode
-    :param keys: which metrics to summarise (None: :data:`TEAM_METRICS`, then the :data:`LATENT_METRICS` the
-        records hold)
+    :param keys: which metrics to summarise (None: the records' team metrics (:func:`team_metric_keys`), then the
+        :data:`LATENT_METRICS` they hold)
     :return: ``{metric: (mean, std)}``
     """
     if not records:
         raise ValueError("summarize needs at least one episode record")
     if keys is None:
-        keys = (*TEAM_METRICS, *(k for k in LATENT_METRICS if k in records[0]))
+        keys = (*team_metric_keys(records[0]), *(k for k in LATENT_METRICS if k in records[0]))
     missing = [k for k in keys if k not in records[0]]
     if missing:
         raise ValueError(f"episode records lack the metrics {missing}; they have {sorted(records[0])}")

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
 
 
@@ -77,6 +78,7 @@ def record_episode(
     fps: int = 10,
     frame_skip: int = 1,
     vec_env_wrapper: Callable[[Any], Any] | None = None,
+    env_id: str = ENV_ID,
 ) -> dict[str, Any]:
     """Play one episode with ``render_mode="rgb_array"`` and write it as a GIF (``.gif``) or an MP4 (``.mp4``).
 
@@ -89,6 +91,7 @@ def record_episode(
     :param fps: frames per second of the animation
     :param frame_skip: keep one frame in ``frame_skip``
     :param vec_env_wrapper: the ``vec_env_wrapper`` the model was trained under, if any (see ``make_eval_env``)
+    :param env_id: the environment (default the reserve)
     :return: the episode's metrics
     """
     path = Path(path)
@@ -97,8 +100,8 @@ def record_episode(
     if fps < 1 or frame_skip < 1:
         raise ValueError(f"fps and frame_skip must be >= 1, got {fps} and {frame_skip}")
     env_kwargs = {**dict(env_kwargs or {}), "render_mode": "rgb_array"}
-    venv = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs), vec_normalize_path, model,
-                         vec_env_wrapper)
+    venv = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs, env_id), vec_normalize_path, model,
+                         vec_env_wrapper, env_id)
     frames: list[np.ndarray] = []
     metrics = _play(model, venv, seed, deterministic,
                     lambda step: frames.append(venv.render()) if step % frame_skip == 0 else None)

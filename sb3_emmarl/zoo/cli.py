@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sb3_emmarl.common.centralized import ENV_ID
+from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     check_model_file,
@@ -38,7 +38,6 @@ from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import VEC_ENV_TYPES, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from wildlife_reserve import reserve_v0
 
 #: The --vec-env choices: the two parameter-sharing paths of make_vec_env, rl-zoo's "dummy" (SuperSuit in this
 #: process, the name rl-zoo gives its in-process choice) and "subproc" (the batched path over worker processes).
@@ -78,13 +77,19 @@ def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
     return result
 
 
-def latest_run(log_folder: str | Path, algo: str) -> Path:
-    """The folder of the newest run of ``algo`` in the zoo's ``log_folder`` (rl-zoo's ``<log>/<algo>/<env>_<n>``,
-    highest ``n``); ``<env>_0``, which does not exist, when there is none."""
+def latest_run(log_folder: str | Path, algo: str, env_id: str = ENV_ID) -> Path:
+    """The folder of the newest run of ``algo`` on ``env_id`` in the zoo's ``log_folder`` (rl-zoo's
+    ``<log>/<algo>/<env>_<n>``, highest ``n``); ``<env>_0``, which does not exist, when there is none."""
     from rl_zoo3.utils import get_latest_run_id
 
     algo_folder = Path(log_folder) / algo
-    return algo_folder / f"{ENV_ID}_{get_latest_run_id(str(algo_folder), ENV_ID)}"
+    return algo_folder / f"{env_id}_{get_latest_run_id(str(algo_folder), env_id)}"
+
+
+def run_env_id(run: str | Path) -> str:
+    """The environment id of a zoo run folder (``<env>_<n>``; the reserve's for a folder not named so)."""
+    name = Path(run).name.rsplit("_", 1)[0]
+    return name if name in ENV_MODULES else ENV_ID
 
 
 class KeyValues(argparse.Action):
@@ -98,9 +103,10 @@ class KeyValues(argparse.Action):
 
 
 def train_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description="Train an agent on the wildlife reserve (rl-baselines3-zoo flags).")
+    parser = argparse.ArgumentParser(description="Train an agent on the wildlife reserve or ZonePatrol "
+                                                 "(rl-baselines3-zoo flags).")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
-    parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
+    parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
     parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS, extra=(-1,)), default=-1,
                         help="overwrite the YAML's n_timesteps (-1: the YAML's)")
     parser.add_argument("--seed", type=int_flag(0, 2**32 - 1, extra=(-1,)), default=-1, help="random seed (-1: draw one)")
@@ -122,8 +128,8 @@ def train_parser() -> argparse.ArgumentParser:
                         help="save the replay buffer with the final model and every checkpoint (off-policy algorithms)")
     parser.add_argument("--team-eval-episodes", type=int_flag(0, 10_000), default=5,
                         help="evaluation episodes whose team metrics are printed after training (0: none)")
-    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
-    parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation reserve arguments")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="environment arguments, key:value")
+    parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation environment arguments")
     parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=KeyValues,
                         help="overwrite hyperparameters, e.g. learning_rate:0.01")
     parser.add_argument("-conf", "--conf-file", default=None,
@@ -156,8 +162,6 @@ def train_parser() -> argparse.ArgumentParser:
 
 
 def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    if args.env != ENV_ID:
-        parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
     if args.conf_file is not None and not Path(args.conf_file).is_file():
         parser.error(f"--conf-file {args.conf_file!r} does not exist")
     if args.trained_agent:
@@ -175,22 +179,23 @@ def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> t
     if args.resume:
         run = Path(args.resume)
     else:
-        runs = sorted(Path(args.log_folder, args.algo).glob(f"{ENV_ID}_*"),
+        runs = sorted(Path(args.log_folder, args.algo).glob(f"{args.env}_*"),
                       key=lambda path: int(path.name.rsplit("_", 1)[-1]) if path.name.rsplit("_", 1)[-1].isdigit() else -1)
         if not runs:
-            parser.error(f"--resume: no run of {args.algo} in {Path(args.log_folder, args.algo)}")
+            parser.error(f"--resume: no run of {args.algo} on {args.env} in {Path(args.log_folder, args.algo)}")
         run = runs[-1]
-    args_file = run / ENV_ID / "args.yml"
+    env_id = run_env_id(run)
+    args_file = run / env_id / "args.yml"
     if not args_file.is_file():
-        parser.error(f"--resume: {run} is not a run folder of the zoo (no {ENV_ID}/args.yml)")
+        parser.error(f"--resume: {run} is not a run folder of the zoo (no {env_id}/args.yml)")
     try:
         saved = read_yaml(args_file, "the run's arguments")
     except ValueError as error:
         parser.error(f"--resume: {error}")
     if not isinstance(saved, dict) or saved.get("algo") not in ZOO_ALGOS:
         parser.error(f"--resume: {args_file} does not hold a zoo run's arguments")
-    if (run / f"{ENV_ID}.zip").is_file():
-        print(f"{run} has finished (its final model {ENV_ID}.zip exists): nothing to resume")
+    if (run / f"{env_id}.zip").is_file():
+        print(f"{run} has finished (its final model {env_id}.zip exists): nothing to resume")
         return None
     for leftover in run.rglob(".*.tmp"):  # a file being written when the run stopped (its previous version is intact)
         leftover.unlink()
@@ -244,7 +249,7 @@ def train_main(argv: list[str] | None = None) -> int:
     if args.optimize_hyperparameters and args.storage is None:
         Path(args.log_folder).mkdir(parents=True, exist_ok=True)
         args.storage = f"sqlite:///{Path(args.log_folder) / 'optuna.db'}"
-        args.study_name = args.study_name or f"{args.algo}-{ENV_ID}"
+        args.study_name = args.study_name or f"{args.algo}-{args.env}"
 
     manager = None
     try:
@@ -268,7 +273,7 @@ def train_main(argv: list[str] | None = None) -> int:
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
-    for env_kwargs in (manager.env_kwargs, manager.eval_env_kwargs):  # (each set of arguments is played once)
+    for env_kwargs in (manager.env_kwargs, manager.eval_env_kwargs) if args.env == ENV_ID else ():  # each played once
         compile_reserve(env_kwargs)  # numba compiles (or loads) the reserve's kernels here, not in the timed training
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
@@ -294,10 +299,10 @@ def train_main(argv: list[str] | None = None) -> int:
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,
                                 env_kwargs=manager.eval_env_kwargs,
                                 vec_normalize_path=vec_normalize_stats(manager.params_path),
-                                vec_env_wrapper=manager.vec_env_wrapper)
+                                vec_env_wrapper=manager.vec_env_wrapper, env_id=args.env)
         write_text(Path(manager.save_path) / "team_eval.json", json.dumps(records, indent=1))
         eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
-        title = f"{args.algo} on {ENV_ID}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
+        title = f"{args.algo} on {args.env}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
         print(format_summary(summarize(records), title))
     return 0
 
@@ -305,7 +310,7 @@ def train_main(argv: list[str] | None = None) -> int:
 def enjoy_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description="Watch a trained team: team metrics and an animation of its patrol.")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
-    parser.add_argument("--env", default=ENV_ID, help="environment id (only WildlifeReserve-v0)")
+    parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
     parser.add_argument("-f", "--folder", default="logs", help="log folder of the runs")
     parser.add_argument("--exp-id", type=int_flag(0, 10**6), default=0, help="run number (0: the latest)")
     parser.add_argument("--load-best", action="store_true", help="the best model of the periodic evaluations")
@@ -315,7 +320,8 @@ def enjoy_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int_flag(0, 2**32 - 1), default=0, help="evaluation seed")
     parser.add_argument("--deterministic", action="store_true",
                         help="the most likely actions instead of sampled ones (identical UAVs then tend to move in lockstep)")
-    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="override the run's reserve arguments")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues,
+                        help="override the run's environment arguments")
     parser.add_argument("-o", "--output", default=None, help="animation file, .gif or .mp4 (default: <run>/patrol.gif)")
     parser.add_argument("--no-record", action="store_true", help="print the metrics only")
     parser.add_argument("--fps", type=int_flag(1, 120), default=10, help="animation frames per second")
@@ -331,8 +337,6 @@ def enjoy_main(argv: list[str] | None = None) -> int:
 
     parser = enjoy_parser()
     args = parser.parse_args(argv)
-    if args.env != ENV_ID:
-        parser.error(f"--env must be {ENV_ID}, got {args.env!r}")
     if args.output is not None and Path(args.output).suffix not in (".gif", ".mp4"):
         parser.error(f"--output must end in .gif or .mp4, got {args.output!r}")
     from sb3_emmarl.common.checkpoints import load_model
@@ -348,7 +352,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
         if not isinstance(config, dict):
             raise ValueError(f"{config_file} must hold a mapping of hyperparameters, got {type(config).__name__}")
         env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
-        reserve_v0.parallel_env(**env_kwargs).close()  # checked before anything runs
+        parallel_env_fn(args.env)(**env_kwargs).close()  # checked before anything runs
         vec_normalize_path = vec_normalize_stats(params_path)
         vec_env_wrapper = get_wrapper_class(config, "vec_env_wrapper")  # what the run was trained under
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
@@ -357,12 +361,12 @@ def enjoy_main(argv: list[str] | None = None) -> int:
         return 2
     records = evaluate_team(model, n_episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
                             deterministic=args.deterministic, vec_normalize_path=vec_normalize_path,
-                            vec_env_wrapper=vec_env_wrapper)
+                            vec_env_wrapper=vec_env_wrapper, env_id=args.env)
     print(format_summary(summarize(records), f"{model_path}: {len(records)} episodes from seed {args.seed} (mean +- std)"))
     if not args.no_record:
         output = Path(args.output) if args.output else Path(log_path) / "patrol.gif"
         record_episode(model, output, seed=args.seed, env_kwargs=env_kwargs, deterministic=args.deterministic,
                        vec_normalize_path=vec_normalize_path, fps=args.fps, frame_skip=args.frame_skip,
-                       vec_env_wrapper=vec_env_wrapper)
+                       vec_env_wrapper=vec_env_wrapper, env_id=args.env)
         print(f"Recorded one episode to {output}")
     return 0

@@ -1,4 +1,5 @@
-"""rl_zoo3's ``ExperimentManager``, taught to build the reserve's vector environments.
+"""rl_zoo3's ``ExperimentManager``, taught to build the parameter-sharing vector environments of the reserve and
+ZonePatrol (``--env WildlifeReserve-v0``, the default, or ``--env ZonePatrol-v0``).
 
 rl_zoo3 reads the YAML hyperparameters, builds schedules, callbacks and action noise, saves runs in
 its folder layout and tunes with optuna; all of that is reused. What changes:
@@ -42,7 +43,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
-from sb3_emmarl.common.centralized import ENV_ID, register_envs
+from sb3_emmarl.common.centralized import register_envs
 from sb3_emmarl.common.checkpoints import (
     REPLAY_BUFFER,
     TRAINING_STATE,
@@ -60,6 +61,7 @@ from sb3_emmarl.common.checkpoints import (
     save_pickle,
     write_text,
 )
+from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
@@ -75,7 +77,6 @@ from sb3_emmarl.zoo.algos import (
     register_algorithms,
 )
 from sb3_emmarl.zoo.cli import ZOO_VEC_ENVS
-from wildlife_reserve import reserve_v0
 
 #: The YAML files of the zoo (``sb3_emmarl/zoo/hyperparams/<algo>.yml``, package data: a wheel install has them).
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
@@ -152,6 +153,27 @@ def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
     return yaml_section(read_yaml(path, "a hyperparameter file"), env_id, path)
 
 
+#: Settings of the zoo's YAML files that are not the algorithm's arguments.
+ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
+
+
+def zoo_model(algo: str, env: Any, seed: int, env_id: str = ENV_ID, **overrides: Any) -> BaseAlgorithm:
+    """``algo`` built on ``env`` with the zoo YAML's settings for ``env_id`` (checked as training checks them;
+    ``overrides`` win), for scripts that train outside the zoo's command line on the same settings.
+
+    :param algo: a zoo algorithm name (``oracle_ppo`` reads ``ppo.yml``)
+    :param env: the vector environment (``n_envs`` copies of ``env_id``, as the YAML says, for the same rollout)
+    :param seed: the model's seed
+    :param env_id: whose section of the YAML to read
+    :raise ValueError: a YAML that normalises observations (the scripts do not), or a setting that fails its check
+    """
+    settings = check_hyperparams(algo, ZOO_ALGOS[algo], zoo_hyperparams(algo, env_id))
+    if settings.get("normalize"):
+        raise ValueError(f"{zoo_file(algo).name} normalizes observations on {env_id}; build the model through the zoo")
+    kwargs = {key: value for key, value in settings.items() if key not in ZOO_ONLY}
+    return ZOO_ALGOS[algo](settings["policy"], env, seed=seed, **{**kwargs, **overrides})
+
+
 def plain(value: Any) -> Any:
     """``value`` as plain YAML data (dicts, lists, str, numbers, bools, None) for ``yaml.safe_dump``."""
     if isinstance(value, dict):
@@ -182,8 +204,9 @@ class ReserveExperimentManager(ExperimentManager):
         register_algorithms()
         if algo not in ZOO_ALGOS:
             raise ValueError(f"unknown algorithm {algo!r}; the zoo trains {sorted(ZOO_ALGOS)}")
-        if env_id != ENV_ID:
-            raise ValueError(f"the zoo trains on {ENV_ID!r}, got env {env_id!r}")
+        check_env_id(env_id)
+        #: the environment's ``parallel_env``
+        self.env_fn = parallel_env_fn(env_id)
         if kwargs.get("config") is None:
             kwargs["config"] = str(zoo_file(algo))
         if not Path(kwargs["config"]).is_file():
@@ -248,8 +271,8 @@ class ReserveExperimentManager(ExperimentManager):
         if self._eval_env_kwargs_args is None:  # rl_zoo3 only copies them when --env-kwargs is given
             self.eval_env_kwargs = self.env_kwargs
         # Validate the environment's arguments now, before any folder or process exists.
-        prototype = reserve_v0.parallel_env(**self.env_kwargs)
-        reserve_v0.parallel_env(**self.eval_env_kwargs)
+        prototype = self.env_fn(**self.env_kwargs)
+        self.env_fn(**self.eval_env_kwargs).close()
         if not self.centralized:
             self.agents_per_copy = len(prototype.possible_agents)
             self.n_envs *= self.agents_per_copy  # rl_zoo3 divides step counts by n_envs: count vector entries
@@ -313,6 +336,7 @@ class ReserveExperimentManager(ExperimentManager):
                 monitor_dir=monitor,
                 vec_env_wrapper=self.vec_env_wrapper,
                 with_state=self.algo in STATE_ALGOS and not eval_env,  # evaluations act on the plain observations
+                env_fn=self.env_fn,
                 vec_env_type="supersuit" if self.vec_env_path in ("supersuit", "dummy") else "batched",
             )
             env = self._maybe_normalize(env, eval_env)

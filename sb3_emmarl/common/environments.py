@@ -1,0 +1,36 @@
+"""The environments the zoo, the evaluation and the experiments know by id, and the PettingZoo module of each.
+
+Each id names a PettingZoo parallel environment (``<module>.parallel_env``) whose agents share one policy; the same id
+is registered with Gymnasium for the centralised view (:mod:`sb3_emmarl.common.centralized`), as rl-zoo expects.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+#: The wildlife reserve (:mod:`wildlife_reserve.reserve_v0`): the zoo's default environment.
+ENV_ID = "WildlifeReserve-v0"
+#: ZonePatrol (:mod:`wildlife_reserve.zone_patrol_v0`): the team task where the hidden mode decides the best action.
+ZONE_PATROL_ID = "ZonePatrol-v0"
+#: Every environment id and the module whose ``parallel_env`` builds it.
+ENV_MODULES: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve_v0", ZONE_PATROL_ID: "wildlife_reserve.zone_patrol_v0"}
+
+
+def check_env_id(env_id: Any) -> str:
+    """``env_id`` if it is one of :data:`ENV_MODULES`' ids.
+
+    :raise ValueError: naming the id and the known ones
+    """
+    if not isinstance(env_id, str) or env_id not in ENV_MODULES:
+        raise ValueError(f"unknown environment id {env_id!r}; known: {sorted(ENV_MODULES)}")
+    return env_id
+
+
+def parallel_env_fn(env_id: str) -> Callable[..., Any]:
+    """The ``parallel_env`` constructor of ``env_id`` (its keyword arguments are the environment's own).
+
+    :raise ValueError: for an unknown id
+    """
+    return importlib.import_module(ENV_MODULES[check_env_id(env_id)]).parallel_env
