@@ -106,6 +106,6 @@ def test_the_centralised_view_of_zone_patrol():
     assert env.observation_space.contains(state) and "mode" in info
     assert env.action_space.nvec.tolist() == [env.n_actions] * 4
     state, reward, terminated, truncated, info = env.step(env.action_space.sample())
-    assert env.observation_space.contains(state) and isinstance(reward, float)
+    assert env.observation_space.contains(state) and isinstance(reward, float) and not (terminated or truncated)
     with pytest.raises(ValueError, match=r"integers in \[0, "):
         env.step(np.full(4, 0.5))

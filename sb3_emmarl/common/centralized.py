@@ -27,6 +27,7 @@ from gymnasium import spaces
 from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, check_env_id
 from wildlife_reserve import reserve_v0, zone_patrol_v0
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
+
 #: Values of one UAV's continuous action: ``(d_row, d_col, comm)``.
 CONTINUOUS_ACTION_DIM = 3
 

@@ -12,9 +12,9 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
 
+from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 
 
 class Predictor(Protocol):

@@ -23,7 +23,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     check_model_file,
@@ -33,6 +32,7 @@ from sb3_emmarl.common.checkpoints import (
     vec_normalize_stats,
     write_text,
 )
+from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
