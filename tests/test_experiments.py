@@ -69,8 +69,9 @@ def mutate(path: str, value):
 
 @pytest.mark.parametrize("path,value,message", [
     ("algorithms.ppo.algo", "ppo2", r"algorithms.ppo.algo: unknown algorithm 'ppo2'"),
-    ("conditions.clean.train", {"n_drones": 3}, r"conditions.clean.train: not valid reserve arguments"),
-    ("conditions.clean.train", {"sensor_noise": 2.0}, r"conditions.clean.train: not valid reserve arguments.*sensor_noise"),
+    ("conditions.clean.train", {"n_drones": 3}, r"conditions.clean.train: not valid WildlifeReserve-v0 arguments"),
+    ("conditions.clean.train", {"sensor_noise": 2.0},
+     r"conditions.clean.train: not valid WildlifeReserve-v0 arguments.*sensor_noise"),
     ("conditions.clean.weather", "rain", r"conditions.clean: unknown field\(s\) \['weather'\]"),
     ("metrics", ["team_reward", "happiness"], r"metrics: unknown metric 'happiness'"),
     ("budgets.quick.n_timesteps", 0, r"budgets.quick.n_timesteps: must be a positive whole number, got 0"),
@@ -82,6 +83,7 @@ def mutate(path: str, value):
     ("outputs", [{"kind": "bars"}], r"outputs\[0\].metric: bars needs a metric"),
     ("reference", "dqn", r"reference: 'dqn' is not among the algorithms"),
     ("claims", {"qmix": {}}, r"claims: 'qmix' is not among the algorithms"),
+    ("env", "CartPole-v1", r"env: unknown environment id 'CartPole-v1'"),
 ])
 def test_bad_specifications_fail_before_anything_runs_naming_the_field(tmp_path, capsys, path, value, message):
     with pytest.raises(ValueError, match=message):
@@ -91,6 +93,22 @@ def test_bad_specifications_fail_before_anything_runs_naming_the_field(tmp_path,
         experiment_main([str(spec), "-f", str(tmp_path / "runs")])
     assert exit_info.value.code == 2 and re.search(message, capsys.readouterr().err)
     assert not (tmp_path / "runs").exists()
+
+
+def test_an_experiment_on_zone_patrol_runs_its_cells_through_the_zoo(tmp_path):
+    from sb3_emmarl.experiments.runner import run_cell
+
+    data = copy.deepcopy(TINY)
+    data.update(env="ZonePatrol-v0", metrics=["team_reward", "detections", "escapes", "train_seconds"],
+                conditions={"clean": {"train": {"n_uavs": 2}}})
+    with pytest.raises(ValueError, match=r"conditions.clean.train: not valid ZonePatrol-v0 arguments.*n_drones"):
+        parse_spec({**data, "conditions": {"clean": {"train": {"n_drones": 2}}}}, "tiny.yml")
+    with pytest.raises(ValueError, match="trajectories are drawn on the reserve's map only, not on ZonePatrol-v0"):
+        parse_spec({**data, "outputs": [{"kind": "trajectories"}]}, "tiny.yml")
+    spec = parse_spec(data, "tiny.yml")
+    cell = run_cell(spec, "quick", "ppo", "clean", 0, tmp_path)
+    assert spec.env == "ZonePatrol-v0" and {"detections", "escapes", "team_reward"} <= set(cell["metrics"])
+    assert (Path(cell["run_dir"]) / "stage_0" / "ppo" / "ZonePatrol-v0_1" / "ZonePatrol-v0.zip").is_file()
 
 
 def test_unknown_experiment_and_bad_flags_are_refused(capsys):

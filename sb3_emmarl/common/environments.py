@@ -16,6 +16,9 @@ ENV_ID = "WildlifeReserve-v0"
 ZONE_PATROL_ID = "ZonePatrol-v0"
 #: Every environment id and the module whose ``parallel_env`` builds it.
 ENV_MODULES: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve_v0", ZONE_PATROL_ID: "wildlife_reserve.zone_patrol_v0"}
+#: The configuration class of each id (``module:class``): its ``from_kwargs`` checks arguments without building.
+ENV_CONFIGS: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve.config:ReserveConfig",
+                               ZONE_PATROL_ID: "wildlife_reserve.zone_patrol.world:ZonePatrolConfig"}
 
 
 def check_env_id(env_id: Any) -> str:
@@ -34,3 +37,15 @@ def parallel_env_fn(env_id: str) -> Callable[..., Any]:
     :raise ValueError: for an unknown id
     """
     return importlib.import_module(ENV_MODULES[check_env_id(env_id)]).parallel_env
+
+
+def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any]) -> None:
+    """Check ``env_kwargs`` as ``env_id``'s configuration does, without building the environment.
+
+    :raise ValueError: naming the argument (or for an unknown id)
+    """
+    module, name = ENV_CONFIGS[check_env_id(env_id)].split(":")
+    try:
+        getattr(importlib.import_module(module), name).from_kwargs(**env_kwargs)
+    except TypeError as error:
+        raise ValueError(str(error)) from None

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec
 from sb3_emmarl.experiments.store import ResultStore
 
@@ -65,12 +66,12 @@ def _flags(pairs: dict[str, Any]) -> list[str]:
 
 
 def _train(algo: str, n_timesteps: int, seed: int, folder: Path, env_kwargs: dict, hyperparams: dict,
-           trained_agent: Path | None = None) -> tuple[Path, dict]:
-    """One zoo training run; returns its run folder and run_stats.json."""
+           trained_agent: Path | None = None, env_id: str = ENV_ID) -> tuple[Path, dict]:
+    """One zoo training run on ``env_id``; returns its run folder and run_stats.json."""
     from sb3_emmarl.zoo.cli import latest_run, train_main
 
-    flags = ["--algo", algo, "-n", str(n_timesteps), "--seed", str(seed), "-f", str(folder), "--eval-freq", "-1",
-             "--team-eval-episodes", "0", "--verbose", "0", "-tb", str(folder / "tensorboard")]
+    flags = ["--algo", algo, "--env", env_id, "-n", str(n_timesteps), "--seed", str(seed), "-f", str(folder),
+             "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "-tb", str(folder / "tensorboard")]
     if env_kwargs:
         flags += ["--env-kwargs", *_flags(env_kwargs)]
     if hyperparams:
@@ -80,7 +81,7 @@ def _train(algo: str, n_timesteps: int, seed: int, folder: Path, env_kwargs: dic
     code = train_main(flags)
     if code != 0:
         raise RuntimeError(f"zoo training failed with exit code {code}: {' '.join(flags)}")
-    run = latest_run(folder, algo)
+    run = latest_run(folder, algo, env_id)
     return run, json.loads((run / "run_stats.json").read_text())
 
 
@@ -94,7 +95,6 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
     """
     import torch as th
 
-    from sb3_emmarl.common.centralized import ENV_ID
     from sb3_emmarl.common.evaluation import evaluate_team
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
@@ -109,7 +109,7 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
     run, runs = None, []
     for i, (steps, env_kwargs) in enumerate(stages):
         run, stats = _train(variant.algo, steps, seed, folder / f"stage_{i}", env_kwargs, variant.hyperparams,
-                            None if run is None else run / f"{ENV_ID}.zip")
+                            None if run is None else run / f"{spec.env}.zip", spec.env)
         runs.append(stats)
     seconds = sum(s["train_seconds"] for s in runs)
     # A run continued with -i counts the first stage's steps again: with a fine-tuning stage, the budget is the count.
@@ -118,8 +118,8 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
         "train_seconds": seconds, "peak_rss_mib": max(s["peak_rss_mib"] for s in runs),
         "cpu_percent": 100.0 * sum(s.get("cpu_seconds", 0.0) for s in runs) / max(seconds, 1e-9),
         "agent_steps_per_second": steps / max(seconds, 1e-9), "n_timesteps": float(steps)}
-    model = ZOO_ALGOS[variant.algo].load(run / f"{ENV_ID}.zip", device="cpu")
-    records = evaluate_team(model, plan.eval_episodes, seed=plan.eval_seed, env_kwargs=cond.eval_kwargs)
+    model = ZOO_ALGOS[variant.algo].load(run / f"{spec.env}.zip", device="cpu")
+    records = evaluate_team(model, plan.eval_episodes, seed=plan.eval_seed, env_kwargs=cond.eval_kwargs, env_id=spec.env)
     for metric in EPISODE_METRICS:
         if all(metric in r for r in records):
             metrics[metric] = float(np.mean([r[metric] for r in records]))
@@ -136,9 +136,11 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
 def compile_for_condition(spec: ExperimentSpec, condition: str) -> None:
     """Compile the reserve's kernels in this process for every reserve a cell of ``condition`` trains or is evaluated
     on (:func:`~sb3_emmarl.common.vec_env.compile_reserve`), so that the cells' fresh processes load them from numba's
-    cache instead of each compiling them inside its timed training."""
+    cache instead of each compiling them inside its timed training (nothing for another environment)."""
     from sb3_emmarl.common.vec_env import compile_reserve
 
+    if spec.env != ENV_ID:
+        return
     cond = spec.conditions[condition]
     stages = [cond.train, cond.eval_kwargs] + ([cond.fine_tune["env_kwargs"]] if cond.fine_tune is not None else [])
     for env_kwargs in stages:

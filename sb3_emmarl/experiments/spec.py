@@ -1,8 +1,9 @@
 """Experiment specifications: what one table or figure of the paper needs, read from YAML and checked up front.
 
 A specification (``sb3_emmarl/experiments/specs/<name>.yml``, package data) names the algorithms (zoo algorithms,
-optionally with hyperparameter overrides: the variants of an ablation), the environment conditions (the reserve's
-arguments for training and for evaluation, and an optional fine-tuning stage), the metrics, the reference of the
+optionally with hyperparameter overrides: the variants of an ablation), the environment conditions (the environment's
+arguments for training and for evaluation, and an optional fine-tuning stage; the environment is the reserve unless
+``env`` names another zoo id, e.g. ``env: ZonePatrol-v0``), the metrics, the reference of the
 paired tests, two budgets (``quick``: this 2-core machine in about 30 minutes; ``full``: the paper's 5 seeds and 5000
 episodes), the outputs (tables, bar charts, learning curves, trajectory plots) and the paper's claimed numbers.
 Every cell of the experiment is one (algorithm, condition, seed). Everything is checked when the file is loaded, so
@@ -30,18 +31,20 @@ from typing import Any
 
 import yaml
 
+from sb3_emmarl.common.environments import ENV_ID, check_env_id, check_env_kwargs
+
 #: Where the package's specifications live.
 SPECS_DIR = Path(__file__).resolve().parent / "specs"
 #: The budgets every specification has.
 BUDGETS = ("quick", "full")
 #: What an experiment can show.
 OUTPUT_KINDS = ("table", "bars", "curves", "trajectories")
-#: Metrics of an evaluated team (per-episode means over the evaluation episodes): the reserve's episode metrics and,
-#: for the EM algorithms, the latent ones.
+#: Metrics of an evaluated team (per-episode means over the evaluation episodes): the reserve's episode metrics,
+#: ZonePatrol's and, for the EM algorithms, the latent ones.
 EPISODE_METRICS = ("team_reward", "coverage_efficiency", "detection_rate", "false_alarms", "poaching_events",
                    "collisions", "energy", "time_to_first_detection", "poachers_entered", "poachers_detected",
-                   "signs_found", "episode_length", "latent_accuracy", "latent_accuracy_25", "latent_accuracy_50",
-                   "latent_accuracy_100", "latent_kl", "latent_nmi")
+                   "signs_found", "episode_length", "detections", "escapes", "intruders", "latent_accuracy",
+                   "latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "latent_kl", "latent_nmi")
 #: Metrics of the training run itself (the zoo's run_stats.json).
 RUN_METRICS = ("train_seconds", "peak_rss_mib", "cpu_percent", "agent_steps_per_second", "n_timesteps")
 METRICS = EPISODE_METRICS + RUN_METRICS
@@ -78,15 +81,13 @@ def _positive_int(where: str, value: Any) -> int:
     return int(value)
 
 
-def _env_kwargs(where: str, value: Any) -> dict[str, Any]:
-    """The reserve's arguments, checked by the reserve itself."""
-    from wildlife_reserve.reserve.config import ReserveConfig
-
+def _env_kwargs(where: str, value: Any, env_id: str = ENV_ID) -> dict[str, Any]:
+    """The environment's arguments, checked by its configuration."""
     kwargs = dict(_mapping(where, value or {}))
     try:
-        ReserveConfig.from_kwargs(**kwargs)
-    except (TypeError, ValueError) as error:
-        _fail(where, f"not valid reserve arguments: {error}")
+        check_env_kwargs(env_id, kwargs)
+    except ValueError as error:
+        _fail(where, f"not valid {env_id} arguments: {error}")
     return kwargs
 
 
@@ -160,6 +161,7 @@ class ExperimentSpec:
     reference: str | None = None
     claims: dict[str, Any] = field(default_factory=dict)
     notes: str = ""
+    env: str = ENV_ID
 
     def cells(self, budget: str) -> list[tuple[str, str, int]]:
         """Every (algorithm, condition, seed) of ``budget``, seeds outermost (load drifts hit every method alike)."""
@@ -182,7 +184,7 @@ def _algorithms(where: str, data: Any) -> dict[str, Variant]:
     return algorithms
 
 
-def _conditions(where: str, data: Any) -> dict[str, Condition]:
+def _conditions(where: str, data: Any, env_id: str = ENV_ID) -> dict[str, Condition]:
     conditions: dict[str, Condition] = {}
     for name, value in _mapping(f"{where}: conditions", data).items():
         at = f"{where}: conditions.{name}"
@@ -195,10 +197,10 @@ def _conditions(where: str, data: Any) -> dict[str, Condition]:
             fraction = fine_tune["fraction"]
             if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction < 1:
                 _fail(f"{at}.fine_tune.fraction", f"must be a number in (0, 1), got {fraction!r}")
-            fine_tune = {"env_kwargs": _env_kwargs(f"{at}.fine_tune.env_kwargs", fine_tune["env_kwargs"]),
+            fine_tune = {"env_kwargs": _env_kwargs(f"{at}.fine_tune.env_kwargs", fine_tune["env_kwargs"], env_id),
                          "fraction": float(fraction)}
-        evaluation = None if value.get("eval") is None else _env_kwargs(f"{at}.eval", value["eval"])
-        conditions[str(name)] = Condition(_env_kwargs(f"{at}.train", value.get("train")), evaluation, fine_tune)
+        evaluation = None if value.get("eval") is None else _env_kwargs(f"{at}.eval", value["eval"], env_id)
+        conditions[str(name)] = Condition(_env_kwargs(f"{at}.train", value.get("train"), env_id), evaluation, fine_tune)
     if not conditions:
         _fail(f"{where}: conditions", "must name at least one condition ({} for the default reserve)")
     return conditions
@@ -269,12 +271,16 @@ def parse_spec(data: Any, where: str = "specification") -> ExperimentSpec:
     """
     data = _mapping(where, data)
     _keys(where, data, ("name", "title", "paper", "algorithms", "conditions", "metrics", "budgets", "outputs"),
-          ("reference", "claims", "notes"))
+          ("reference", "claims", "notes", "env"))
+    try:
+        env_id = check_env_id(data.get("env", ENV_ID))
+    except ValueError as error:
+        _fail(f"{where}: env", str(error))
     for key in ("name", "title", "paper"):
         if not isinstance(data[key], str) or not data[key]:
             _fail(f"{where}: {key}", f"must be a non-empty string, got {data[key]!r}")
     algorithms = _algorithms(where, data["algorithms"])
-    conditions = _conditions(where, data["conditions"])
+    conditions = _conditions(where, data["conditions"], env_id)
     raw_budgets = _mapping(f"{where}: budgets", data["budgets"])
     _keys(f"{where}: budgets", raw_budgets, BUDGETS)
     budgets = {name: _budget(f"{where}: budgets.{name}", value) for name, value in raw_budgets.items()}
@@ -283,9 +289,12 @@ def parse_spec(data: Any, where: str = "specification") -> ExperimentSpec:
         _fail(f"{where}: reference", f"{reference!r} is not among the algorithms {list(algorithms)}")
     claims = _mapping(f"{where}: claims", data.get("claims") or {})
     _check_claims(where, claims, algorithms, conditions)
+    outputs = _outputs(where, data["outputs"])
+    if env_id != ENV_ID and any(output.kind == "trajectories" for output in outputs):
+        _fail(f"{where}: outputs", f"trajectories are drawn on the reserve's map only, not on {env_id}")
     return ExperimentSpec(data["name"], data["title"], data["paper"], algorithms, conditions,
-                          _metrics(where, data["metrics"]), budgets, _outputs(where, data["outputs"]), reference,
-                          claims, str(data.get("notes") or ""))
+                          _metrics(where, data["metrics"]), budgets, outputs, reference,
+                          claims, str(data.get("notes") or ""), env_id)
 
 
 def load_spec(name_or_path: str | Path) -> ExperimentSpec:
