@@ -178,6 +178,43 @@ def paired(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:
             f"{t:.3g}, Wilcoxon p {wilcoxon:.3g}, higher on {int((diff > 0).sum())} of {len(diff)}")
 
 
+#: The protocol's bar for "a above b" over seeds: paired t p and Wilcoxon p below these, higher on this share of seeds.
+BAR_T, BAR_WILCOXON, BAR_SHARE = 0.01, 0.05, 0.8
+
+
+def passes_bar(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether ``a`` is above ``b`` by the protocol's bar (:data:`BAR_T`, :data:`BAR_WILCOXON`, :data:`BAR_SHARE`)."""
+    diff = a - b
+    if diff.mean() <= 0 or not np.any(diff != 0):
+        return False
+    return bool(stats.ttest_rel(a, b).pvalue < BAR_T and stats.wilcoxon(diff).pvalue < BAR_WILCOXON
+                and (diff > 0).sum() >= BAR_SHARE * len(diff))
+
+
+def null_calibration(label: dict[int, list[float]], plain: dict[int, list[float]], draws: int = 2000,
+                     seed: int = 0) -> tuple[bool, float]:
+    """The protocol run with a random label in place of the mode (the control against PPO), and how often its bar is
+    passed by chance: each draw resamples every run's evaluation episodes (the same episodes for both runs of a seed:
+    they played the same ones) and swaps the two runs of each seed with probability 1/2, which the null (the label
+    carries nothing) allows.
+
+    :param label: ``{seed: team reward per episode}`` of the control runs
+    :param plain: the same for the PPO runs (the same seeds and episodes)
+    :return: whether the bar passes on the runs themselves, and the share of draws that pass it
+    """
+    seeds = sorted(set(label) & set(plain))
+    a, b = np.array([label[s] for s in seeds]), np.array([plain[s] for s in seeds])
+    observed = passes_bar(a.mean(1), b.mean(1))
+    rng = np.random.default_rng(seed)
+    hits = 0
+    for _ in range(draws):
+        episodes = rng.integers(a.shape[1], size=a.shape[1])
+        ma, mb = a[:, episodes].mean(1), b[:, episodes].mean(1)
+        swap = rng.random(len(seeds)) < 0.5
+        hits += passes_bar(np.where(swap, mb, ma), np.where(swap, ma, mb))
+    return observed, hits / draws
+
+
 def report(runs: list[dict], random_team: float | None = None) -> str:
     by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
     budgets = {r["budget"] for r in runs}
@@ -192,7 +229,9 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
                  ("em_ppo", "em_ppo_nofusion"), ("ppo_lstm", "ppo"), ("mappo", "ppo")):
         seeds = sorted(set(by[a]) & set(by[b]))
         if len(seeds) >= 2:
-            lines.append(paired(a, means(a, seeds=seeds), b, means(b, seeds=seeds)) + f" (seeds {seeds})")
+            ma, mb = means(a, seeds=seeds), means(b, seeds=seeds)
+            verdict = "passes" if passes_bar(ma, mb) else "does not pass"
+            lines.append(paired(a, ma, b, mb) + f" (seeds {seeds}); {verdict} the protocol's bar for {a} above {b}")
     told_seeds = sorted(by["told"])
     if len(told_seeds) >= 2:
         right = means("told", seeds=told_seeds)
@@ -220,6 +259,13 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
                          f"(lowest {acc.min():.3f})")
     lines.append("training seconds per run (median): " + ", ".join(
         f"{v} {np.median([r['seconds'] for r in by[v].values()]):.0f}" for v in VARIANTS if by[v]))
+    seeds = sorted(set(by["control"]) & set(by["ppo"]))
+    if len(seeds) >= 2:
+        observed, rate = null_calibration({s: by["control"][s]["team_reward"] for s in seeds},
+                                          {s: by["ppo"][s]["team_reward"] for s in seeds})
+        lines.append(f"null calibration (the protocol with the random label in place of the mode, control against ppo): "
+                     f"{'passes' if observed else 'fails'} the bar; passed by chance in {rate:.1%} of 2000 resamplings "
+                     f"(episodes resampled, the two runs of each seed swapped at random)")
     if random_team is not None:
         collapsed = [f"{r['variant']} seed {r['seed']}" for r in runs if np.mean(r["team_reward"]) < random_team]
         lines.append(f"random team {random_team:.3f}; collapsed runs (below it): {', '.join(collapsed) or 'none'}")

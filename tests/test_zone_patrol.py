@@ -195,12 +195,33 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert bench.main(["run", "--seeds", "0", "1", "-n", "4096", "--eval-episodes", "8", "--n-jobs", "1",
                        "--folder", str(tmp_path)]) == 0
     runs = [json.loads(p.read_text()) for p in sorted(tmp_path.glob("*.json"))]
-    assert sorted((r["variant"], r["seed"]) for r in runs) == sorted((v, s) for v in bench.VARIANTS for s in (0, 1))
+    assert sorted((r["variant"], r["seed"]) for r in runs) == sorted(
+        (v, s) for v in bench.DEFAULT_VARIANTS for s in (0, 1))
     told = next(r for r in runs if r["variant"] == "told")
-    assert len(told["team_reward"]) == len(told["wrong_zone"]) == len(told["wrong_weather"]) == 8
-    assert bench.WRONG["wrong_zone"][5] == 7 and bench.WRONG["wrong_weather"][5] == 4  # zone 2, fog
+    assert all(len(told[key]) == 8 for key in ("team_reward", "wrong_zone_1", "wrong_zone_2", "wrong_zone_3",
+                                                 "wrong_weather"))
+    em = next(r for r in runs if r["variant"] == "em_ppo")
+    assert 0.0 <= em["belief_accuracy"] <= 1.0 and len(em["permuted"]) == 8 and em["swap_kl"] >= 0.0
+    # mode 5 = zone 2, fog: the wrong zones 3, 0, 1 in fog, the wrong weather zone 2 clear
+    assert [bench.WRONG[f"wrong_zone_{k}"][5] for k in (1, 2, 3)] == [7, 1, 3] and bench.WRONG["wrong_weather"][5] == 4
     assert bench.main(["report", "--folder", str(tmp_path)]) == 0
     text = capsys.readouterr().out
-    assert "told -" in text and "random team" in text and "collapsed runs" in text
+    assert "told -" in text and "random team" in text and "collapsed runs" in text and "null calibration" in text
     with pytest.raises(SystemExit, match="no runs in"):
         bench.main(["report", "--folder", str(tmp_path / "empty")])
+
+
+def test_the_protocols_bar_and_its_null_calibration():
+    bench = load_benchmark("zone_patrol_value")
+    rng = np.random.default_rng(0)
+    base = rng.normal(0.0, 1.0, 10)
+    assert bench.passes_bar(base + 1.0 + rng.normal(0, 0.1, 10), base)  # higher on every seed, far beyond the noise
+    assert not bench.passes_bar(base, base) and not bench.passes_bar(base - 1.0, base)
+    lucky = base + np.r_[np.full(7, 0.5), np.full(3, -0.01)]  # significant but higher on 7 of 10 seeds only
+    assert not bench.passes_bar(lucky, base)
+    noise = {s: list(rng.normal(0.0, 1.0, 50)) for s in range(10)}
+    other = {s: list(rng.normal(0.0, 1.0, 50)) for s in range(10)}
+    observed, rate = bench.null_calibration(noise, other, draws=300)
+    assert not observed and rate < 0.05  # a label that carries nothing rarely passes
+    shifted = {s: [x + 2.0 for x in values] for s, values in noise.items()}
+    assert bench.null_calibration(shifted, other, draws=50)[0]  # a real gain passes on the runs themselves
