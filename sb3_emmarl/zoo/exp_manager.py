@@ -40,6 +40,7 @@ import yaml
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
@@ -154,7 +155,9 @@ def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
 
 
 #: Settings of the zoo's YAML files that are not the algorithm's arguments.
-ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy")
+ZOO_ONLY = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "policy", "noise_type", "noise_std")
+#: rl-zoo's ``noise_type`` values and the SB3 action noise each builds.
+ACTION_NOISES = {"normal": NormalActionNoise, "ornstein-uhlenbeck": OrnsteinUhlenbeckActionNoise}
 
 
 def zoo_model(algo: str, env: Any, seed: int, env_id: str = ENV_ID, **overrides: Any) -> BaseAlgorithm:
@@ -171,6 +174,12 @@ def zoo_model(algo: str, env: Any, seed: int, env_id: str = ENV_ID, **overrides:
     if settings.get("normalize"):
         raise ValueError(f"{zoo_file(algo).name} normalizes observations on {env_id}; build the model through the zoo")
     kwargs = {key: value for key, value in settings.items() if key not in ZOO_ONLY}
+    if settings.get("noise_type") is not None:  # as rl-zoo builds it (its method needs a whole manager)
+        noise = ACTION_NOISES.get(str(settings["noise_type"]).strip())
+        if noise is None:
+            raise ValueError(f"noise_type must be one of {sorted(ACTION_NOISES)}, got {settings['noise_type']!r}")
+        n_actions = int(np.prod(env.action_space.shape))
+        kwargs["action_noise"] = noise(mean=np.zeros(n_actions), sigma=float(settings["noise_std"]) * np.ones(n_actions))
     return ZOO_ALGOS[algo](settings["policy"], env, seed=seed, **{**kwargs, **overrides})
 
 
