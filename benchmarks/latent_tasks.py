@@ -33,9 +33,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
-from sb3_emmarl.zoo.benchmark import paired_p_value
+from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
 
 #: Agent-steps per run of each task, for every variant alike (told PPO reaches 0.9 of its return at this budget within
 #: it, so the comparison is made at or before it; see ``report``).
@@ -258,7 +257,7 @@ def report(runs: list[dict]) -> str:
                      f"{int((ratio >= TARGET).sum())} of {len(seeds)}")
         lines.append(f"  em_ppo's belief after the first step: aligned accuracy {accuracy.mean():.3f} +- "
                      f"{accuracy.std():.3f}; belief use (KL when permuted) {use.mean():.3f} +- {use.std():.3f}")
-        wilcoxon = float(stats.wilcoxon(cost - gain / 2).pvalue) if np.any(cost != gain / 2) else 1.0
+        wilcoxon = wilcoxon_p_value(cost, gain / 2)
         lines.append(f"  em_ppo - ppo {gain.mean():+.3f} (p {paired_p_value(em, ppo):.3g}); permuting costs "
                      f"{cost.mean():+.3f} (p {paired_p_value(em, permuted):.3g}); cost - half the gain "
                      f"{(cost - gain / 2).mean():+.3f}: paired t p {paired_p_value(cost, gain / 2):.3g}, Wilcoxon p "

@@ -66,6 +66,7 @@ import torch as th
 from sb3_emmarl import OraclePPO
 from sb3_emmarl.common.initialization import tail_weight_norms
 from sb3_emmarl.common.masking import hidden_indices
+from sb3_emmarl.common.statistics import seeds_needed
 from sb3_emmarl.zoo.benchmark import (
     COMPARISON_EVAL_EPISODES,
     add_run_arguments,
@@ -74,7 +75,6 @@ from sb3_emmarl.zoo.benchmark import (
     paired_over_seeds,
     run_folder,
     run_variants,
-    seeds_needed,
 )
 from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
 from wildlife_reserve import reserve_v0

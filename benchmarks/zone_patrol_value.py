@@ -170,9 +170,10 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
 
 
 def paired(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:
+    from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
+
     diff = a - b
-    wilcoxon = float(stats.wilcoxon(diff).pvalue) if np.any(diff != 0) else 1.0
-    t = float(stats.ttest_rel(a, b).pvalue) if len(a) > 1 and np.any(diff != 0) else 1.0
+    wilcoxon, t = wilcoxon_p_value(a, b), paired_p_value(a, b)
     return (f"{name_a} {a.mean():.3f} +- {a.std():.3f} (median {np.median(a):.3f}) against {name_b} {b.mean():.3f} +- "
             f"{b.std():.3f} (median {np.median(b):.3f}): difference {diff.mean():+.3f} +- {diff.std():.3f}, paired t p "
             f"{t:.3g}, Wilcoxon p {wilcoxon:.3g}, higher on {int((diff > 0).sum())} of {len(diff)}")
@@ -184,10 +185,10 @@ BAR_T, BAR_WILCOXON, BAR_SHARE = 0.01, 0.05, 0.8
 
 def passes_bar(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether ``a`` is above ``b`` by the protocol's bar (:data:`BAR_T`, :data:`BAR_WILCOXON`, :data:`BAR_SHARE`)."""
+    from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
+
     diff = a - b
-    if diff.mean() <= 0 or not np.any(diff != 0):
-        return False
-    return bool(stats.ttest_rel(a, b).pvalue < BAR_T and stats.wilcoxon(diff).pvalue < BAR_WILCOXON
+    return bool(diff.mean() > 0 and paired_p_value(a, b) < BAR_T and wilcoxon_p_value(a, b) < BAR_WILCOXON
                 and (diff > 0).sum() >= BAR_SHARE * len(diff))
 
 

@@ -286,7 +286,7 @@ def test_the_told_station_team_plays_its_strategy_s_plan_on_the_held_out_episode
 
 
 def test_seeds_needed_matches_the_paired_t_test_s_power_tables():
-    from sb3_emmarl.zoo.benchmark import seeds_needed
+    from sb3_emmarl.common.statistics import seeds_needed
 
     # Cohen's tables, two-sided paired t-test at 0.05 and power 0.8: d = 1 needs 10 pairs, d = 0.5 needs 34.
     assert seeds_needed(1.0, 1.0) == 10 and seeds_needed(-2.5, 5.0) == 34

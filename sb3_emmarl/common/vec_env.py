@@ -47,6 +47,9 @@ from wildlife_reserve import reserve_v0
 
 #: The two parameter-sharing paths (see :func:`make_vec_env`).
 VEC_ENV_TYPES = ("batched", "supersuit")
+#: The zoo's --vec-env choices: the two parameter-sharing paths, rl-zoo's "dummy" (SuperSuit in this process, the name
+#: rl-zoo gives its in-process choice) and "subproc" (the batched path over worker processes).
+ZOO_VEC_ENVS = (*VEC_ENV_TYPES, "dummy", "subproc")
 
 #: Key of the ``reset`` options that carries one seed per reserve copy.
 COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"

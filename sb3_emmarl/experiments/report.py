@@ -5,7 +5,7 @@ Everything here reads the rows of a :class:`~sb3_emmarl.experiments.store.Result
 
 - :func:`summary_rows` / :func:`markdown_table`: mean +- std over seeds of every metric of the specification, per
   (condition, algorithm), the mean paired difference against the reference algorithm with its paired t-test over seeds
-  (:func:`sb3_emmarl.zoo.benchmark.paired_p_value`), and the paper's claimed value beside it;
+  (:func:`sb3_emmarl.common.statistics.paired_p_value`), and the paper's claimed value beside it;
 - :func:`figure_bars`: a metric as grouped bars (conditions x algorithms) with every seed drawn as a dot;
 - :func:`figure_curves`: learning curves read from the cells' tensorboard event files, mean +- std over seeds on a
   common grid of agent-steps;
@@ -30,8 +30,8 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from sb3_emmarl.common.checkpoints import write_text
+from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec
-from sb3_emmarl.zoo.benchmark import paired_p_value
 
 #: Shown in a table where there is no value.
 MISSING = "-"
@@ -75,7 +75,7 @@ def summary_rows(spec: ExperimentSpec, rows: Sequence[dict[str, Any]]) -> list[d
         no seed of the cell has, such as a latent metric of a non-EM algorithm, is absent): ``mean``, ``std``
         (numpy, ``ddof=0``), ``values`` (per seed, in the order of ``seeds``); when the specification has a
         reference and this is not it: ``diff`` (mean of algorithm - reference over the seeds both have in the same
-        condition), ``p`` (paired t-test over those seeds, :func:`~sb3_emmarl.zoo.benchmark.paired_p_value`) and
+        condition), ``p`` (paired t-test over those seeds, :func:`~sb3_emmarl.common.statistics.paired_p_value`) and
         ``pairs`` (how many seeds)
     """
     cells = _cells(spec, rows)

@@ -36,12 +36,8 @@ from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
-from sb3_emmarl.common.vec_env import VEC_ENV_TYPES, compile_reserve
+from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-
-#: The --vec-env choices: the two parameter-sharing paths of make_vec_env, rl-zoo's "dummy" (SuperSuit in this
-#: process, the name rl-zoo gives its in-process choice) and "subproc" (the batched path over worker processes).
-ZOO_VEC_ENVS = (*VEC_ENV_TYPES, "dummy", "subproc")
 
 #: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
 TEAM_EVAL_SEED_OFFSET = 20_000

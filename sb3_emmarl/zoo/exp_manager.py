@@ -65,7 +65,7 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.validation import check_hyperparams
-from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
+from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO
 from sb3_emmarl.message_ppo.message_ppo import wrap_with_messages
 from sb3_emmarl.oracle_ppo import OraclePPO
@@ -77,7 +77,6 @@ from sb3_emmarl.zoo.algos import (
     ZOO_ALGOS,
     register_algorithms,
 )
-from sb3_emmarl.zoo.cli import ZOO_VEC_ENVS
 
 #: The YAML files of the zoo (``sb3_emmarl/zoo/hyperparams/<algo>.yml``, package data: a wheel install has them).
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
