@@ -36,11 +36,12 @@ import torch.nn.functional as F
 from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import explained_variance
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.validation import RULES, Rule, fail, no_schedule_string, number, optional
+from sb3_emmarl.common.wrapping import WrapsEnv
 from sb3_emmarl.mappo.policies import VALUE_NORM_BETA, MAPPOPolicy, MlpPolicy
 from sb3_emmarl.mappo.wrappers import StateLayout, find_state_wrapper, wrap_with_state
 
@@ -67,7 +68,7 @@ MAPPO_RULES: dict[str, Rule] = {
 }
 
 
-class MAPPO(PPO):
+class MAPPO(WrapsEnv, PPO):
     """MAPPO (Yu et al. 2022): PPO with one actor shared by all agents on their own observations and one critic on
     the agent-specific global state, with value normalisation, on the parameter-sharing vector environment.
 
@@ -334,18 +335,13 @@ class MAPPO(PPO):
                              reset_num_timesteps=reset_num_timesteps, progress_bar=progress_bar)
 
     # ------------------------------------------------------------------ environments
-    def set_env(self, env: Any, force_reset: bool = True) -> None:
-        """As SB3's ``set_env``; the environment gets the global state appended (a plain one included)."""
-        super().set_env(wrap_with_state(env, self.agent_id, self.verbose), force_reset=force_reset)
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        """The global state appended (a plain environment included)."""
+        return wrap_with_state(env, self.agent_id, self.verbose)
 
     @classmethod
-    def load(cls, path: Any, env: Any = None, device: th.device | str = "auto", custom_objects: dict | None = None,
-             print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> MAPPO:
-        """As SB3's ``load``; ``env`` (a plain parameter-sharing vector environment is fine) gets the global state
-        appended as in training. Without ``env`` the model acts through ``predict`` on plain observations."""
-        if env is not None:
-            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
-            layout = StateLayout.from_dict(data["policy_kwargs"]["state_layout"])
-            env = wrap_with_state(env, layout.agent_id, data.get("verbose", 0))
-        return super().load(path, env=env, device=device, custom_objects=custom_objects,
-                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+    def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
+        """The global state appended as in training (without ``env`` a loaded model acts through ``predict`` on plain
+        observations)."""
+        layout = StateLayout.from_dict(data["policy_kwargs"]["state_layout"])
+        return wrap_with_state(env, layout.agent_id, data.get("verbose", 0))

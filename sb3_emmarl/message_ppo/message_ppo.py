@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.extractors import message_policy_kwargs
 from sb3_emmarl.common.messages import NeighbourMessageWrapper, find_message_wrapper
 from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.wrapping import WrapsEnv
 
 
 def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:
@@ -37,7 +38,7 @@ def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:
     return venv
 
 
-class MessagePPO(PPO):
+class MessagePPO(WrapsEnv, PPO):
     """PPO whose shared policy attends over the messages the UAV received (see the module docstring).
 
     :param policy: ``"MlpPolicy"`` (its features extractor is set from ``extractor``)
@@ -68,18 +69,11 @@ class MessagePPO(PPO):
         """``venv`` with the neighbour messages appended to its observations (for evaluation and recording)."""
         return wrap_with_messages(venv, self.max_messages)
 
-    def set_env(self, env: Any, force_reset: bool = True) -> None:
-        super().set_env(wrap_with_messages(env, self.max_messages, self.verbose), force_reset=force_reset)
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        return wrap_with_messages(env, self.max_messages, self.verbose)
 
     @classmethod
-    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
-             print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> MessagePPO:
-        """As SB3's ``load``; ``env`` gets the neighbour messages the model was trained with."""
-        if env is not None:
-            from stable_baselines3.common.save_util import load_from_zip_file
-
-            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
-            env = wrap_with_messages(env, int(data.get("max_messages", 8)))
-        return super().load(path, env=env, device=device, custom_objects=custom_objects,
-                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+    def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
+        """The neighbour messages the model was trained with."""
+        return wrap_with_messages(env, int(data.get("max_messages", 8)))
 

@@ -6,16 +6,16 @@ from typing import Any
 
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
 from sb3_emmarl.common.mode_aware import find_mode_wrapper, wrap_with_mode
 from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.wrapping import WrapsEnv
 from wildlife_reserve.reserve.modes import N_MODES
 
 
-class OraclePPO(PPO):
+class OraclePPO(WrapsEnv, PPO):
     """PPO that is told the episode's true hidden mode: the upper bound every latent method is measured against.
 
     The environment (and any environment given to ``load``, ``set_env`` or :meth:`wrap_env`) is wrapped in a
@@ -76,15 +76,10 @@ class OraclePPO(PPO):
         recording)."""
         return wrap_with_mode(venv, random_labels=self.random_label)
 
-    def set_env(self, env: Any, force_reset: bool = True) -> None:
-        super().set_env(wrap_with_mode(env, self.verbose, self.random_label), force_reset=force_reset)
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        return wrap_with_mode(env, self.verbose, self.random_label)
 
     @classmethod
-    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
-             print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> OraclePPO:
-        """As SB3's ``load``; ``env`` gets the mode (or the saved model's random label) appended to its observations."""
-        if env is not None:
-            data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            env = wrap_with_mode(env, random_labels=bool((data or {}).get("random_label", False)))
-        return super().load(path, env=env, device=device, custom_objects=custom_objects,
-                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+    def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
+        """The mode (or the saved model's random label) appended to the observations."""
+        return wrap_with_mode(env, random_labels=bool(data.get("random_label", False)))

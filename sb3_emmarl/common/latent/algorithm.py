@@ -22,6 +22,7 @@ from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episo
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.wrapping import WrapsEnv
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
 #: ``e_step_kwargs`` may override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
@@ -45,7 +46,7 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
     return venv
 
 
-class LatentAlgorithmMixin:
+class LatentAlgorithmMixin(WrapsEnv):
     """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
     e_step: EStep | None
@@ -131,17 +132,17 @@ class LatentAlgorithmMixin:
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         """SB3's, plus the E-step (its :meth:`EStep.state_dict`: optimizer, counters, generator, kept transitions), so
-        that a loaded model trains on as if it had not stopped. It is written with ``torch.save`` as the weights are:
-        until 0.17.0 it went into the archive's JSON data, pickled and base64-encoded, which at em_ddpg.yml's E-step
-        window (80,000 transitions, 25 MB) raised the process's peak memory by about 145 MB while saving."""
+        that a loaded model trains on as if it had not stopped. It is written with ``torch.save`` as the weights are,
+        not into the archive's JSON data, pickled and base64-encoded, which at em_ddpg.yml's E-step window (80,000
+        transitions, 25 MB) raises the process's peak memory by about 145 MB while saving."""
         state_dicts, variables = super()._get_torch_save_params()
         if getattr(self, "e_step", None) is not None and not getattr(self, "_e_step_in_data", False):
             state_dicts = [*state_dicts, "e_step"]
         return state_dicts, variables
 
     def set_parameters(self, load_path_or_dict: Any, exact_match: bool = True, device: Any = "auto") -> None:
-        """As SB3's; a model saved before 0.17.0 has no E-step among its parameters (its E-step state is among the
-        data, and :meth:`load` restores it from there)."""
+        """As SB3's; an archive that keeps the E-step's state among its data (as older archives do) has no E-step among
+        its parameters, and :meth:`load` restores it from the data."""
         if not isinstance(load_path_or_dict, dict):
             _, load_path_or_dict, _ = load_from_zip_file(load_path_or_dict, device=device)
         self._e_step_in_data = "e_step" not in load_path_or_dict
@@ -275,18 +276,20 @@ class LatentAlgorithmMixin:
         self._attach_beliefs(venv)
         return venv
 
-    def set_env(self, env: Any, force_reset: bool = True) -> None:
-        """As SB3's ``set_env``; a plain environment gets the belief wrapper."""
-        env = self.wrap_env(self._wrap_env(env, self.verbose))
-        super().set_env(env, force_reset=force_reset)
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        """A plain environment gets the belief wrapper (SB3's own wrapping first, for a Gymnasium environment)."""
+        return self.wrap_env(self._wrap_env(env, self.verbose))
+
+    @classmethod
+    def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
+        """An environment without the belief wrapper gets the one the model was trained with."""
+        return wrap_with_belief(env, data["policy_kwargs"]["latent_kwargs"]["n_components"])
 
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):
-        """As SB3's ``load``; an ``env`` without the belief wrapper gets the one the model was trained with."""
-        if env is not None:
-            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
-            env = wrap_with_belief(env, data["policy_kwargs"]["latent_kwargs"]["n_components"])
+        """As SB3's ``load`` (an ``env`` gets the belief wrapper: :class:`~sb3_emmarl.common.wrapping.WrapsEnv`), with
+        the E-step's state restored."""
         model = super().load(path, env=env, device=device, custom_objects=custom_objects,
                              print_system_info=print_system_info, force_reset=force_reset, **kwargs)
         e_step_state = model.__dict__.pop("_e_step_state", None)  # (saved before 0.17.0: in the data)

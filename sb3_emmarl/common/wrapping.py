@@ -1,0 +1,50 @@
+"""One way for an algorithm to wrap its environment: the algorithms whose environment carries more than the plain
+observations (the true mode for OraclePPO, the neighbour messages for MessagePPO, the global state for MAPPO, the
+belief for the EM algorithms) wrap it in ``set_env`` and in ``load`` through this mixin, and say how in two methods.
+
+SB3 has no hook for this: its ``set_env`` and ``load`` take the environment as given, so each algorithm would otherwise
+override both (as the five did, each its own way).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.vec_env import VecEnv
+
+
+class WrapsEnv:
+    """Mixin placed before the SB3 algorithm class (``class OraclePPO(WrapsEnv, PPO)``): ``set_env`` and ``load`` wrap
+    a plain parameter-sharing vector environment as training did.
+
+    A subclass implements :meth:`_wrap_own_env` (with the model's own settings) and :meth:`_wrap_saved_env` (from a
+    saved model's data, before the model exists).
+    """
+
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        """``env`` wrapped as this model's training wrapped it."""
+        raise NotImplementedError
+
+    @classmethod
+    def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
+        """``env`` wrapped as the saved model's training wrapped it.
+
+        :param env: the environment given to ``load``
+        :param data: the saved model's data (its constructor arguments and attributes)
+        """
+        raise NotImplementedError
+
+    def set_env(self, env: Any, force_reset: bool = True) -> None:
+        """As SB3's ``set_env``; a plain environment gets the model's wrapper."""
+        super().set_env(self._wrap_own_env(env), force_reset=force_reset)  # type: ignore[misc]
+
+    @classmethod
+    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
+             print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> Any:
+        """As SB3's ``load``; ``env`` (a plain environment is fine) gets the wrapper the model was trained with."""
+        if env is not None:
+            data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
+            env = cls._wrap_saved_env(env, data or {})
+        return super().load(path, env=env, device=device, custom_objects=custom_objects,  # type: ignore[misc]
+                            print_system_info=print_system_info, force_reset=force_reset, **kwargs)
