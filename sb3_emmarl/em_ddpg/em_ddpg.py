@@ -5,12 +5,15 @@ from __future__ import annotations
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+import torch as th
 from stable_baselines3 import DDPG
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
+from sb3_emmarl.common.latent.config import LatentConfig
+from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
 from sb3_emmarl.em_ddpg.policies import MlpPolicy
 
 SelfEMDDPG = TypeVar("SelfEMDDPG", bound="EMDDPG")
@@ -103,13 +106,15 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     ) -> None:
         # As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq
         # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
-        # Until 0.16.0 every 20 calls on the last 20: one 200-step episode per E-step, to which the decoder was
-        # fitted online, and on the reserve the belief stayed near chance (docs/results.md, EM-DDPG against DDPG).
-        env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
-                                               use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model, default_window=400,
-                                               belief_input=belief_input)
+        # Every 20 calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves
+        # the belief near chance on the reserve (docs/results.md, EM-DDPG against DDPG).
+        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
+                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
+                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
+                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
+                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
+                                               default_window=400)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
                          batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
                          action_noise=action_noise, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
@@ -125,16 +130,11 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         self._setup_latent()
         self._init_replay_e_step()
 
-    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        """The E-step's data (and every ``e_step_interval`` calls the E-step), then DDPG's update, the M-step
-        (skipped when ``freeze_m_step``)."""
-        if self.e_step is not None:
-            self._run_e_step(self._replay_transitions())
-        if self.freeze_m_step:
-            self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
-            self.logger.record("train/m_step_frozen", 1.0)
-            return
-        super().train(gradient_steps, batch_size)
+    def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
+        return self._replay_transitions()
+
+    def _m_step_optimizers(self) -> list[th.optim.Optimizer]:
+        return [self.actor.optimizer, self.critic.optimizer]
 
     def learn(self: SelfEMDDPG, total_timesteps: int, callback: Any = None, log_interval: int = 4,
               tb_log_name: str = "EMDDPG", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfEMDDPG:

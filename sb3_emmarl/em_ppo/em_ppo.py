@@ -5,12 +5,15 @@ from __future__ import annotations
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
+import torch as th
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
+from sb3_emmarl.common.latent.config import LatentConfig
+from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
 from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.em_ppo.policies import MlpPolicy
 
@@ -36,9 +39,9 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param learning_rate: PPO's learning rate (or schedule)
     :param n_steps: steps per environment per rollout
     :param batch_size: PPO minibatch size
-    :param n_epochs: PPO epochs per rollout (10, PPO's own default; at 5, until 0.19.0, the policy learnt to read a
-        right belief several times more slowly than at 10 on the goal task, while it read the told mode or the exact
-        posterior quickly at either: docs/em.md, "Reading the belief")
+    :param n_epochs: PPO epochs per rollout (10, PPO's own default; at 5 the policy learns to read a right belief
+        several times more slowly than at 10 on the goal task, while it reads the told mode or the exact posterior
+        quickly at either: docs/em.md, "Reading the belief")
     :param gamma: discount factor
     :param gae_lambda: GAE lambda
     :param clip_range: PPO clipping (or schedule)
@@ -118,10 +121,12 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         **kwargs: Any,
     ) -> None:
         self.zero_belief_weights = RULES["zero_belief_weights"]("zero_belief_weights", zero_belief_weights)
-        env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
-                                               use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model, belief_input=belief_input)
+        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
+                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
+                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
+                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
+                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
                          n_epochs=n_epochs, gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, ent_coef=ent_coef,
                          policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log, verbose=verbose, seed=seed,
@@ -145,17 +150,16 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         return self._transitions(features[:-1], buffer.actions, features[1:], starts[:-1] > 0, starts[1:] == 0,
                                  (buffer.observations[1:], self._last_obs[None]))
 
-    def train(self) -> None:
-        """The E-step on the recent episodes (when there is a latent model), then PPO's update, the M-step
-        (skipped when ``freeze_m_step``). With each E-step it logs whether the rollout's policy read its belief
-        (``latent/belief_use``, ``latent/belief_entropy``: a few forward passes, so at the E-step's pace)."""
-        if self.e_step is not None and self._run_e_step(self._rollout_transitions()):
-            self._log_belief_use(self.rollout_buffer.observations)
-        if self.freeze_m_step:
-            self._update_learning_rate(self.policy.optimizer)
-            self.logger.record("train/m_step_frozen", 1.0)
-            return
-        super().train()
+    def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
+        return self._rollout_transitions()
+
+    def _m_step_optimizers(self) -> th.optim.Optimizer:
+        return self.policy.optimizer
+
+    def _after_e_step(self) -> None:
+        """Whether the rollout's policy read its belief (``latent/belief_use``, ``latent/belief_entropy``: a few
+        forward passes, so at the E-step's pace)."""
+        self._log_belief_use(self.rollout_buffer.observations)
 
     def learn(self: SelfEMPPO, total_timesteps: int, callback: Any = None, log_interval: int = 1,
               tb_log_name: str = "EMPPO", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfEMPPO:

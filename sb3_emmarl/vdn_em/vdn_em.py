@@ -20,6 +20,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
+from sb3_emmarl.common.latent.config import LatentConfig
+from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
 from sb3_emmarl.vdn import VDN
 from sb3_emmarl.vdn_em.policies import LatentVDNPolicy
 
@@ -119,11 +121,13 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        env, policy_kwargs = self._init_latent(env, n_components, decoder_hidden, likelihood_temperature, fusion,
-                                               use_latent, freeze_e_step, freeze_m_step, estimator, team_pooling,
-                                               reading_counts, count_factors, e_step_interval, e_step_kwargs, policy_kwargs,
-                                               verbose, loading=not _init_setup_model, default_window=1000,
-                                               belief_input=belief_input)
+        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
+                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
+                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
+                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
+                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
+                                               default_window=1000)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                          train_freq=train_freq, gradient_steps=gradient_steps,
@@ -149,16 +153,11 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         actions, state = LatentAlgorithmMixin.predict(self, observation, state, episode_start, deterministic)
         return (actions if deterministic else self._explore(actions)), state
 
-    def train(self, gradient_steps: int, batch_size: int = 32) -> None:
-        """The E-step's data (and every ``e_step_interval`` calls the E-step), then VDN's update, the M-step (skipped
-        when ``freeze_m_step``)."""
-        if self.e_step is not None:
-            self._run_e_step(self._replay_transitions())
-        if self.freeze_m_step:
-            self._update_learning_rate(self.policy.optimizer)
-            self.logger.record("train/m_step_frozen", 1.0)
-            return
-        super().train(gradient_steps, batch_size)
+    def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
+        return self._replay_transitions()
+
+    def _m_step_optimizers(self) -> th.optim.Optimizer:
+        return self.policy.optimizer
 
     def learn(self: SelfEMVDN, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,
               tb_log_name: str = "EMVDN", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfEMVDN:

@@ -16,12 +16,12 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
+from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.counts import check_factors
 from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
-from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.wrapping import WrapsEnv
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
@@ -46,42 +46,32 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
     return venv
 
 
+#: The latent settings a model keeps as attributes of the same name (``n_components`` and ``decoder_hidden`` live in its
+#: latent layout, ``e_step_kwargs`` with the E-step's defaults filled in).
+LATENT_ATTRIBUTES = tuple(name for name in LatentConfig().names()
+                          if name not in ("n_components", "decoder_hidden", "e_step_kwargs"))
+
+
 class LatentAlgorithmMixin(WrapsEnv):
     """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
     e_step: EStep | None
 
-    def _init_latent(self, env: Any, n_components: int, decoder_hidden: tuple[int, ...], likelihood_temperature: float,
-                     fusion: bool, use_latent: bool, freeze_e_step: bool, freeze_m_step: bool, estimator: str,
-                     team_pooling: bool, reading_counts: bool, count_factors: tuple[int, int] | None,
-                     e_step_interval: int, e_step_kwargs: dict[str, Any] | None, policy_kwargs: dict[str, Any] | None,
-                     verbose: int, loading: bool, default_window: int = E_STEP_DEFAULTS["window"], *,
-                     belief_input: str = "probabilities") -> tuple[VecEnv | None, dict]:
-        """Validate the EM settings, wrap the environment, and put the latent layout into ``policy_kwargs``.
+    def _init_latent(self, env: Any, config: LatentConfig, policy_kwargs: dict[str, Any] | None, verbose: int,
+                     loading: bool, default_window: int = E_STEP_DEFAULTS["window"]) -> tuple[VecEnv | None, dict]:
+        """Keep the latent settings, wrap the environment, and put the latent layout into ``policy_kwargs``.
 
+        :param config: the latent settings, already validated (:class:`~sb3_emmarl.common.latent.config.LatentConfig`)
+        :param policy_kwargs: the constructor's ``policy_kwargs``
+        :param verbose: verbosity of the wrapping
+        :param loading: building a model that ``load`` fills in (its environment is not checked strictly)
         :param default_window: the E-step's ``window`` unless ``e_step_kwargs`` gives one (the off-policy algorithms
             count it in ``train()`` calls, not rollouts)
-        :param belief_input: how the networks read the belief
-            (:data:`~sb3_emmarl.common.latent.policies.BELIEF_INPUTS`)
         """
-        n_components = RULES["n_components"]("n_components", n_components)
-        count_factors = RULES["count_factors"]("count_factors", count_factors)
-        self.count_factors = check_factors(count_factors, n_components)
-        self.e_step_interval = RULES["e_step_interval"]("e_step_interval", e_step_interval)
-        estimator = RULES["estimator"]("estimator", estimator)
-        self.belief_input = RULES["belief_input"]("belief_input", belief_input)
-        likelihood_temperature = RULES["likelihood_temperature"]("likelihood_temperature", likelihood_temperature)
-        decoder_hidden = tuple(RULES["decoder_hidden"]("decoder_hidden", decoder_hidden))
-        e_step_kwargs = RULES["e_step_kwargs"]("e_step_kwargs", e_step_kwargs)
-        for name, value in (("fusion", fusion), ("use_latent", use_latent), ("freeze_e_step", freeze_e_step),
-                            ("freeze_m_step", freeze_m_step), ("team_pooling", team_pooling),
-                            ("reading_counts", reading_counts)):
-            RULES[name](name, value)
-        self.likelihood_temperature = float(likelihood_temperature)
-        self.fusion, self.use_latent, self.freeze_e_step = bool(fusion), bool(use_latent), bool(freeze_e_step)
-        self.freeze_m_step, self.estimator, self.team_pooling = bool(freeze_m_step), estimator, bool(team_pooling)
-        self.reading_counts = bool(reading_counts)
-        self.e_step_kwargs = {**E_STEP_DEFAULTS, "window": default_window, **(e_step_kwargs or {})}
+        for name in LATENT_ATTRIBUTES:  # saved with the model, as SB3 saves constructor arguments
+            setattr(self, name, getattr(config, name))
+        self.e_step_kwargs = {**E_STEP_DEFAULTS, "window": default_window, **(config.e_step_kwargs or {})}
+        n_components, decoder_hidden = config.n_components, config.decoder_hidden
         self.e_step = None
         policy_kwargs = dict(policy_kwargs or {})
         if env is None:  # loading without an environment: the saved policy_kwargs hold the layout
@@ -97,6 +87,14 @@ class LatentAlgorithmMixin(WrapsEnv):
         policy_kwargs["use_latent"] = self.use_latent
         policy_kwargs["belief_input"] = self.belief_input
         return venv, policy_kwargs
+
+    @property
+    def latent_config(self) -> LatentConfig:
+        """The model's latent settings as one record (``e_step_kwargs`` with the E-step's defaults filled in)."""
+        layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
+        return LatentConfig(n_components=layout.n_components, decoder_hidden=layout.decoder_hidden,
+                            e_step_kwargs=dict(self.e_step_kwargs),
+                            **{name: getattr(self, name) for name in LATENT_ATTRIBUTES})
 
     def _setup_latent(self) -> None:
         """After the policy exists: the layout, the E-step, the feature function and the belief wrapper's model."""
@@ -275,6 +273,33 @@ class LatentAlgorithmMixin(WrapsEnv):
         venv = wrap_with_belief(venv, self.latent_layout.n_components)
         self._attach_beliefs(venv)
         return venv
+
+    # ------------------------------------------------------------------ training
+    def train(self, *args: Any, **kwargs: Any) -> None:
+        """The E-step, then the algorithm's own update, the M-step (skipped when ``freeze_m_step``).
+
+        The E-step reads :meth:`_e_step_data` (EM-PPO: the rollout's transitions; the off-policy algorithms: the
+        transitions of this call, kept until every ``e_step_interval`` calls an E-step runs on them) when there is a
+        latent model; :meth:`_after_e_step` runs after each E-step that ran.
+        """
+        if self.e_step is not None and self._run_e_step(self._e_step_data()):
+            self._after_e_step()
+        if self.freeze_m_step:
+            self._update_learning_rate(self._m_step_optimizers())
+            self.logger.record("train/m_step_frozen", 1.0)
+            return
+        super().train(*args, **kwargs)  # type: ignore[misc]
+
+    def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
+        """The transitions (and reading counts) this ``train()`` call hands the E-step."""
+        raise NotImplementedError
+
+    def _m_step_optimizers(self) -> Any:
+        """The optimizers whose learning rate the schedule moves (also while the M-step is frozen)."""
+        raise NotImplementedError
+
+    def _after_e_step(self) -> None:
+        """What runs after an E-step (nothing by default)."""
 
     def _wrap_own_env(self, env: Any) -> VecEnv:
         """A plain environment gets the belief wrapper (SB3's own wrapping first, for a Gymnasium environment)."""

@@ -35,6 +35,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepR
 from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from sb3_emmarl.common.latent.features import counter_from_spec, default_features, encode_actions
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
+from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
 
 #: Probabilities below this are 0 in the beliefs the policies read: sharp beliefs reached float32 subnormals
@@ -226,8 +227,7 @@ class BeliefWrapper(VecEnvWrapper):
     """
 
     def __init__(self, venv: VecEnv, n_components: int) -> None:
-        if isinstance(n_components, bool) or not isinstance(n_components, (int, np.integer)) or n_components < 1:
-            raise ValueError(f"n_components must be an int >= 1, got {n_components!r}")
+        n_components = RULES["n_components"]("n_components", n_components)
         space = venv.observation_space
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"the latent algorithms need flat Box observations, got {space}")

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from sb3_emmarl.common.validation import RULES
+
 
 @dataclass(frozen=True)
 class LatentLayout:
@@ -32,7 +34,8 @@ class LatentLayout:
     count_bins: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("obs_dim", "feature_dim", "action_dim", "n_components"):
+        RULES["n_components"]("n_components", self.n_components)
+        for name in ("obs_dim", "feature_dim", "action_dim"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")
@@ -43,11 +46,7 @@ class LatentLayout:
         if (self.count_channels == 0) != (self.count_bins == 0):
             raise ValueError(f"count_channels and count_bins must both be 0 (no count model) or both >= 1, got "
                              f"{self.count_channels} and {self.count_bins}")
-        hidden = self.decoder_hidden
-        if isinstance(hidden, (str, bytes)) or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1
-                                                      for h in hidden):
-            raise ValueError(f"decoder_hidden must be a sequence of ints >= 1, got {hidden!r}")
-        object.__setattr__(self, "decoder_hidden", tuple(hidden))
+        object.__setattr__(self, "decoder_hidden", tuple(RULES["decoder_hidden"]("decoder_hidden", self.decoder_hidden)))
 
     @property
     def total_dim(self) -> int:
