@@ -51,9 +51,7 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 `infos[agent]["metrics"]`.
 
 ### Version History
-* v0: initial release (sb3-emmarl 0.1.0); signs of poacher activity, the `heard_from` links and the
-  `sign` reward term added in sb3-emmarl 0.2.0 (observations grew from 440 to 553 floats by default);
-  risk below 1e-6 is 0 since sb3-emmarl 0.6.1 (it was a float32 subnormal in the risk channel)
+* v0: the current version; what each sb3-emmarl release changed in it is in CHANGELOG.md
 """
 
 from __future__ import annotations
@@ -505,8 +503,8 @@ class ReserveParallelEnv(ParallelEnv):
         return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from(masks)
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (checkpoints), adding what a reserve pickled before sb3-emmarl 0.18.5 lacks: the step's compiled
-        call reads the generator through a :class:`Stream` and writes the readings and decoded actions into buffers."""
+        """Unpickle (checkpoints), adding what a reserve pickled by an older version lacks: the step's compiled call
+        reads the generator through a :class:`Stream` and writes the readings and decoded actions into buffers."""
         self.__dict__.update(state)
         self.__dict__.pop("_next_entry", None)  # (0.18.4's entry shortcut: the compiled step checks every poacher)
         if "_move" not in state:

@@ -49,7 +49,7 @@ Every field of :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`, by
 `ValueError` naming the argument. `reset(seed, options={"mode": m})` fixes the mode of the episode.
 
 ### Version History
-* v0: initial release (sb3-emmarl 0.19.0)
+* v0: the current version; what each sb3-emmarl release changed in it is in CHANGELOG.md
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
 """The E-step's memory of recent rollouts: their parts kept back to back in a few large tensors.
 
-Hand-written because a ``deque(maxlen=window)`` of each rollout's small tensors (what the E-step kept until 0.18.0)
-scatters hundreds of long-lived allocations of some 30 KB through the C heap, between the short-lived arrays of
-every training step, and the heap then cannot give the space between them back: with ``em_ddpg.yml`` (an E-step
-part every ``train()`` call, 800 kept) that held about 190 MiB more at the same data (docs/results.md, EM-DDPG
-against DDPG, "On 0.18.0"). Here the parts live in one preallocated tensor per field, which grows (doubling) and is
-compacted when the newest part does not fit after the oldest, so the memory holds a handful of large blocks whatever
-the number of parts.
+Hand-written because a ``deque(maxlen=window)`` of each rollout's small tensors scatters hundreds of long-lived
+allocations of some 30 KB through the C heap, between the short-lived arrays of every training step, and the heap
+then cannot give the space between them back: with ``em_ddpg.yml`` (an E-step part every ``train()`` call, 800 kept)
+that held about 190 MiB more at the same data (docs/results.md, EM-DDPG against DDPG). Here the parts live in one
+preallocated tensor per field, which grows (doubling) and is compacted when the newest part does not fit after the
+oldest, so the memory holds a handful of large blocks whatever the number of parts.
 """
 
 from __future__ import annotations
