@@ -8,7 +8,8 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_emmarl.common.vec_env import POLL_SECONDS, ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
+from sb3_emmarl.common.vec_env import ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
+from sb3_emmarl.common.vec_env.workers import POLL_SECONDS
 from wildlife_reserve import reserve_v0
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 25}
@@ -260,7 +261,7 @@ def test_a_polled_receive_reads_every_message_rung_or_not():
     import multiprocessing
     import time
 
-    from sb3_emmarl.common.vec_env import _receive_polled
+    from sb3_emmarl.common.vec_env.workers import _receive_polled
 
     sender, receiver = multiprocessing.Pipe()
     bell = np.zeros(2, dtype=np.int64)
