@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import functools
 import threading
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -112,8 +113,19 @@ def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
     """
     aec = raw_env(**kwargs)
     if not aec.unwrapped.config.continuous_actions:
-        aec = wrappers.AssertOutOfBoundsWrapper(aec)
+        aec = _InBoundsOrStay(aec)
     return wrappers.OrderEnforcingWrapper(aec)
+
+
+class _InBoundsOrStay(wrappers.AssertOutOfBoundsWrapper):
+    """PettingZoo's check that a discrete action is in its space, taking ``None`` as "stay, no message" (as the
+    parallel form does) rather than refusing it."""
+
+    def step(self, action: Any) -> None:
+        if action is None:
+            wrappers.BaseWrapper.step(self, action)
+        else:
+            super().step(action)
 
 
 def raw_env(**kwargs: Any) -> parallel_to_aec_wrapper:
@@ -229,6 +241,7 @@ class ReserveParallelEnv(ParallelEnv):
                               ("detection", "coverage", "sign", "poaching", "collision", "energy"))  # step_rewards' order
         self._false_alarm = float(sensing.false_alarm_probability(cfg.sensor_noise))
         self.t = 0
+        self._ready = False  # an episode to step: set by reset()
 
     # ------------------------------------------------------------------ spaces
     @functools.cache  # noqa: B019 (one space object per agent, as PettingZoo requires)
@@ -319,10 +332,13 @@ class ReserveParallelEnv(ParallelEnv):
         :param options: ``{"mode": int}`` fixes the hidden mode for this episode;
             ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col).
             Other keys are ignored.
+        :raise ValueError: for a bad seed or option, before anything changes (the previous episode, if any, is left as
+            it was)
         """
+        seed, mode, start = self._check_reset(seed, options)
+        self._ready = False  # until this reset is through, step(), state() and the rest refuse
         if seed is not None or self.np_random is None:
             self.np_random, _ = seeding.np_random(seed)
-        options = options or {}
         cfg = self.config
         world_seed, mode_seed, poacher_seed, step_seed = self.np_random.integers(0, 2**32, size=4)
         world_rng = np.random.default_rng(world_seed)
@@ -344,10 +360,7 @@ class ReserveParallelEnv(ParallelEnv):
         self._n_covered = 0
 
         # The hidden mode.
-        mode = options.get("mode", cfg.mode)
-        if mode is not None:
-            mode = check_int("mode", mode, 0, N_MODES - 1)
-        else:
+        if mode is None:
             mode = int(np.random.default_rng(mode_seed).choice(N_MODES, p=cfg.mode_prior))
         self.strategy, self.weather = decode_mode(mode)
         self.mode = int(mode)
@@ -358,12 +371,7 @@ class ReserveParallelEnv(ParallelEnv):
         self.__dict__.update(self._sensing_tables[self.weather])
 
         # UAVs.
-        if "uav_positions" in options:
-            start = np.asarray(options["uav_positions"], dtype=np.float64)
-            if start.shape != (self.n, 2) or not np.isfinite(start).all() or (start < 0).any() or (start >= shape).any():
-                raise ValueError(f"options['uav_positions'] must be {self.n} (row, col) cells inside {shape}, got {start!r}")
-            start = np.floor(start)
-        else:
+        if start is None:
             cells = world_rng.choice(self.height * self.width, size=self.n, replace=self.n > self.height * self.width)
             start = np.stack(np.divmod(cells, self.width), axis=-1).astype(np.float64)
         self.uav_pos = start + 0.5
@@ -422,9 +430,41 @@ class ReserveParallelEnv(ParallelEnv):
         self._signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)  # each step's readings
         obs = build_observations(self, self._signals)
         infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
+        self._ready = True
         if self.render_mode == "human":
             self.render()
         return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+
+    def _check_reset(self, seed: Any, options: dict | None) -> tuple[int | None, int | None, np.ndarray | None]:
+        """``reset``'s arguments checked before anything changes: the seed (an int >= 0, numpy's included, or None),
+        the mode (``options["mode"]``, else the configuration's) and the UAVs' start cells (floored), or None."""
+        if seed is not None:
+            if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+                raise ValueError(f"seed must be an int >= 0 or None, got {seed!r}")
+            seed = int(seed)
+        if options is not None and not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
+        options = options or {}
+        mode = options.get("mode", self.config.mode)
+        if mode is not None:
+            mode = check_int("mode", mode, 0, N_MODES - 1)
+        start = None
+        if "uav_positions" in options:
+            shape = (self.height, self.width)
+            try:
+                start = np.asarray(options["uav_positions"], dtype=np.float64)
+            except (TypeError, ValueError):
+                start = np.full(0, np.nan)
+            if start.shape != (self.n, 2) or not np.isfinite(start).all() or (start < 0).any() or (start >= shape).any():
+                raise ValueError(f"options['uav_positions'] must be {self.n} (row, col) cells inside {shape}, "
+                                 f"got {options['uav_positions']!r}")
+            start = np.floor(start)
+        return seed, mode, start
+
+    def _require_episode(self, method: str) -> None:
+        """Refuse ``method`` before the first reset (or after a reset that failed)."""
+        if not self._ready:
+            raise RuntimeError(f"{method}() needs an episode: call reset() first")
 
     # ------------------------------------------------------------------ step
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
@@ -432,6 +472,7 @@ class ReserveParallelEnv(ParallelEnv):
 
         :param actions: one action per live agent
         """
+        self._require_episode("step")
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset() first")
         agents = self.agents
@@ -453,6 +494,7 @@ class ReserveParallelEnv(ParallelEnv):
         :return: observations ``(n, obs_dim)``, rewards ``(n,)``, terminated, truncated (every UAV alike), the info
             every UAV shares (``mode``, and ``metrics`` on the last step) and each UAV's ``heard_from``
         """
+        self._require_episode("step_arrays")
         if not self.agents:
             raise RuntimeError("step_arrays() called on a finished episode: call reset() first")
         if out is not None and (out.shape != (self.n, self.obs_dim) or out.dtype != np.float32
@@ -554,17 +596,34 @@ class ReserveParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ helpers
     def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`_action_arrays` of the action dict (a missing or None action means "stay, no message")."""
+        """:meth:`_action_arrays` of the action dict (a missing or None action means "stay, no message"); each action
+        is checked as :meth:`step_arrays` checks its rows, and a bad one is refused naming its agent."""
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
         if self.config.continuous_actions:
             act = np.zeros((self.n, 3))
             for i, agent in enumerate(self.agents):
-                if actions.get(agent) is not None:
-                    act[i] = actions[agent]
+                value = actions.get(agent)
+                if value is not None:
+                    row = np.asarray(value)
+                    if row.shape != (3,) or row.dtype.kind not in "iuf" or not np.all(np.isfinite(row)):
+                        raise ValueError(f"the action of {agent} must be 3 finite floats (d_row, d_col, comm) or None, "
+                                         f"got {value!r}")
+                    act[i] = row
             return self._action_arrays(act)
-        try:
-            choices = np.array([actions[agent] for agent in self.agents], dtype=np.int64).reshape(-1)
-        except (KeyError, TypeError):
-            choices = np.array([actions.get(agent) or 0 for agent in self.agents], dtype=np.int64).reshape(-1)
+        choices = np.zeros(self.n, dtype=np.int64)  # 0: stay, no message
+        top = N_MOVES * N_COMMS - 1
+        for i, agent in enumerate(self.agents):
+            value = actions.get(agent)
+            if value is None:
+                continue
+            choice = np.asarray(value)
+            kind = choice.dtype.kind
+            if choice.size != 1 or not (kind in "iu" or (kind == "f" and np.isfinite(choice).all()
+                                                          and float(choice.flat[0]).is_integer())) \
+                    or not 0 <= choice.flat[0] <= top:
+                raise ValueError(f"the action of {agent} must be an int in [0, {top}] or None, got {value!r}")
+            choices[i] = int(choice.flat[0])
         return self._action_arrays(choices)
 
     def _action_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -635,6 +694,7 @@ class ReserveParallelEnv(ParallelEnv):
         the first entry to the first true detection, and runs to the current step when none happened;
         ``signs_found`` counts the distinct signs of poacher activity the team found.
         """
+        self._require_episode("episode_metrics")
         m = self.metrics
         entered = m["poachers_entered"]
         if self.first_entry_time is None:
@@ -659,6 +719,7 @@ class ReserveParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """The global state (positions, batteries, poachers, leopards, coverage and signs by block, progress), in [-1, 1]."""
+        self._require_episode("state")
         return global_state(self)
 
     def render(self) -> np.ndarray | None:
@@ -668,6 +729,7 @@ class ReserveParallelEnv(ParallelEnv):
 
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
             return None
+        self._require_episode("render")
         from wildlife_reserve.reserve.rendering import ReserveRenderer
 
         if self._renderer is None:
