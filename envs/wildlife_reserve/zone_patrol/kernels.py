@@ -1,9 +1,13 @@
 """ZonePatrol's compiled loops: a step of every copy, and the observations (numba; the random numbers are drawn by
 numpy beforehand, in :meth:`~wildlife_reserve.zone_patrol.world.ZonePatrolWorld.step`, so the episodes are those of
 the generator alone). Twenty-odd numpy calls per step on arrays of a few dozen values cost several times the
-arithmetic; one compiled pass over the copies does not."""
+arithmetic; one compiled pass over the copies does not. The kernels take the world's arrays as named records
+(:class:`Team`, :class:`Intruders`, :class:`Draws`, :class:`Rules`, :class:`Counts`), which numba compiles as
+tuples."""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -12,22 +16,76 @@ from numba import njit
 MOVES = np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int64)
 
 
+class Team(NamedTuple):
+    """The UAVs of every copy: cells ``(c, n, 2)``, sensors ``(c, n)`` (0 wide, 1 narrow) and this step's detections
+    ``(c, n, slots)``."""
+
+    positions: np.ndarray
+    sensors: np.ndarray
+    detections: np.ndarray
+
+
+class Intruders(NamedTuple):
+    """The intruders' slots of every copy: cells ``(c, slots, 2)``, ages and liveness ``(c, slots)``, where the slots
+    were this step ``(c, slots, 2)`` (what a detection shows), and the tracks on the grid ``(c, g, g)``."""
+
+    cells: np.ndarray
+    ages: np.ndarray
+    alive: np.ndarray
+    detected_cells: np.ndarray
+    tracks: np.ndarray
+
+
+class Draws(NamedTuple):
+    """A step's random numbers, drawn by numpy: detection ``(c, n, slots)``, wandering and its direction
+    ``(c, slots)``, spawning ``(c,)`` and the new intruder's cell in the zone ``(c, 2)``."""
+
+    detect: np.ndarray
+    wander: np.ndarray
+    direction: np.ndarray
+    spawn: np.ndarray
+    cell: np.ndarray
+
+
+class Rules(NamedTuple):
+    """The constants a step reads: the sensors' reach ``(2,)`` and chance by sensor and weather ``(2, 2)``, and the
+    configuration's sizes, lives and probabilities."""
+
+    radii: np.ndarray
+    chances: np.ndarray
+    grid_size: int
+    zone_size: int
+    intruder_life: int
+    move_prob: float
+    spawn_prob: float
+    track_life: int
+
+
+class Counts(NamedTuple):
+    """What a step counts per copy ``(c,)``: intruders detected, escaped, spawned (0 or 1)."""
+
+    found: np.ndarray
+    escaped: np.ndarray
+    spawned: np.ndarray
+
+
 @njit(cache=True)
-def _detect(c, actions, positions, sensors, intruders, alive, detections, detect_draws, radii, chances, weather,
-            grid_size):  # pragma: no cover (compiled)
+def _detect(c, actions, team, intruders, detect_draws, rules, weather):  # pragma: no cover (compiled)
     """The UAVs of copy ``c`` move and set their sensors; each sensor detects each live intruder within its reach with
     its weather's chance. Returns which slots were detected."""
+    positions, sensors, detections = team.positions, team.sensors, team.detections
+    cells, alive = intruders.cells, intruders.alive
     n_uavs, n_slots = positions.shape[1], alive.shape[1]
     for u in range(n_uavs):
         move = actions[c, u] % 5
         sensors[c, u] = actions[c, u] // 5
         for k in range(2):
-            positions[c, u, k] = min(max(positions[c, u, k] + MOVES[move, k], 0), grid_size - 1)
+            positions[c, u, k] = min(max(positions[c, u, k] + MOVES[move, k], 0), rules.grid_size - 1)
     hit = np.zeros(n_slots, dtype=np.bool_)
     for u in range(n_uavs):
-        reach, chance = radii[sensors[c, u]], chances[sensors[c, u], weather]
+        reach, chance = rules.radii[sensors[c, u]], rules.chances[sensors[c, u], weather]
         for m in range(n_slots):
-            gap = max(abs(positions[c, u, 0] - intruders[c, m, 0]), abs(positions[c, u, 1] - intruders[c, m, 1]))
+            gap = max(abs(positions[c, u, 0] - cells[c, m, 0]), abs(positions[c, u, 1] - cells[c, m, 1]))
             seen = alive[c, m] and gap <= reach and detect_draws[c, u, m] < chance
             detections[c, u, m] = seen
             hit[m] |= seen
@@ -35,64 +93,70 @@ def _detect(c, actions, positions, sensors, intruders, alive, detections, detect
 
 
 @njit(cache=True)
-def _wander_and_spawn(c, intruders, ages, alive, origin, wander_draws, direction_draws, spawn_draw, cell_draw,
-                      zone_size, move_prob, spawn_prob):  # pragma: no cover (compiled)
+def _wander_and_spawn(c, intruders, origin, draws, rules):  # pragma: no cover (compiled)
     """Every slot of copy ``c`` wanders within the zone (a free one is overwritten when it is used); a new intruder may
     appear in the first free slot. Returns 1 if one did."""
-    top, left = origin[0], origin[1]
+    cells, ages, alive = intruders.cells, intruders.ages, intruders.alive
+    top, left, size = origin[0], origin[1], rules.zone_size
     n_slots = alive.shape[1]
     for m in range(n_slots):
-        if wander_draws[c, m] < move_prob:
-            d = 1 + direction_draws[c, m]
-            intruders[c, m, 0] += MOVES[d, 0]
-            intruders[c, m, 1] += MOVES[d, 1]
-        intruders[c, m, 0] = min(max(intruders[c, m, 0], top), top + zone_size - 1)
-        intruders[c, m, 1] = min(max(intruders[c, m, 1], left), left + zone_size - 1)
-    if spawn_draw < spawn_prob:
+        if draws.wander[c, m] < rules.move_prob:
+            d = 1 + draws.direction[c, m]
+            cells[c, m, 0] += MOVES[d, 0]
+            cells[c, m, 1] += MOVES[d, 1]
+        cells[c, m, 0] = min(max(cells[c, m, 0], top), top + size - 1)
+        cells[c, m, 1] = min(max(cells[c, m, 1], left), left + size - 1)
+    if draws.spawn[c] < rules.spawn_prob:
         for m in range(n_slots):
             if not alive[c, m]:
-                intruders[c, m, 0], intruders[c, m, 1] = top + cell_draw[0], left + cell_draw[1]
+                cells[c, m, 0], cells[c, m, 1] = top + draws.cell[c, 0], left + draws.cell[c, 1]
                 ages[c, m], alive[c, m] = 0, True
                 return 1
     return 0
 
 
 @njit(cache=True)
-def advance(actions, positions, sensors, intruders, ages, alive, tracks, detections, detected_cells, origins, weathers,
-            detect_draws, wander_draws, direction_draws, spawn_draws, cell_draws, radii, chances, grid_size, zone_size,
-            intruder_life, move_prob, spawn_prob, track_life, found, escaped, spawned):  # pragma: no cover (compiled)
+def advance(actions, team, intruders, origins, weathers, draws, rules, counts):  # pragma: no cover (compiled)
     """One step of every copy, in place, phase by phase (see ``ZonePatrolWorld.step``).
 
-    :param radii: ``(2,)`` reach of the wide and the narrow sensor
-    :param chances: ``(2, 2)`` detection chance by sensor and weather
-    :param found: ``(c,)`` out: intruders detected this step; ``escaped`` likewise; ``spawned`` ``(c,)`` out: 0 or 1
+    :param actions: ``(c, n)`` ints in ``[0, 10)``
+    :param team: :class:`Team`, updated
+    :param intruders: :class:`Intruders`, updated
+    :param origins: ``(c, 2)`` the top-left cell of each copy's zone
+    :param weathers: ``(c,)`` each copy's weather
+    :param draws: :class:`Draws`
+    :param rules: :class:`Rules`
+    :param counts: :class:`Counts`, written
     """
-    for c in range(positions.shape[0]):
-        hit = _detect(c, actions, positions, sensors, intruders, alive, detections, detect_draws, radii, chances,
-                      weathers[c], grid_size)
-        found[c], escaped[c] = 0, 0
+    alive, ages, tracks = intruders.alive, intruders.ages, intruders.tracks
+    for c in range(team.positions.shape[0]):
+        hit = _detect(c, actions, team, intruders, draws.detect, rules, weathers[c])
+        counts.found[c], counts.escaped[c] = 0, 0
         for m in range(alive.shape[1]):  # detected intruders leave; the others age, and escape at the end of their lives
-            detected_cells[c, m, 0], detected_cells[c, m, 1] = intruders[c, m, 0], intruders[c, m, 1]
+            intruders.detected_cells[c, m, 0] = intruders.cells[c, m, 0]
+            intruders.detected_cells[c, m, 1] = intruders.cells[c, m, 1]
             if hit[m]:
                 alive[c, m] = False
-                found[c] += 1
+                counts.found[c] += 1
             elif alive[c, m]:
                 ages[c, m] += 1
-                if ages[c, m] >= intruder_life:
+                if ages[c, m] >= rules.intruder_life:
                     alive[c, m] = False
-                    escaped[c] += 1
+                    counts.escaped[c] += 1
         tracks[c] = np.maximum(tracks[c] - 1, 0)
-        spawned[c] = _wander_and_spawn(c, intruders, ages, alive, origins[c], wander_draws, direction_draws,
-                                       spawn_draws[c], cell_draws[c], zone_size, move_prob, spawn_prob)
+        counts.spawned[c] = _wander_and_spawn(c, intruders, origins[c], draws, rules)
         for m in range(alive.shape[1]):
             if alive[c, m]:
-                tracks[c, intruders[c, m, 0], intruders[c, m, 1]] = track_life
+                tracks[c, intruders.cells[c, m, 0], intruders.cells[c, m, 1]] = rules.track_life
 
 
 @njit(cache=True)
-def observe(positions, tracks, detections, detected_cells, visibility, progress, radius, track_life, told_modes, out):
-    """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout); ``told_modes`` ``(c,)``
-    the modes to append as one-hots, or empty."""  # pragma: no cover (compiled)
+def observe(team, intruders, visibility, progress, radius, track_life, told_modes, out):  # pragma: no cover (compiled)
+    """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout): its window of the tracks,
+    of this step's detections and of its teammates, its cell, its visibility reading and the episode's progress;
+    ``told_modes`` ``(c,)`` the modes to append as one-hots, or empty."""
+    positions, detections = team.positions, team.detections
+    tracks, detected_cells = intruders.tracks, intruders.detected_cells
     n_copies, n_uavs = positions.shape[0], positions.shape[1]
     grid_size = tracks.shape[1]
     side = 2 * radius + 1

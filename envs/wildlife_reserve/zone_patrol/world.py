@@ -166,9 +166,15 @@ class ZonePatrolWorld:
         self.team_reward = np.zeros(c)
         self.visibility = np.zeros((c, n))
         self.sensors = np.zeros((c, n), dtype=np.int64)
-        self._radii = np.array([config.wide_radius, config.narrow_radius], dtype=np.int64)
-        self._chances = np.array([config.wide_detect, config.narrow_detect])  # (sensor, weather)
+        radii = np.array([config.wide_radius, config.narrow_radius], dtype=np.int64)
+        chances = np.array([config.wide_detect, config.narrow_detect], dtype=np.float64)  # (sensor, weather)
+        self._rules = kernels.Rules(radii, chances, int(config.grid_size), int(config.zone_size),
+                                    int(config.intruder_life), float(config.intruder_move_prob),
+                                    float(config.spawn_prob), int(config.track_life))
         self._subsets: list[tuple[int, ...]] | None = None
+        # The kernels' records of the arrays above, made once (the arrays are changed in place from here on).
+        self._team = kernels.Team(self.positions, self.sensors, self.detections)
+        self._intruders = kernels.Intruders(self.intruders, self.ages, self.alive, self.detected_cells, self.tracks)
 
     # ------------------------------------------------------------------ episode
     @property
@@ -189,7 +195,7 @@ class ZonePatrolWorld:
             raise ValueError(f"mode must be an int in [0, {cfg.n_modes - 1}], got {modes.tolist()}")
         self.modes = modes
         centre = cfg.grid_size // 2
-        self.positions = centre - 2 + rng.integers(4, size=(c, cfg.n_uavs, 2))
+        self.positions[:] = centre - 2 + rng.integers(4, size=(c, cfg.n_uavs, 2))  # (in place: the records hold it)
         self.alive[:] = False
         self.ages[:] = 0
         self.tracks[:] = 0
@@ -221,14 +227,12 @@ class ZonePatrolWorld:
         fade; intruders wander within their zone; a new one may appear in the mode's zone; every live intruder leaves
         a track on its cell (:func:`~wildlife_reserve.zone_patrol.kernels.advance`, one compiled pass)."""
         cfg, c, m = self.config, self.n_copies, self.alive.shape[1]
-        draws = (rng.random((c, cfg.n_uavs, m)), rng.random((c, m)), rng.integers(4, size=(c, m)), rng.random(c),
-                 rng.integers(cfg.zone_size, size=(c, 2)))
-        found, escaped, spawned = (np.zeros(c, dtype=np.int64) for _ in range(3))
-        kernels.advance(np.ascontiguousarray(actions, dtype=np.int64), self.positions, self.sensors, self.intruders,
-                        self.ages, self.alive, self.tracks, self.detections, self.detected_cells,
-                        cfg.zone_origins()[self.zones], self.weathers, *draws, self._radii, self._chances,
-                        cfg.grid_size, cfg.zone_size, cfg.intruder_life, cfg.intruder_move_prob, cfg.spawn_prob,
-                        cfg.track_life, found, escaped, spawned)
+        draws = kernels.Draws(rng.random((c, cfg.n_uavs, m)), rng.random((c, m)), rng.integers(4, size=(c, m)),
+                              rng.random(c), rng.integers(cfg.zone_size, size=(c, 2)))
+        counts = kernels.Counts(*(np.zeros(c, dtype=np.int64) for _ in range(3)))
+        kernels.advance(np.ascontiguousarray(actions, dtype=np.int64), self._team, self._intruders,
+                        cfg.zone_origins()[self.zones], self.weathers, draws, self._rules, counts)
+        found, escaped, spawned = counts
         self.caught += found
         self.escaped += escaped
         self.spawned += spawned
@@ -244,8 +248,8 @@ class ZonePatrolWorld:
         :func:`~wildlife_reserve.zone_patrol.kernels.observe`)."""
         cfg = self.config
         out = np.empty((self.n_copies, cfg.n_uavs, cfg.obs_dim), dtype=np.float32)
-        kernels.observe(self.positions, self.tracks, self.detections, self.detected_cells, self.visibility,
-                        self.t / cfg.max_cycles, cfg.window_radius, cfg.track_life,
+        kernels.observe(self._team, self._intruders, self.visibility, self.t / cfg.max_cycles, cfg.window_radius,
+                        cfg.track_life,
                         self.modes if cfg.told else self.modes[:0], out)
         return out
 
