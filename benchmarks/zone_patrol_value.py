@@ -216,6 +216,29 @@ def null_calibration(label: dict[int, list[float]], plain: dict[int, list[float]
     return observed, hits / draws
 
 
+def recovered(by: dict[str, dict[int, dict]], variant: str) -> list[str]:
+    """The share of the told gain an EM variant recovers, ``(variant - ppo) / (told - ppo)`` with a 90% bootstrap
+    interval over seeds, and the variant against itself with its belief permuted (over the seeds all three ran)."""
+    seeds = sorted(set(by["told"]) & set(by["ppo"]) & set(by[variant]))
+    if len(seeds) < 2:
+        return []
+
+    def means(name: str, key: str = "team_reward") -> np.ndarray:
+        return np.array([np.mean(by[name][s][key]) for s in seeds])
+
+    em, told, ppo = means(variant), means("told"), means("ppo")
+    if (told - ppo).mean() == 0:
+        share = f"({variant} - ppo) / (told - ppo): undefined, told and ppo score alike"
+    else:
+        draws = np.random.default_rng(0).integers(len(seeds), size=(10_000, len(seeds)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            boot = (em[draws] - ppo[draws]).mean(1) / (told[draws] - ppo[draws]).mean(1)
+        low, high = np.nanpercentile(boot, [5, 95])
+        share = (f"({variant} - ppo) / (told - ppo) = {(em - ppo).mean() / (told - ppo).mean():.3f}, 90% bootstrap "
+                 f"interval over seeds [{low:.3f}, {high:.3f}] (seeds {seeds})")
+    return [share, paired(variant, em, f"{variant}, belief permuted", means(variant, "permuted"))]
+
+
 def report(runs: list[dict], random_team: float | None = None) -> str:
     by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
     budgets = {r["budget"] for r in runs}
@@ -249,6 +272,8 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
             p = float(stats.ttest_1samp(excess, 0.0, alternative="greater").pvalue) if np.any(excess != 0) else 1.0
             lines.append(f"told right - told a wrong zone = {loss.mean():.3f}, (told - ppo) / 2 = {gain.mean() / 2:.3f}: "
                          f"one-sided paired t p (the first above the second) {p:.3g}")
+    for variant in ("em_ppo", "em_ppo_nofusion"):
+        lines += recovered(by, variant)
     for variant in ("told", "control", "em_ppo", "em_ppo_nofusion"):
         if by[variant]:
             kl = np.array([by[variant][s]["swap_kl"] for s in sorted(by[variant])])

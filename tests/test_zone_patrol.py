@@ -207,6 +207,7 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert bench.main(["report", "--folder", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     assert "told -" in text and "random team" in text and "collapsed runs" in text and "null calibration" in text
+    assert "(em_ppo - ppo) / (told - ppo)" in text and "em_ppo, belief permuted" in text
     with pytest.raises(SystemExit, match="no runs in"):
         bench.main(["report", "--folder", str(tmp_path / "empty")])
 
