@@ -33,9 +33,9 @@ format:
 check-codestyle:
 	$(PYTHON) -m ruff check --select I .
 
-# Static types of the environment package (sb3_emmarl is not type-clean yet).
+# Static types of both packages (settings in pyproject.toml's [tool.mypy]).
 type:
-	$(PYTHON) -m mypy envs/wildlife_reserve
+	$(PYTHON) -m mypy sb3_emmarl envs/wildlife_reserve
 
 commit-checks: lint type pytest
 

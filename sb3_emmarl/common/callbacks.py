@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_emmarl.common.metrics import team_metric_keys
+
+if TYPE_CHECKING:
+    from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
 
 #: Tensorboard prefix of every reserve metric.
 METRICS_PREFIX = "reserve"
@@ -58,6 +63,8 @@ class LatentMetricsCallback(BaseCallback):
 
     :param verbose: verbosity
     """
+
+    model: LatentAlgorithmMixin  # (an EM algorithm)
 
     def _init_callback(self) -> None:
         #: (belief, mode) of every step of each entry's running episode, and of the episodes finished this rollout

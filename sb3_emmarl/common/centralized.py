@@ -72,7 +72,9 @@ class CentralizedReserveEnv(gymnasium.Env):
         if self.continuous_actions:
             self.action_space = spaces.Box(low=-1.0, high=1.0, shape=(CONTINUOUS_ACTION_DIM * self.n_uavs,), dtype=np.float32)
         else:
-            self.n_actions = int(self.parallel_env.action_space(self.possible_agents[0]).n)
+            action_space = self.parallel_env.action_space(self.possible_agents[0])
+            assert isinstance(action_space, spaces.Discrete)  # (the discrete actions)
+            self.n_actions = int(action_space.n)
             self.action_space = spaces.MultiDiscrete([self.n_actions] * self.n_uavs)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:

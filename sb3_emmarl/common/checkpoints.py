@@ -31,7 +31,7 @@ import re
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -94,7 +94,7 @@ def dumps(obj: Any) -> bytes:
 
 
 # ---------------------------------------------------------------------------------------------- atomic files
-def write_atomic(path: str | Path, write: Callable[[BinaryIO], Any]) -> Path:
+def write_atomic(path: str | Path, write: Callable[[io.BufferedWriter], Any]) -> Path:
     """Call ``write(file)`` on a temporary file beside ``path``, flush it to disk, then rename it to ``path``.
 
     A kill before the rename leaves the previous ``path`` untouched (and at most a hidden ``.tmp`` file).
@@ -244,7 +244,7 @@ def supports_training_state(venv: VecEnv | None) -> bool:
     return hasattr(inner, "get_state") and getattr(inner, "checkpointable", True)
 
 
-def vec_env_state(venv: VecEnv) -> list[Any]:
+def vec_env_state(venv: VecEnv | None) -> list[Any]:
     """The step-to-step state of every layer of a vector environment, outermost first (None for stateless layers).
 
     :raise ValueError: if a layer cannot give its state (e.g. reserves in worker processes)
@@ -262,7 +262,7 @@ def vec_env_state(venv: VecEnv) -> list[Any]:
     return states
 
 
-def set_vec_env_state(venv: VecEnv, states: list[Any]) -> None:
+def set_vec_env_state(venv: VecEnv | None, states: list[Any]) -> None:
     """Restore :func:`vec_env_state` into a vector environment built the same way."""
     layers = _layers(venv)
     if len(layers) != len(states):
@@ -372,8 +372,9 @@ class ResumableCheckpointCallback(CheckpointCallback):
         """Write the checkpoint of the current step now (companions first, the zip last)."""
         steps = self.model.num_timesteps
         folder, prefix = self.save_path, self.name_prefix
-        if self.save_replay_buffer and getattr(self.model, "replay_buffer", None) is not None:
-            save_pickle(checkpoint_path(folder, prefix, steps, REPLAY_BUFFER), self.model.replay_buffer)
+        replay_buffer = getattr(self.model, "replay_buffer", None)
+        if self.save_replay_buffer and replay_buffer is not None:
+            save_pickle(checkpoint_path(folder, prefix, steps, REPLAY_BUFFER), replay_buffer)
         vec_normalize = self.model.get_vec_normalize_env()
         if self.save_vecnormalize and vec_normalize is not None:
             save_pickle(checkpoint_path(folder, prefix, steps, VEC_NORMALIZE), vec_normalize)

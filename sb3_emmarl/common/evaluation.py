@@ -10,6 +10,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
 
 from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
@@ -98,7 +99,7 @@ def is_centralized(model: Predictor, env_kwargs: dict[str, Any] | None = None, e
 _TORCH_RNG_LOCK = threading.Lock()
 
 
-def load_for_evaluation(algo_class: type, path: str | Path, **kwargs: Any) -> Any:
+def load_for_evaluation(algo_class: type[BaseAlgorithm], path: str | Path, **kwargs: Any) -> Any:
     """``algo_class.load(path, **kwargs)`` holding the lock :func:`evaluate_team` holds: building a model's networks
     draws from torch's global generator, so a model loaded in one thread while another evaluates changed that
     evaluation's sampled actions (tests/test_evaluation.py shows it).
@@ -152,7 +153,7 @@ def evaluate_team(
     if vec_env is not None and vec_env_wrapper is not None:
         raise ValueError("give vec_env_wrapper or vec_env, not both: a vec_env you build carries its own wrappers")
     own_env = vec_env is None
-    if own_env:
+    if vec_env is None:  # (own_env)
         vec_env = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs, env_id), vec_normalize_path, model,
                                 vec_env_wrapper, env_id)
     elif hasattr(model, "wrap_env"):  # kept when it is already there
@@ -164,12 +165,14 @@ def evaluate_team(
     with _TORCH_RNG_LOCK, th.random.fork_rng():
         th.manual_seed(seed)
         observations = vec_env.reset()
+        assert isinstance(observations, np.ndarray)  # (Box observations, the UAVs' or the global state)
         if latent is not None:
             latent.observe(observations, vec_env.unwrapped.reset_infos, len(records))
         state, starts = None, np.ones(vec_env.num_envs, dtype=bool)
         while len(records) < n_episodes:
             actions, state = model.predict(observations, state=state, episode_start=starts, deterministic=deterministic)
             observations, _, starts, infos = vec_env.step(actions)
+            assert isinstance(observations, np.ndarray)
             for i in np.flatnonzero(starts):
                 if i % per_copy == 0 and "metrics" in infos[i]:
                     records.append({**infos[i]["metrics"], "episode": len(records), "seed": seed})
@@ -237,7 +240,7 @@ class LatentTracker:
         nmi = normalized_mutual_information(posteriors.argmax(1), modes)
         policy = getattr(self.model, "policy", None)
         use = None
-        if hasattr(policy, "get_distribution") or hasattr(policy, "actor"):
+        if policy is not None and (hasattr(policy, "get_distribution") or hasattr(policy, "actor")):
             use = belief_use(policy, np.stack(self.visited), posteriors.shape[1])
         for record in records:
             mine = episodes == record["episode"]

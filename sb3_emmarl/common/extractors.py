@@ -62,7 +62,7 @@ class SplitFeaturesExtractor(BaseFeaturesExtractor):
             raise ValueError(f"need 0 < head_dim <= keep <= {total} (the observation's length), "
                              f"got head_dim={head_dim}, keep={keep}")
         head_space = spaces.Box(observation_space.low[:head_dim], observation_space.high[:head_dim],
-                                dtype=observation_space.dtype)  # type: ignore[arg-type]
+                                dtype=observation_space.dtype)
         inner = extractor_class(head_space, **(extractor_kwargs or {}))
         super().__init__(observation_space, inner.features_dim + keep - int(head_dim))
         self.inner, self.head_dim, self.keep = inner, int(head_dim), keep

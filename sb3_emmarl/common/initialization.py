@@ -11,6 +11,8 @@ the zero start over 10 seeds (p = 0.33); EM-PPO's belief, no difference over 5.
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
@@ -42,6 +44,7 @@ def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:
     :param policy: an SB3 actor-critic policy (its ``mlp_extractor`` and heads as built by SB3)
     :param n_tail: values at the end of the observation
     """
+    assert policy.observation_space.shape is not None  # (a flat Box)
     obs_dim = int(policy.observation_space.shape[0])
     extractors = {id(e): e for e in (policy.features_extractor, policy.pi_features_extractor, policy.vf_features_extractor)}
     if n_tail <= 0 or not all(features_end_with_observation_tail(e, obs_dim, n_tail) for e in extractors.values()):
@@ -64,6 +67,7 @@ def hold_tail_weights_at_zero(policy: ActorCriticPolicy, n_tail: int, network: s
     :param n_tail: values at the end of the observation, at least 1
     :param network: ``"policy"`` or ``"value"``
     """
+    assert policy.observation_space.shape is not None  # (a flat Box)
     obs_dim = int(policy.observation_space.shape[0])
     extractor = policy.pi_features_extractor if network == "policy" else policy.vf_features_extractor
     if n_tail <= 0 or not features_end_with_observation_tail(extractor, obs_dim, n_tail):
@@ -81,9 +85,10 @@ def first_layers(policy: ActorCriticPolicy) -> dict[str, th.nn.Linear]:
     """The layers that read the features first: ``{"policy": ..., "value": ...}`` (the first ``Linear`` of each
     network of SB3's ``mlp_extractor``, or the action and value heads where that network has no layer)."""
     mlp = policy.mlp_extractor
-    return {name: next((m for m in net.modules() if isinstance(m, th.nn.Linear)), head)
-            for name, net, head in (("policy", mlp.policy_net, policy.action_net),
-                                    ("value", mlp.value_net, policy.value_net))}
+    # (SB3 types the action head as a module: it is a Linear layer)
+    heads = {"policy": cast(th.nn.Linear, policy.action_net), "value": policy.value_net}
+    return {name: next((m for m in net.modules() if isinstance(m, th.nn.Linear)), heads[name])
+            for name, net in (("policy", mlp.policy_net), ("value", mlp.value_net))}
 
 
 def tail_weight_norms(policy: ActorCriticPolicy, n_tail: int) -> dict[str, tuple[float, float]]:

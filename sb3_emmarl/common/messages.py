@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -88,7 +88,8 @@ class MessageLayout:
         window, own = layout["window"], layout["own"]
         maps = [layout[name] for name in ("block_staleness", "belief", "signs")]
         height, width = int(reserve.height), int(reserve.width)
-        return cls(obs_dim=int(reserve.obs_dim), n_slots=int(n_slots), window_shape=tuple(int(s) for s in window[1]),
+        window_shape = cast("tuple[int, int, int]", tuple(int(s) for s in window[1]))  # (the reserve's (channels, w, w))
+        return cls(obs_dim=int(reserve.obs_dim), n_slots=int(n_slots), window_shape=window_shape,
                    window_start=window[0].start, own_start=own[0].start, n_own=int(own[1][0]),
                    map_starts=tuple(part.start for part, _ in maps), map_size=int(maps[0][1][0]),
                    position_scale=(float(max(height - 1, 1)), float(max(width - 1, 1))),
@@ -208,6 +209,7 @@ class NeighbourMessageWrapper(VecEnvWrapper):
     # ------------------------------------------------------------------ VecEnv
     def reset(self) -> VecEnvObs:
         observations = self.venv.reset()
+        assert isinstance(observations, np.ndarray)  # (the reserve's flat observations)
         self.reset_infos = list(getattr(self.venv.unwrapped, "reset_infos", None) or self.reset_infos)
         infos = self.reset_infos if len(self.reset_infos) == self.num_envs else [{}] * self.num_envs
         self._last_links = self._links(infos)
@@ -218,6 +220,7 @@ class NeighbourMessageWrapper(VecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
+        assert isinstance(observations, np.ndarray)  # (the reserve's flat observations)
         links = self._links(infos)
         done_idx = np.flatnonzero(dones)
         if len(done_idx):

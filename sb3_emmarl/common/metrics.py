@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -30,11 +30,11 @@ LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", *(f"latent_accuracy_{fract
 RECORD_KEYS: tuple[str, ...] = ("mode", "episode", "seed")
 
 
-def team_metric_keys(record: dict[str, object]) -> tuple[str, ...]:
-    """The team metrics of an episode record: :data:`TEAM_METRICS` when it holds them all (the reserve), else its own
-    numeric metrics in their order (another environment's, e.g. ZonePatrol's), leaving out :data:`RECORD_KEYS` and
-    :data:`LATENT_METRICS`."""
-    if all(key in record for key in TEAM_METRICS):
+def team_metric_keys(record: Mapping[str, object]) -> tuple[str, ...]:
+    """The team metrics of an episode record: :data:`TEAM_METRICS` when it holds most of them or lacks ``team_reward``
+    (so that a reserve record with a metric missing is refused by name), else its own numeric metrics in their order
+    (another environment's, e.g. ZonePatrol's), leaving out :data:`RECORD_KEYS` and :data:`LATENT_METRICS`."""
+    if "team_reward" not in record or sum(key in record for key in TEAM_METRICS) > len(TEAM_METRICS) // 2:
         return TEAM_METRICS
     return tuple(key for key, value in record.items() if key not in RECORD_KEYS and key not in LATENT_METRICS
                  and isinstance(value, (int, float, np.number)) and not isinstance(value, bool))

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch as th
 
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 
 def _play(model: Predictor, venv: Any, seed: int, deterministic: bool, observe: Callable[[int], Any]) -> dict[str, Any]:
@@ -103,8 +106,14 @@ def record_episode(
     venv = make_eval_env(seed, env_kwargs, is_centralized(model, env_kwargs, env_id), vec_normalize_path, model,
                          vec_env_wrapper, env_id)
     frames: list[np.ndarray] = []
-    metrics = _play(model, venv, seed, deterministic,
-                    lambda step: frames.append(venv.render()) if step % frame_skip == 0 else None)
+
+    def keep_frame(step: int) -> None:
+        if step % frame_skip == 0:
+            frame = venv.render()
+            assert frame is not None  # (render_mode="rgb_array")
+            frames.append(frame)
+
+    metrics = _play(model, venv, seed, deterministic, keep_frame)
     venv.close()
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".gif":
@@ -115,5 +124,5 @@ def record_episode(
     else:
         import imageio.v2 as imageio
 
-        imageio.mimwrite(path, frames, fps=fps)
+        imageio.mimwrite(path, cast("list[ArrayLike]", frames), fps=fps)  # (imageio annotates an invariant list)
     return metrics

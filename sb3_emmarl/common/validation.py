@@ -87,9 +87,9 @@ def number(low: float, high: float, low_open: bool = False, schedule: bool = Fal
         if schedule and callable(value):
             return value
         raw = value
-        if schedule and isinstance(value, str) and SCHEDULE.match(value):
+        if schedule and isinstance(value, str) and (match := SCHEDULE.match(value)):
             try:
-                value = float(SCHEDULE.match(value)["value"])
+                value = float(match["value"])
             except ValueError:
                 fail(name, raw, allowed)
         if not _is_number(value) or value > high or value < low or (low_open and value == low) \

@@ -8,13 +8,18 @@ override both (as the five did, each its own way).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
+if TYPE_CHECKING:  # the type checker sees the SB3 algorithm the mixin is placed before; at run time it is a plain class
+    from stable_baselines3.common.base_class import BaseAlgorithm as _AlgorithmBase
+else:
+    _AlgorithmBase = object
 
-class WrapsEnv:
+
+class WrapsEnv(_AlgorithmBase):
     """Mixin placed before the SB3 algorithm class (``class OraclePPO(WrapsEnv, PPO)``): ``set_env`` and ``load`` wrap
     a plain parameter-sharing vector environment as training did.
 
@@ -37,7 +42,7 @@ class WrapsEnv:
 
     def set_env(self, env: Any, force_reset: bool = True) -> None:
         """As SB3's ``set_env``; a plain environment gets the model's wrapper."""
-        super().set_env(self._wrap_own_env(env), force_reset=force_reset)  # type: ignore[misc]
+        super().set_env(self._wrap_own_env(env), force_reset=force_reset)
 
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
@@ -46,5 +51,5 @@ class WrapsEnv:
         if env is not None:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
             env = cls._wrap_saved_env(env, data or {})
-        return super().load(path, env=env, device=device, custom_objects=custom_objects,  # type: ignore[misc]
+        return super().load(path, env=env, device=device, custom_objects=custom_objects,
                             print_system_info=print_system_info, force_reset=force_reset, **kwargs)

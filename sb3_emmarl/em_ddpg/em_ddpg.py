@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -68,6 +68,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    policy: MlpPolicy
 
     def __init__(
         self,
@@ -115,16 +116,19 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
                               use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
                                                default_window=400)
-        super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
-                         batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
-                         action_noise=action_noise, policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log,
-                         verbose=verbose, seed=seed, device=device, _init_setup_model=False, **kwargs)
+        # (env is None when loading: SB3 takes it, though DDPG's annotation leaves None out)
+        super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, buffer_size=buffer_size,
+                         learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq,
+                         gradient_steps=gradient_steps, action_noise=action_noise, policy_kwargs=policy_kwargs,
+                         tensorboard_log=tensorboard_log, verbose=verbose, seed=seed, device=device, _init_setup_model=False,
+                         **kwargs)
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
         super()._setup_model()
         if self.action_noise is None and self.env is not None:
+            assert self.action_space.shape is not None  # (a Box)
             dim = int(np.prod(self.action_space.shape))
             self.action_noise = NormalActionNoise(np.zeros(dim), 0.2 * np.ones(dim))
         self._setup_latent()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -84,6 +84,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    policy: MlpPolicy
 
     def __init__(
         self,
@@ -127,7 +128,8 @@ class EMPPO(LatentAlgorithmMixin, PPO):
                               e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
                               use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model)
-        super().__init__(policy, env, learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
+        # (env is None when loading: SB3 takes it, though PPO's annotation leaves None out)
+        super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
                          n_epochs=n_epochs, gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, ent_coef=ent_coef,
                          policy_kwargs=policy_kwargs, tensorboard_log=tensorboard_log, verbose=verbose, seed=seed,
                          device=device, _init_setup_model=False, **kwargs)
@@ -140,15 +142,17 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         if self.zero_belief_weights and self.policy.latent_model is not None:
             zero_tail_weights(self.policy, self.policy.features_extractor.belief_width)
 
-    def _rollout_transitions(self):
+    def _rollout_transitions(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The E-step's data from the rollout just collected: every step whose successor is in the same episode
         (the one after the rollout's last step is the algorithm's next observation)."""
         buffer = self.rollout_buffer
+        last_obs = self._last_obs
+        assert isinstance(last_obs, np.ndarray)  # (set by the rollout; flat Box observations)
         # The observations are not stacked with the last ones: that would copy the rollout's (220 MiB at 200 UAVs)
-        features = np.concatenate([self._features(buffer.observations), self._features(self._last_obs[None])])
+        features = np.concatenate([self._features(buffer.observations), self._features(last_obs[None])])
         starts = np.concatenate([buffer.episode_starts, np.asarray(self._last_episode_starts, dtype=np.float32)[None]])
         return self._transitions(features[:-1], buffer.actions, features[1:], starts[:-1] > 0, starts[1:] == 0,
-                                 (buffer.observations[1:], self._last_obs[None]))
+                                 (buffer.observations[1:], last_obs[None]))
 
     def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
         return self._rollout_transitions()

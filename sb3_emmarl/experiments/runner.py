@@ -111,6 +111,7 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
         run, stats = _train(variant.algo, steps, seed, folder / f"stage_{i}", env_kwargs, variant.hyperparams,
                             None if run is None else run / f"{spec.env}.zip", spec.env)
         runs.append(stats)
+    assert run is not None  # (one stage at least)
     seconds = sum(s["train_seconds"] for s in runs)
     # A run continued with -i counts the first stage's steps again: with a fine-tuning stage, the budget is the count.
     steps = sum(s["n_timesteps"] for s in runs) if cond.fine_tune is None else plan.n_timesteps

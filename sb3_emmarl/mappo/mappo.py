@@ -28,7 +28,7 @@ Where it departs from on-policy (all within SB3's machinery, which it reuses: ro
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -172,20 +172,23 @@ class MAPPO(WrapsEnv, PPO):
         own: dict[str, Any] = {"value_norm": self.use_value_norm, "value_norm_beta": self.value_norm_beta}
         if env is not None:
             env = wrap_with_state(env, self.agent_id, verbose, strict=not loading)
-            own["state_layout"] = find_state_wrapper(env).layout.to_dict()
+            state_wrapper = find_state_wrapper(env)
+            assert state_wrapper is not None  # (wrap_with_state gives an environment with one)
+            own["state_layout"] = state_wrapper.layout.to_dict()
         for key, value in own.items():
             if key in policy_kwargs and policy_kwargs[key] != value and not loading:
                 raise ValueError(f"policy_kwargs[{key!r}] is set by MAPPO (to {value!r} here), got {policy_kwargs[key]!r}")
         policy_kwargs.update(own)
         whole_rollout = max(2, n_steps * env.num_envs) if env is not None else 2
-        super().__init__(policy, env, learning_rate=learning_rate, n_steps=n_steps,
+        # (env is None when loading: SB3 takes it, though PPO's annotation leaves None out)
+        super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, n_steps=n_steps,
                          batch_size=whole_rollout if batch_size is None else batch_size, n_epochs=n_epochs, gamma=gamma,
                          gae_lambda=gae_lambda, clip_range=clip_range, clip_range_vf=clip_range_vf,
                          normalize_advantage=normalize_advantage, ent_coef=ent_coef, vf_coef=vf_coef,
                          max_grad_norm=max_grad_norm, target_kl=target_kl, stats_window_size=stats_window_size,
                          tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed,
                          device=device, _init_setup_model=False, **kwargs)
-        self.batch_size = batch_size  # None: the whole rollout, whatever the number of entries
+        self.batch_size = batch_size  # type: ignore[assignment]  # None (PPO's is an int): the whole rollout, for train()
         if _init_setup_model:
             self._setup_model()
 
@@ -267,18 +270,22 @@ class MAPPO(WrapsEnv, PPO):
         entropy bonus, with the actor's and the critic's gradients clipped separately."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        clip_range = self.clip_range(self._current_progress_remaining)
-        clip_range_vf = self.clip_range_vf(self._current_progress_remaining) if self.clip_range_vf is not None else None
+        # (schedules since _setup_model, though PPO annotates them as floats or schedules)
+        clip_range = cast(Schedule, self.clip_range)(self._current_progress_remaining)
+        clip_range_vf = (cast(Schedule, self.clip_range_vf)(self._current_progress_remaining)
+                         if self.clip_range_vf is not None else None)
         buffer = self.rollout_buffer
         batch_size = self.batch_size or buffer.buffer_size * buffer.n_envs
         value_norm = self.policy.value_norm
-        old_stats = None
+        old_stats: tuple[th.Tensor, th.Tensor] | None = None
         if value_norm is not None:  # the rollout's predictions were made with the statistics before this update
-            old_stats = tuple(t.clone() for t in value_norm.mean_var())
+            mean, var = value_norm.mean_var()
+            old_stats = (mean.clone(), var.clone())
             value_norm.update(buffer.returns)
         actor_parameters, critic_parameters = self.policy.actor_parameters(), self.policy.critic_parameters()
 
-        entropy_losses, pg_losses, value_losses, clip_fractions, approx_kl_divs = [], [], [], [], []
+        entropy_losses, pg_losses, value_losses, clip_fractions = [], [], [], []
+        approx_kl_divs: list[np.ndarray] = []
         actor_norms, critic_norms = [], []
         continue_training = True
         for epoch in range(self.n_epochs):

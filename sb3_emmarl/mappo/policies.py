@@ -19,7 +19,7 @@ output, for MAPPO's value loss. The normaliser's statistics are buffers of the p
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch as th
@@ -57,6 +57,11 @@ class ValueNorm(nn.Module):
     :param epsilon: floor of the debiasing term
     :param min_var: floor of the variance
     """
+
+    # Buffers (register_buffer), declared for the type checker.
+    running_mean: th.Tensor
+    running_mean_sq: th.Tensor
+    debiasing_term: th.Tensor
 
     def __init__(self, beta: float = VALUE_NORM_BETA, epsilon: float = VALUE_NORM_EPSILON,
                  min_var: float = VALUE_NORM_MIN_VAR) -> None:
@@ -168,6 +173,9 @@ class MAPPOPolicy(ActorCriticPolicy):
     :param value_norm_beta: the normaliser's ``beta``
     """
 
+    state_layout: StateLayout
+    layer_norm: bool
+
     def __init__(
         self,
         observation_space: spaces.Space,
@@ -206,14 +214,14 @@ class MAPPOPolicy(ActorCriticPolicy):
     def make_features_extractor(self) -> SplitFeaturesExtractor:
         """``policy_kwargs``' features extractor (default: none) over the agent's observation, then the global state
         and agent id as they are."""
-        return SplitFeaturesExtractor(self.observation_space, self.state_layout.obs_dim, self.features_extractor_class,
-                                      self.features_extractor_kwargs)
+        return SplitFeaturesExtractor(cast(spaces.Box, self.observation_space), self.state_layout.obs_dim,  # (checked)
+                                      self.features_extractor_class, self.features_extractor_kwargs)
 
     def _build_mlp_extractor(self) -> None:
         layout = self.state_layout
         actor_dim = self.features_dim - (layout.critic_dim - layout.obs_dim)
-        self.mlp_extractor = MAPPOExtractor(actor_dim, self.features_dim, self.net_arch, self.activation_fn,
-                                            self.layer_norm)
+        self.mlp_extractor = MAPPOExtractor(  # type: ignore[assignment]  # SB3 types it MlpExtractor; any module with its interface works
+            actor_dim, self.features_dim, self.net_arch, self.activation_fn, self.layer_norm)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()

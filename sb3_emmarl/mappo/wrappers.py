@@ -24,7 +24,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_emmarl.common.vec_env import STATE_KEY, TERMINAL_STATE_KEY, require_state
+from sb3_emmarl.common.vec_env import STATE_KEY, TERMINAL_STATE_KEY, SharedPolicyVecEnv, require_state
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,9 @@ class GlobalStateWrapper(VecEnvWrapper):
             raise ValueError(f"{who} needs the environment's global state: {error}") from None
         observation_space = _flat_box(venv.observation_space, "observation space")
         state_space = _flat_box(state_space, "global state space")
-        n_agents = int(venv.unwrapped.agents_per_copy)
+        inner = venv.unwrapped
+        assert isinstance(inner, SharedPolicyVecEnv)  # (require_state checked it)
+        n_agents = int(inner.agents_per_copy)
         self.layout = StateLayout(int(observation_space.shape[0]), int(state_space.shape[0]), n_agents, bool(agent_id))
         id_low, id_high = np.zeros(self.layout.id_dim, np.float32), np.ones(self.layout.id_dim, np.float32)
         low = np.concatenate([observation_space.low, state_space.low, id_low]).astype(np.float32)
@@ -128,6 +130,7 @@ class GlobalStateWrapper(VecEnvWrapper):
 
     def reset(self) -> VecEnvObs:
         observations = self.venv.reset()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
         self.reset_infos = list(self.venv.unwrapped.reset_infos)  # the outer VecMonitor's own are empty
         states = self._states(self.reset_infos, STATE_KEY, "reset infos")
         return self._augment(observations, states, self.agent_ids)
@@ -137,6 +140,7 @@ class GlobalStateWrapper(VecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
         infos = list(infos)
         states = self._states(infos, STATE_KEY, "step infos")
         for i in np.flatnonzero(dones):

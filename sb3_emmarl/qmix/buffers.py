@@ -25,7 +25,7 @@ stretches of ``sequence_length`` consecutive rows of one copy that never cross t
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch as th
@@ -92,6 +92,7 @@ class JointReplayBuffer(ReplayBuffer):
     # ------------------------------------------------------------------ the states, from the infos
     def _states(self, infos: list[dict[str, Any]], keys: list[str]) -> np.ndarray:
         """One state per copy: ``infos[first entry of the copy][key]`` for each copy's key."""
+        assert self.state_shape is not None  # (a buffer that keeps the states)
         states = np.empty((self.n_copies, *self.state_shape), dtype=np.float32)
         for copy, key in enumerate(keys):
             info = infos[copy * self.n_agents]
@@ -115,14 +116,16 @@ class JointReplayBuffer(ReplayBuffer):
             if self.last_states is None:
                 raise RuntimeError("the joint replay buffer does not know the states of the observations: call "
                                    "observe_reset(venv.unwrapped.reset_infos) after every reset of the environment")
-            ended = np.asarray(done, dtype=bool).reshape(self.n_copies, self.n_agents).any(axis=1)
+            ended = cast(np.ndarray, np.asarray(done, dtype=bool).reshape(self.n_copies, self.n_agents).any(axis=1))
             next_keys = [TERMINAL_STATE_KEY if end else STATE_KEY for end in ended]
             self.states[self.pos] = self.last_states
             self.next_states[self.pos] = self._states(infos, next_keys)
             self.last_states = self._states(infos, [STATE_KEY] * self.n_copies)
         super().add(obs, next_obs, action, reward, done, infos)
 
-    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> JointReplaySamples:
+    def _get_samples(  # type: ignore[override]  # team transitions in place of SB3's samples (QMIX reads them)
+        self, batch_inds: np.ndarray, env: VecNormalize | None = None,
+    ) -> JointReplaySamples:
         copies = np.random.randint(0, self.n_copies, size=len(batch_inds))
         entries = copies[:, None] * self.n_agents + np.arange(self.n_agents)  # (batch, n_agents)
         return self._team_batch(batch_inds[:, None], entries, batch_inds, copies, env)
@@ -139,10 +142,13 @@ class JointReplayBuffer(ReplayBuffer):
         if self.state_shape is not None:
             states = self.to_torch(self.states[state_rows, state_copies], copy=False)
             next_states = self.to_torch(self.next_states[state_rows, state_copies], copy=False)
+        # (SB3 annotates _normalize_obs for dict observations too; these are arrays)
+        observations = cast(np.ndarray, self._normalize_obs(self.observations[rows, entries], env))
+        next_observations = cast(np.ndarray, self._normalize_obs(self.next_observations[rows, entries], env))
         return JointReplaySamples(  # the fancy indexing copied every array already
-            observations=self.to_torch(self._normalize_obs(self.observations[rows, entries], env), copy=False),
+            observations=self.to_torch(observations, copy=False),
             actions=self.to_torch(self.actions[rows, entries, 0], copy=False).long(),
-            next_observations=self.to_torch(self._normalize_obs(self.next_observations[rows, entries], env), copy=False),
+            next_observations=self.to_torch(next_observations, copy=False),
             dones=self.to_torch(dones.max(axis=-1).astype(np.float32), copy=False),
             rewards=self.to_torch(rewards.astype(np.float32), copy=False),
             states=states,
@@ -230,7 +236,9 @@ class RecurrentJointReplayBuffer(JointReplayBuffer):
         row: every stretch of consecutive rows that does not cross the write position."""
         return (offsets + (self.pos if self.full else 0)) % self.buffer_size
 
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> JointSequenceSamples:
+    def sample(  # type: ignore[override]  # stretches of team transitions in place of SB3's samples (QMIX reads them)
+        self, batch_size: int, env: VecNormalize | None = None,
+    ) -> JointSequenceSamples:
         """``batch_size`` stretches of ``sequence_length`` rows, uniformly over the valid first rows and copies."""
         if not self.can_sample():
             raise ValueError(f"the buffer holds {self.n_rows()} rows, fewer than sequence_length={self.sequence_length}")

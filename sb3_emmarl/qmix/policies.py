@@ -221,7 +221,8 @@ class ValueDecompositionPolicy(BasePolicy):
         self.mixer_target.load_state_dict(self.mixer.state_dict())
         self.q_net_target.set_training_mode(False)
         self.mixer_target.train(False)
-        self.optimizer = self.optimizer_class(self.online_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        self.optimizer = self.optimizer_class(  # type: ignore[call-arg]  # SB3 types the class as torch's base Optimizer (no lr)
+            self.online_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def make_q_net(self) -> AgentQNetwork | RecurrentAgentQNetwork:
         # a separate features extractor per network, as SB3's DQNPolicy
@@ -273,11 +274,12 @@ class ValueDecompositionPolicy(BasePolicy):
         :return: ``(batch, length, n_agents, rnn_hidden_dim)``: ``h_t``, from which step ``t``'s Q-values are read
         """
         net = self.q_net_target if target else self.q_net
+        assert isinstance(net, RecurrentAgentQNetwork)  # (recurrent agent network only)
         batch, length, n_agents = observations.shape[:3]
         grad = th.is_grad_enabled()
         with th.no_grad():  # the burn-in's inputs, then the rest's (with gradient if enabled)
-            inputs = [self._embed_team(net, observations[:, :burn_in])] if burn_in > 0 else []
-        inputs = th.cat([*inputs, self._embed_team(net, observations[:, burn_in:])], dim=1)
+            warm_up = [self._embed_team(net, observations[:, :burn_in])] if burn_in > 0 else []
+        inputs = th.cat([*warm_up, self._embed_team(net, observations[:, burn_in:])], dim=1)
         keep = (1.0 - episode_starts.to(hidden.dtype)).reshape(batch, length, n_agents, 1)
         h, hiddens = hidden, []
         for t in range(length):
@@ -289,7 +291,9 @@ class ValueDecompositionPolicy(BasePolicy):
 
     def q_from_hidden(self, hiddens: th.Tensor, target: bool = False) -> th.Tensor:
         """Q-values ``(..., n_actions)`` read from hidden states ``(..., rnn_hidden_dim)`` by the Q-head."""
-        return (self.q_net_target if target else self.q_net).q_head(hiddens)
+        net = self.q_net_target if target else self.q_net
+        assert isinstance(net, RecurrentAgentQNetwork)  # (recurrent agent network only)
+        return net.q_head(hiddens)
 
     def next_q_values(self, next_observations: th.Tensor, hiddens: th.Tensor, q_values: th.Tensor | None = None,
                       boundaries: th.Tensor | None = None, target: bool = False) -> th.Tensor:
@@ -310,6 +314,7 @@ class ValueDecompositionPolicy(BasePolicy):
         :return: ``(batch, length, n_agents, n_actions)``
         """
         net = self.q_net_target if target else self.q_net
+        assert isinstance(net, RecurrentAgentQNetwork)  # (recurrent agent network only)
 
         def step(next_obs: th.Tensor, h: th.Tensor) -> th.Tensor:
             x = self._embed_team(net, next_obs)
@@ -317,6 +322,7 @@ class ValueDecompositionPolicy(BasePolicy):
 
         if q_values is None:
             return step(next_observations, hiddens)
+        assert boundaries is not None  # (given with q_values)
         extra = boundaries.clone()
         extra[:, -1] = True
         next_q = th.cat([q_values[:, 1:], q_values[:, -1:]], dim=1)
@@ -380,7 +386,8 @@ class QMIXPolicy(ValueDecompositionPolicy):
                  *args: Any, mixer: str = "qmix", **kwargs: Any) -> None:
         if mixer != "qmix":
             raise ValueError(f"QMIXPolicy's mixer is 'qmix', got mixer={mixer!r} (VDNPolicy's is 'vdn')")
-        super().__init__(observation_space, action_space, lr_schedule, *args, mixer=mixer, **kwargs)
+        kwargs["mixer"] = mixer
+        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
 
 
 class VDNPolicy(ValueDecompositionPolicy):
@@ -390,7 +397,8 @@ class VDNPolicy(ValueDecompositionPolicy):
                  *args: Any, mixer: str = "vdn", **kwargs: Any) -> None:
         if mixer != "vdn":
             raise ValueError(f"VDNPolicy's mixer is 'vdn', got mixer={mixer!r} (QMIXPolicy's is 'qmix')")
-        super().__init__(observation_space, action_space, lr_schedule, *args, mixer=mixer, **kwargs)
+        kwargs["mixer"] = mixer
+        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
 
 
 MlpPolicy = QMIXPolicy

@@ -40,12 +40,13 @@ Departures from the paper and EPyMARL (``src/learners/q_learner.py``):
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
@@ -143,10 +144,11 @@ class QMIX(OffPolicyAlgorithm):
     exploration_schedule: Schedule
     policy: ValueDecompositionPolicy
     replay_buffer: JointReplayBuffer
+    action_space: spaces.Discrete  # (supported_action_spaces)
 
     def __init__(
         self,
-        policy: str | type[QMIXPolicy],
+        policy: str | type[ValueDecompositionPolicy],
         env: GymEnv | str | None,
         learning_rate: float | Schedule = 5e-4,
         buffer_size: int = 200_000,
@@ -211,8 +213,9 @@ class QMIX(OffPolicyAlgorithm):
         if recurrent:
             policy_kwargs.update(recurrent=True, rnn_hidden_dim=rnn_hidden_dim)
             buffer_kwargs.update(sequence_length=sequence_length, rnn_hidden_dim=rnn_hidden_dim)
-        super().__init__(
-            policy, env, learning_rate, buffer_size, learning_starts, batch_size, tau, gamma, train_freq, gradient_steps,
+        super().__init__(  # (env is None when loading: SB3 takes it, though its annotation leaves None out)
+            policy, cast(GymEnv, env), learning_rate, buffer_size, learning_starts, batch_size, tau, gamma, train_freq,
+            gradient_steps,
             action_noise=None, replay_buffer_class=RecurrentJointReplayBuffer if recurrent else JointReplayBuffer,
             replay_buffer_kwargs=buffer_kwargs,
             optimize_memory_usage=False, policy_kwargs=policy_kwargs, stats_window_size=stats_window_size,
@@ -277,6 +280,7 @@ class QMIX(OffPolicyAlgorithm):
         resets = reset_num_timesteps or self._last_obs is None
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         if resets and self.state_shape is not None:  # the environment was reset: the buffer reads the new states
+            assert self.env is not None  # (SB3's _setup_learn needs one)
             self.replay_buffer.observe_reset(self.env.unwrapped.reset_infos)
         elif self.replay_buffer.last_states is None and self._last_states is not None:
             self.replay_buffer.last_states = self._last_states.copy()
@@ -292,6 +296,7 @@ class QMIX(OffPolicyAlgorithm):
         had on each observation."""
         if not self.recurrent:
             return super()._sample_action(learning_starts, action_noise, n_envs)
+        assert self._last_hidden is not None and self._last_obs is not None  # (set by _setup_learn)
         entering = self._last_hidden * (1.0 - np.asarray(self._last_episode_starts, dtype=np.float32)[:, None])
         greedy, leaving = self.policy.predict(self._last_obs, entering, None, deterministic=True)
         self._step_hidden = (entering, leaving)
@@ -301,15 +306,20 @@ class QMIX(OffPolicyAlgorithm):
             actions = self._explore(greedy)
         return actions, actions
 
-    def _store_transition(self, replay_buffer: JointReplayBuffer, buffer_action: np.ndarray,
+    def _store_transition(self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray,
                           new_obs: np.ndarray | dict[str, np.ndarray], reward: np.ndarray, dones: np.ndarray,
                           infos: list[dict[str, Any]]) -> None:
+        assert isinstance(replay_buffer, JointReplayBuffer)  # (the model's own)
+        step_hidden = self._step_hidden
         if self.recurrent:
-            replay_buffer.set_recurrent_inputs(self._step_hidden[0], self._last_episode_starts)
+            assert isinstance(replay_buffer, RecurrentJointReplayBuffer)  # (the recurrent agent network's)
+            assert step_hidden is not None and self._last_episode_starts is not None  # (set by _sample_action, learn)
+            replay_buffer.set_recurrent_inputs(step_hidden[0], self._last_episode_starts)
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
         self._last_states = replay_buffer.last_states
         if self.recurrent:  # the next step's: the hidden states the network left, reset where an episode ended
-            self._last_hidden, self._step_hidden = self._step_hidden[1], None
+            assert step_hidden is not None
+            self._last_hidden, self._step_hidden = step_hidden[1], None
             self._last_episode_starts = np.asarray(dones, dtype=bool).copy()
 
     def _on_step(self) -> None:
@@ -426,12 +436,16 @@ class QMIX(OffPolicyAlgorithm):
         the buffer holds one stretch)."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        if self.recurrent and not self.replay_buffer.can_sample():
-            return
+        if self.recurrent:
+            assert isinstance(self.replay_buffer, RecurrentJointReplayBuffer)  # (the recurrent agent network's)
+            if not self.replay_buffer.can_sample():
+                return
         losses, norms, stats = [], [], []
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            loss, step_stats = self._sequence_loss(data) if self.recurrent else self._loss(data)
+            # (stretches from the recurrent buffer, team transitions from the joint one: SB3 annotates its own samples)
+            loss, step_stats = (self._sequence_loss(cast(JointSequenceSamples, data)) if self.recurrent
+                                else self._loss(cast(JointReplaySamples, data)))
             self.policy.optimizer.zero_grad()
             loss.backward()
             norms.append(th.nn.utils.clip_grad_norm_(self.policy.online_parameters(), self.max_grad_norm).item())

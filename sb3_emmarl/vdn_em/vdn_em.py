@@ -22,6 +22,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
+from sb3_emmarl.qmix.buffers import JointReplayBuffer
 from sb3_emmarl.vdn import VDN
 from sb3_emmarl.vdn_em.policies import LatentVDNPolicy
 
@@ -79,6 +80,8 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": LatentVDNPolicy}
+    policy: LatentVDNPolicy
+    replay_buffer: JointReplayBuffer
 
     def __init__(
         self,

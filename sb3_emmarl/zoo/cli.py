@@ -18,7 +18,7 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import yaml
@@ -38,6 +38,11 @@ from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from stable_baselines3.common.vec_env import VecEnv
 
 #: Seed offset of the team evaluation printed at the end of training (episodes unseen in training).
 TEAM_EVAL_SEED_OFFSET = 20_000
@@ -350,7 +355,8 @@ def enjoy_main(argv: list[str] | None = None) -> int:
         env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
         parallel_env_fn(args.env)(**env_kwargs).close()  # checked before anything runs
         vec_normalize_path = vec_normalize_stats(params_path)
-        vec_env_wrapper = get_wrapper_class(config, "vec_env_wrapper")  # what the run was trained under
+        # What the run was trained under (rl_zoo3 annotates get_wrapper_class for gym.Env wrappers only)
+        vec_env_wrapper = cast("Callable[[VecEnv], VecEnv] | None", get_wrapper_class(config, "vec_env_wrapper"))
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
     except (AssertionError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)

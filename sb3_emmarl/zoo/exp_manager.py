@@ -41,6 +41,7 @@ from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
@@ -206,7 +207,7 @@ class ReserveExperimentManager(ExperimentManager):
     Takes rl_zoo3's arguments; ``config`` defaults to ``sb3_emmarl/zoo/hyperparams/<algo>.yml``.
     """
 
-    def __init__(self, args: Any, algo: str, env_id: str, *posargs: Any, resume_run: str | None = None,
+    def __init__(self, args: Any, algo: str, env_id: str, *posargs: Any, resume_run: str | Path | None = None,
                  **kwargs: Any) -> None:
         register_envs()
         register_algorithms()
@@ -373,6 +374,7 @@ class ReserveExperimentManager(ExperimentManager):
                     save_replay_buffer=self.save_replay_buffer, save_vecnormalize=bool(self.normalize),
                     verbose=callback.verbose)
             elif type(callback) is EvalCallback:  # written in place too: evaluations.npz, best_model.zip
+                assert callback.log_path is not None  # (rl_zoo3 gives its evaluations a folder)
                 self.callbacks[i] = AtomicEvalCallback(
                     callback.eval_env, callback_on_new_best=SaveVecNormalize(self.params_path),
                     n_eval_episodes=callback.n_eval_episodes, eval_freq=callback.eval_freq,
@@ -403,10 +405,12 @@ class ReserveExperimentManager(ExperimentManager):
             model.replay_buffer.device = model.device
         elif self.resume_run is not None and getattr(model, "replay_buffer", None) is not None:
             # Without its replay buffer (--save-replay-buffer) the run refills an empty one before learning again.
+            assert isinstance(model, OffPolicyAlgorithm)  # (the algorithms with a replay buffer)
             model.learning_starts = model.num_timesteps + model.learning_starts
             print(f"warning: {self.trained_agent} has no saved replay buffer (train with --save-replay-buffer to resume "
                   f"exactly); learning resumes after {model.learning_starts} steps", file=sys.stderr)
         if resuming:
+            assert state_file is not None  # (resuming)
             self._training_state = load_pickle(state_file)
         elif self.resume_run is not None:
             print(f"warning: {self.trained_agent} has no training state; the run resumes with new episodes",
@@ -429,12 +433,14 @@ class ReserveExperimentManager(ExperimentManager):
         finally:
             if self.callbacks:
                 self.callbacks[0].on_training_end()
+            assert model.env is not None  # (loaded with the run's environment)
             model.env.close()
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         """rl_zoo3's files (model, replay buffer, ``VecNormalize`` statistics), each written atomically."""
         print(f"Saving to {self.save_path}")
         if hasattr(model, "save_replay_buffer") and self.save_replay_buffer:
+            assert isinstance(model, OffPolicyAlgorithm)  # (the algorithms with a replay buffer)
             save_pickle(os.path.join(self.save_path, "replay_buffer.pkl"), model.replay_buffer)
         if self.normalize:
             save_pickle(os.path.join(self.params_path, VEC_NORMALIZE_FILE), model.get_vec_normalize_env())

@@ -194,8 +194,8 @@ class ReserveParallelEnv(ParallelEnv):
     :param kwargs: see :class:`~wildlife_reserve.reserve.config.ReserveConfig`
     """
 
-    metadata = {"name": "wildlife_reserve_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True,
-                "render_fps": 10}
+    metadata: dict[str, Any] = {"name": "wildlife_reserve_v0", "render_modes": ["human", "rgb_array"],
+                                "is_parallelizable": True, "render_fps": 10}
 
     def __init__(self, **kwargs: Any) -> None:
         self.config = cfg = ReserveConfig.from_kwargs(**kwargs)  # validates everything before anything is allocated

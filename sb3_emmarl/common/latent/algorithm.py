@@ -7,8 +7,8 @@ then runs the E-step on the recent episodes (line 11, :class:`EStep`) and its up
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -23,6 +23,12 @@ from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episo
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.wrapping import WrapsEnv
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from sb3_emmarl.common.latent.counts import ReadingCounter
+    from sb3_emmarl.common.latent.policies import LatentPolicyMixin
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
 #: ``e_step_kwargs`` may override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
@@ -55,7 +61,33 @@ LATENT_ATTRIBUTES = tuple(name for name in LatentConfig().names()
 class LatentAlgorithmMixin(WrapsEnv):
     """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
+    policy: LatentPolicyMixin
+    replay_buffer: ReplayBuffer | None  # (the off-policy algorithms': EM-DDPG, VDN+EM)
+    # The latent settings (LATENT_ATTRIBUTES), set by _init_latent from the LatentConfig.
+    likelihood_temperature: float
+    fusion: bool
+    estimator: str
+    team_pooling: bool
+    reading_counts: bool
+    count_factors: tuple[int, int] | None
+    e_step_interval: int
+    belief_input: str
+    use_latent: bool
+    freeze_e_step: bool
+    freeze_m_step: bool
+    e_step_kwargs: dict[str, Any]
+    feature_spec: dict[str, Any]
+    # Set by _setup_latent (and _init_replay_e_step, off-policy).
     e_step: EStep | None
+    latent_layout: LatentLayout
+    _feature_fn: Callable[[np.ndarray], np.ndarray]
+    _counter: ReadingCounter | None
+    _encode_action: Callable[[np.ndarray], np.ndarray]
+    _episode_counters: np.ndarray
+    _n_rollouts: int
+    _e_step_pos: int
+    _last_dones: np.ndarray
+    _e_step_in_data: bool
 
     def _init_latent(self, env: Any, config: LatentConfig, policy_kwargs: dict[str, Any] | None, verbose: int,
                      loading: bool, default_window: int = E_STEP_DEFAULTS["window"]) -> tuple[VecEnv | None, dict]:
@@ -78,6 +110,7 @@ class LatentAlgorithmMixin(WrapsEnv):
             return None, policy_kwargs
         venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
         wrapper = find_belief_wrapper(venv)
+        assert wrapper is not None  # (wrap_with_belief gives an environment with one)
         self.feature_spec = wrapper.feature_spec
         counter = wrapper.counter if self.reading_counts else None
         layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, wrapper.n_components,
@@ -187,6 +220,7 @@ class LatentAlgorithmMixin(WrapsEnv):
     def _replay_transitions(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The replay buffer's rows added since the last call, as E-step data (off-policy algorithms)."""
         buffer = self.replay_buffer
+        assert buffer is not None  # (the E-step runs from train(), after the model was set up)
         if buffer.optimize_memory_usage:
             raise ValueError(f"{type(self).__name__} needs the replay buffer's next observations: "
                              "optimize_memory_usage=False")
@@ -225,9 +259,10 @@ class LatentAlgorithmMixin(WrapsEnv):
         self.logger.record("latent/belief_entropy", belief_entropy(observations.reshape(-1, observations.shape[-1])[:, -k:]))
 
     # ------------------------------------------------------------------ SB3's conventions
-    def predict(self, observation: np.ndarray | dict, state: tuple[np.ndarray, ...] | np.ndarray | None = None,
-                episode_start: np.ndarray | None = None,
-                deterministic: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    def predict(  # type: ignore[override]  # the state is one array, where SB3's annotation has a tuple of them
+        self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | np.ndarray | None = None,
+        episode_start: np.ndarray | None = None, deterministic: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray | tuple[np.ndarray, ...] | None]:
         """Actions for plain observations, carrying each entry's belief in ``state`` (as RecurrentPPO carries its LSTM
         state): pass back the returned state and the episode starts, as ``evaluate_policy`` does. Observations that
         already hold the belief (from the model's own wrapped environment) are acted on as they are.
@@ -288,7 +323,7 @@ class LatentAlgorithmMixin(WrapsEnv):
             self._update_learning_rate(self._m_step_optimizers())
             self.logger.record("train/m_step_frozen", 1.0)
             return
-        super().train(*args, **kwargs)  # type: ignore[misc]
+        super().train(*args, **kwargs)  # type: ignore[misc]  # the SB3 algorithm's (BaseAlgorithm declares no train)
 
     def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The transitions (and reading counts) this ``train()`` call hands the E-step."""

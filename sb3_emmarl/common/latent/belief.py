@@ -137,7 +137,7 @@ class BeliefTracker:
         if self._likelihood is not None:
             log_lik = self._likelihood.log_likelihood(self.features[indices], self.actions[indices], next_features)
             self.evidence[indices] += self.likelihood_temperature * log_lik
-            if next_observations is not None and self.counter is not None and self._model.has_counts:
+            if next_observations is not None and self.counter is not None and self._likelihood.model.has_counts:
                 counts = self._likelihood.count_log_likelihood(self.counter, next_observations, refresh=False)
                 self.evidence[indices] += COUNT_EVIDENCE_WEIGHT * counts
         self.features[indices] = next_features
@@ -261,6 +261,7 @@ class BeliefWrapper(VecEnvWrapper):
 
     def reset(self) -> VecEnvObs:
         observations = self.venv.reset()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
         self.reset_infos = getattr(self.venv, "reset_infos", self.reset_infos)
         self.tracker.start(np.arange(self.num_envs), self.feature_fn(observations))
         return self._augment(observations, self.tracker.beliefs())
@@ -271,6 +272,7 @@ class BeliefWrapper(VecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
         features = self.feature_fn(observations)
         done_idx = np.flatnonzero(dones)
         tracker = self.tracker

@@ -18,6 +18,9 @@ EM-PPO logs :func:`belief_use` and the entropy of the beliefs with every E-step 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, cast, overload
+
 import numpy as np
 import torch as th
 from scipy.optimize import linear_sum_assignment
@@ -28,6 +31,14 @@ from stable_baselines3.common.policies import BasePolicy
 BELIEF_USE_ROWS = 1024
 
 
+@overload
+def permute_beliefs(observations: th.Tensor, n_components: int, shift: int = 1) -> th.Tensor: ...
+
+
+@overload
+def permute_beliefs(observations: np.ndarray, n_components: int, shift: int = 1) -> np.ndarray: ...
+
+
 def permute_beliefs(observations: np.ndarray | th.Tensor, n_components: int, shift: int = 1) -> np.ndarray | th.Tensor:
     """``observations`` (``(..., obs_dim + K)``, the belief last) with each belief moved ``shift`` components on:
     the mass of component ``k`` goes to ``(k + shift) % K``. A copy; the observations' own part is unchanged."""
@@ -35,9 +46,9 @@ def permute_beliefs(observations: np.ndarray | th.Tensor, n_components: int, shi
         out = observations.clone()
         out[..., -n_components:] = th.roll(observations[..., -n_components:], shift, dims=-1)
         return out
-    out = np.array(observations, copy=True)
-    out[..., -n_components:] = np.roll(out[..., -n_components:], shift, axis=-1)
-    return out
+    array = np.array(observations, copy=True)
+    array[..., -n_components:] = np.roll(array[..., -n_components:], shift, axis=-1)
+    return array
 
 
 def belief_use(policy: BasePolicy, observations: np.ndarray | th.Tensor, n_components: int,
@@ -60,13 +71,14 @@ def belief_use(policy: BasePolicy, observations: np.ndarray | th.Tensor, n_compo
     obs = th.as_tensor(flat, device=policy.device)
     shifts = range(1, n_components)
     with th.no_grad():
-        if hasattr(policy, "get_distribution"):
-            base = policy.get_distribution(obs).distribution
-            values = [th.distributions.kl_divergence(base, policy.get_distribution(permute_beliefs(obs, n_components, s))
+        if hasattr(policy, "get_distribution"):  # (duck-typed: torch's Module typing only knows it as an attribute)
+            get_distribution = cast("Callable[[th.Tensor], Any]", policy.get_distribution)
+            base = get_distribution(obs).distribution
+            values = [th.distributions.kl_divergence(base, get_distribution(permute_beliefs(obs, n_components, s))
                                                      .distribution) for s in shifts]
             values = [v.sum(-1) if v.dim() > 1 else v for v in values]  # (diagonal Gaussians: per dimension)
         else:
-            actor = policy.actor
+            actor = cast("Callable[[th.Tensor], th.Tensor]", policy.actor)
             base = actor(obs)
             values = [(actor(permute_beliefs(obs, n_components, s)) - base).square().sum(-1) for s in shifts]
     return float(th.stack(values).mean())

@@ -101,8 +101,8 @@ class EpisodeCounts:
     def from_steps(episodes: np.ndarray, counts: np.ndarray, exposure: np.ndarray,
                    device: th.device | str = "cpu") -> EpisodeCounts:
         """Sum per-step ``counts`` ``(N, channels, bins)`` and ``exposure`` ``(N, bins)`` by their steps' ``episodes``."""
-        ids, index = np.unique(np.asarray(episodes, dtype=np.int64), return_inverse=True)
-        index = th.as_tensor(index)
+        ids, inverse = np.unique(np.asarray(episodes, dtype=np.int64), return_inverse=True)
+        index = th.as_tensor(inverse)
 
         def summed(values: np.ndarray) -> th.Tensor:
             rows = th.as_tensor(values.reshape(len(values), -1), dtype=th.float32)
@@ -128,13 +128,15 @@ class EpisodeCounts:
         blocks = [observations] if isinstance(observations, np.ndarray) else list(observations)
         if not blocks:
             raise ValueError("observations must be an array or at least one block of rows")
-        summed, start = None, 0
+        summed: np.ndarray | None = None
+        start = 0
         for block in blocks:
             rows = block.reshape(-1, block.shape[-1])
             summed = counter.grouped(rows, groups[start:start + len(rows)], len(ids), out=summed)
             start += len(rows)
         if start != len(episodes):
             raise ValueError(f"episodes must have one entry per observation ({start}), got {len(episodes)}")
+        assert summed is not None  # (at least one block)
         return EpisodeCounts(th.as_tensor(ids, device=device),
                              th.as_tensor(summed[:, 1:].reshape(len(ids), -1), dtype=th.float32, device=device),
                              th.as_tensor(summed[:, 0], dtype=th.float32, device=device))
@@ -219,8 +221,8 @@ class EStep:
             raise ValueError(f"need learning_rate > 0, likelihood_temperature > 0 and 0 <= starved_share < 1, got "
                              f"{learning_rate}, {likelihood_temperature} and {starved_share}")
         self.count_factors = check_factors(count_factors, latent_model.n_components)
-        self.count_rings = check_rings(count_rings, latent_model.count_log_rates.shape[-1] if latent_model.has_counts
-                                       else 1, "count_rings")
+        self.count_rings = check_rings(count_rings, latent_model.count_log_rates.shape[-1]
+                                       if latent_model.count_log_rates is not None else 1, "count_rings")
         self.model = latent_model
         self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
         self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
@@ -287,6 +289,7 @@ class EStep:
         """The reading counts ``(S, channels * bins)`` and exposures ``(S, bins)`` of the sorted episode ``ids``
         summed over ``parts``, and for each part ``(part, index of its rows into ids, whether ids holds them)``."""
         log_rates = self.model.count_log_rates
+        assert log_rates is not None  # (a model with the count term)
         counts = th.zeros(len(ids), log_rates[0].numel(), device=ids.device)
         exposure = th.zeros(len(ids), log_rates.shape[2], device=ids.device)
         rows = self._rows(ids, parts)
@@ -332,6 +335,7 @@ class EStep:
         :param ids: the sorted episode ids of the kept transitions
         """
         log_rates = self.model.count_log_rates
+        assert log_rates is not None  # (a model with the count term)
         _, channels, bins = log_rates.shape
         device = ids.device
         table = self.count_table or {"ids": th.zeros(0, dtype=th.long, device=device),
@@ -369,6 +373,7 @@ class EStep:
         :param evidence: each kept episode's tempered evidence ``(S, K)`` as :meth:`responsibilities` gave it
         """
         ids = th.unique(data.episodes)
+        assert self.model.count_log_rates is not None  # (a model with the count term)
         k, channels, bins = self.model.count_log_rates.shape
         start = not self.count_table
         self._remember_counts(ids)

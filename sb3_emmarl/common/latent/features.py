@@ -8,11 +8,15 @@ observation itself when small or a fixed random projection of it (:func:`generic
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
 from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
+
+if TYPE_CHECKING:
+    from sb3_emmarl.common.latent.counts import ReadingCounter
 
 #: Observations larger than this are reduced to this many compact features by a fixed projection.
 MAX_GENERIC_FEATURES = 32
@@ -107,6 +111,7 @@ def default_features(venv: VecEnv) -> tuple[FeatureFn, dict, int]:
     :return: the feature function, its specification (plain values, saved with a model so that
         :func:`features_from_spec` rebuilds the same function without an environment) and ``d_x``
     """
+    assert venv.observation_space.shape is not None  # (a Box)
     obs_dim = int(np.prod(venv.observation_space.shape))
     try:
         layout = venv.get_attr("observation_layout", indices=[0])[0]
@@ -142,7 +147,7 @@ def features_from_spec(spec: dict) -> tuple[FeatureFn, int]:
     raise ValueError(f"feature specification kind must be 'reserve' or 'generic', got {spec.get('kind')!r}")
 
 
-def counter_from_spec(spec: dict):
+def counter_from_spec(spec: dict) -> ReadingCounter | None:
     """The :class:`~sb3_emmarl.common.latent.counts.ReadingCounter` of a :func:`default_features` specification: one
     on the reserve (when the specification knows its grid: models saved before the count model have none), else
     None."""

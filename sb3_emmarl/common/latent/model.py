@@ -73,6 +73,10 @@ class LatentModel(nn.Module):
     :param layout: the latent layout (feature and action sizes, ``K``, decoder sizes)
     """
 
+    # Buffers (register_buffer), declared for the type checker; count_log_rates is None without the count model.
+    log_prior: th.Tensor
+    count_log_rates: th.Tensor | None
+
     def __init__(self, layout: LatentLayout) -> None:
         super().__init__()
         self.layout = layout
@@ -137,12 +141,14 @@ class LatentModel(nn.Module):
     def count_log_likelihood(self, counts: th.Tensor, exposure: th.Tensor) -> th.Tensor:
         """``(B, K)`` log-likelihood of summed reading counts ``(B, channels * bins)`` and exposures ``(B, bins)``
         (:meth:`~sb3_emmarl.common.latent.counts.PoissonMixture.log_likelihood`, in torch)."""
+        assert self.count_log_rates is not None, "the model has no reading-count term"
         log_rates = self.count_log_rates.flatten(1)  # (K, channels * bins)
         return counts @ log_rates.T - exposure @ self.count_log_rates.exp().sum(1).T
 
     @th.no_grad()
     def set_count_rates(self, rates: th.Tensor) -> None:
         """The E-step's closed-form update of the reading-count rates ``(K, channels, bins)`` (all > 0)."""
+        assert self.count_log_rates is not None, "the model has no reading-count term"
         self.count_log_rates.copy_(rates.log())
 
     def posterior_from(self, evidence: th.Tensor) -> th.Tensor:
@@ -165,9 +171,12 @@ class LatentModel(nn.Module):
         :class:`StepLikelihood` checks to stay in step with the model."""
         # The module tree walked by hand: ``parameters()`` builds every name on the way, 5x the cost (this runs at
         # every step of the beliefs).
-        version, modules = [], [self]
+        version: list[int] = []
+        modules: list[nn.Module | None] = [self]
         while modules:
             module = modules.pop()
+            if module is None:  # (a submodule registered as None holds no tensors)
+                continue
             modules.extend(module._modules.values())
             for tensor in (*module._parameters.values(), *module._buffers.values()):
                 if tensor is not None:
@@ -189,10 +198,11 @@ class LatentModel(nn.Module):
             delta *= param[source].abs().mean() + 1e-3
             param[dead] = param[source] + delta
             param[source] -= delta
-        if self.has_counts:  # the rates split likewise, on the log scale
-            delta = noise * th.randn(self.count_log_rates[source].shape, generator=generator).to(self.log_prior.device)
-            self.count_log_rates[dead] = self.count_log_rates[source] + delta
-            self.count_log_rates[source] -= delta
+        log_rates = self.count_log_rates
+        if log_rates is not None:  # (has_counts) the rates split likewise, on the log scale
+            delta = noise * th.randn(log_rates[source].shape, generator=generator).to(self.log_prior.device)
+            log_rates[dead] = log_rates[source] + delta
+            log_rates[source] -= delta
         prior = self.prior()
         prior[dead] = prior[source] = prior[source] / 2
         self.log_prior.copy_((prior / prior.sum()).log())
@@ -229,7 +239,8 @@ class StepLikelihood:
     """
 
     def __init__(self, model: LatentModel) -> None:
-        self.model, self._version = model, None
+        self.model = model
+        self._version: tuple[int, ...] | None = None
 
     def _refresh(self) -> None:
         model = self.model
@@ -250,8 +261,8 @@ class StepLikelihood:
             self.constant = -float(gaussian_log_normalizer(log_std))
             self.log_prior = model.log_prior.detach().cpu().double().numpy().copy()
             self.shape = (k, d_x)
-            if model.has_counts:  # the count log-likelihood's table: minus the rates, then each channel's log-rates
-                log_rates = model.count_log_rates.detach().cpu().double()  # (K, channels, bins)
+            if model.count_log_rates is not None:  # (has_counts) the count log-likelihood's table: minus the rates, then
+                log_rates = model.count_log_rates.detach().cpu().double()  # each channel's log-rates (K, channels, bins)
                 table = th.cat([-log_rates.exp().sum(1, keepdim=True), log_rates], dim=1)  # (K, 1 + channels, bins)
                 self.count_table = table.permute(1, 2, 0).contiguous().numpy()  # (1 + channels, bins, K)
         self._version = version

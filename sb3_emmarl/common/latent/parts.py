@@ -13,11 +13,14 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import fields
-from typing import Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import torch as th
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")  # (the parts' dataclass)
 
 #: Rows of the first block (at least: a first part larger than this gets twice its size).
 MIN_ROWS = 1024
@@ -38,7 +41,7 @@ class PartsMemory(Generic[T]):
             raise ValueError(f"maxlen must be an int >= 1, got {maxlen!r}")
         self.kind = kind
         self.maxlen = maxlen
-        self._names = [field.name for field in fields(kind)]  # type: ignore[arg-type]
+        self._names = [field.name for field in fields(kind)]
         self._blocks: list[th.Tensor] = []
         self._spans: deque[tuple[int, int] | None] = deque()  # (first row, rows) of each part, None for a None part
         self._begin = self._end = 0  # the rows in use: [begin, end)

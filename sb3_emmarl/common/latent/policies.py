@@ -9,7 +9,7 @@ parameters.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import torch as th
 from gymnasium import spaces
@@ -24,6 +24,11 @@ from sb3_emmarl.common.latent.model import LatentModel
 #: How the networks read the belief (``belief_input``): the probabilities as they are; the one-hot of the most likely
 #: component (the form of a told mode); or both, the one-hot after the probabilities.
 BELIEF_INPUTS = ("probabilities", "map", "both")
+
+if TYPE_CHECKING:  # the type checker sees the SB3 policy the mixin is placed before; at run time it is a plain class
+    from stable_baselines3.common.policies import BasePolicy as _PolicyBase
+else:
+    _PolicyBase = object
 
 
 class BeliefFeaturesExtractor(SplitFeaturesExtractor):
@@ -63,7 +68,7 @@ class BeliefFeaturesExtractor(SplitFeaturesExtractor):
         return th.cat([features, most_likely], dim=-1)
 
 
-class LatentPolicyMixin:
+class LatentPolicyMixin(_PolicyBase):
     """Create the latent model with the policy and give every features extractor the latent layout.
 
     ``latent_kwargs`` holds the :class:`LatentLayout` fields; ``use_latent=False`` builds no model (the
@@ -71,6 +76,11 @@ class LatentPolicyMixin:
     ``features_extractor_class`` in ``policy_kwargs`` (e.g. the message extractors of
     :mod:`sb3_emmarl.common.extractors`) reads the environment's observation; the belief is appended to its features.
     """
+
+    latent_layout: LatentLayout
+    #: ``(latent_kwargs, use_latent, belief_input)`` as given to the constructor
+    _latent_config: tuple[dict[str, Any], bool, str]
+    latent_model: LatentModel | None
 
     def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
                  use_latent: bool = True, belief_input: str = "probabilities", **kwargs) -> None:
@@ -88,7 +98,8 @@ class LatentPolicyMixin:
         in the form ``belief_input`` names (dropped when ``use_latent=False``, the no-latent ablation)."""
         layout = self.latent_layout
         _, use_latent, belief_input = self._latent_config
-        return BeliefFeaturesExtractor(self.observation_space, layout.obs_dim, self.features_extractor_class,
+        # (the belief wrapper's observations are a flat Box)
+        return BeliefFeaturesExtractor(cast(spaces.Box, self.observation_space), layout.obs_dim, self.features_extractor_class,
                                        self.features_extractor_kwargs, keep=layout.total_dim if use_latent else layout.obs_dim,
                                        belief_input=belief_input)
 
@@ -104,6 +115,8 @@ class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
 
     Takes ``ActorCriticPolicy``'s arguments plus ``latent_kwargs`` (set by the algorithm) and ``use_latent``.
     """
+
+    features_extractor: BeliefFeaturesExtractor
 
 
 class LatentTD3Policy(LatentPolicyMixin, TD3Policy):

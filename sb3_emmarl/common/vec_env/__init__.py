@@ -33,7 +33,7 @@ from functools import partial
 from typing import Any
 
 from pettingzoo import ParallelEnv
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecMonitor
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_emmarl.common.vec_env.batched import ReserveVecEnv
 from sb3_emmarl.common.vec_env.finite import FiniteCheck
@@ -79,7 +79,7 @@ def make_vec_env(
     env_kwargs: dict[str, Any] | None = None,
     num_cpus: int = 0,
     monitor_dir: str | None = None,
-    vec_env_wrapper: Callable[[VecEnv], VecEnvWrapper] | None = None,
+    vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,
     env_fn: Callable[..., ParallelEnv] = reserve_v0.parallel_env,
     with_state: bool = False,
     vec_env_type: str | None = None,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pickle
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from pettingzoo import ParallelEnv
@@ -151,7 +151,7 @@ class SharedPolicyVecEnv(VecEnv):
         :return: the seed of each vector entry (entries of one copy share it)
         """
         if seed is None:
-            seed = int(np.random.SeedSequence().entropy % 2**31)
+            seed = int(cast(int, np.random.SeedSequence().entropy) % 2**31)  # (a fresh sequence's entropy is an int)
         self._copy_seeds = [int(seed) + c for c in range(self.n_copies)]
         return [s for s in self._copy_seeds for _ in range(self.agents_per_copy)]
 

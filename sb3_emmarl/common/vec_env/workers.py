@@ -9,7 +9,7 @@ import pickle
 import time
 import traceback
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium.vector.utils import CloudpickleWrapper
@@ -23,6 +23,9 @@ from sb3_emmarl.common.vec_env.shared_policy import (
     TERMINAL_STATE_KEY,
     _apply,
 )
+
+if TYPE_CHECKING:
+    from multiprocessing.context import ForkServerContext, SpawnContext
 
 #: Seconds a waiting side of the split batched path (:class:`_SplitCopies`) polls its doorbell in shared memory before
 #: it blocks on its pipe: on this project's 2-core virtual machine a blocking pipe round trip took 263 us (each side
@@ -80,6 +83,7 @@ class _SteppedCopies:
         :param out: arrays to fill instead of new ones: observations, rewards, terminations, truncations
         """
         actions, n = self._actions, self.n
+        assert actions is not None  # (step_async first)
         total = len(self.envs) * n
         if out is None:
             out = (np.empty((total, self.obs_dim), dtype=np.float32), np.empty(total, dtype=np.float32),
@@ -242,7 +246,7 @@ class _SplitCopies:
         total = n_copies * self.n
         # As SB3's SubprocVecEnv: no fork of a process that holds torch's threads (scripts need the main guard)
         if "forkserver" in mp.get_all_start_methods():
-            context = mp.get_context("forkserver")
+            context: ForkServerContext | SpawnContext = mp.get_context("forkserver")
             # Workers then start in milliseconds, not seconds of imports; added to whatever the program preloads.
             from multiprocessing import forkserver
 
@@ -358,13 +362,15 @@ class _SplitCopies:
         """This process steps its copies while the workers step theirs."""
         local = self.bounds[1] * self.n
         out = tuple(np.empty_like(view) for view in self._shared)
+        assert self._actions is not None  # (step_async first)
         self.local.step_async(self._actions[:local])
         infos = self.local.step_wait(tuple(array[:local] for array in out))[4]
         for g in self._groups():
             infos.extend(self._receive(g))
         for array, view in zip(out, self._shared):
             array[local:] = view[local:]
-        return (*out, infos)
+        observations, rewards, terminations, truncations = out
+        return observations, rewards, terminations, truncations, infos
 
     def apply(self, copies: list[int], kind: str, name: str, payload: tuple) -> list[Any]:
         """:func:`_apply` on each of ``copies`` (indices over every copy), wherever it lives, in that order."""
