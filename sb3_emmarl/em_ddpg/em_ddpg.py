@@ -109,11 +109,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
         # Every 20 calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves
         # the belief near chance on the reserve (docs/results.md, EM-DDPG against DDPG).
-        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
-                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
-                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
-                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
-                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
                                                default_window=400)
         # (env is None when loading: SB3 takes it, though DDPG's annotation leaves None out)

@@ -122,11 +122,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         **kwargs: Any,
     ) -> None:
         self.zero_belief_weights = RULES["zero_belief_weights"]("zero_belief_weights", zero_belief_weights)
-        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
-                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
-                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
-                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
-                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model)
         # (env is None when loading: SB3 takes it, though PPO's annotation leaves None out)
         super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,

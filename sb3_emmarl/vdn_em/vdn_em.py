@@ -124,11 +124,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        latent = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
-                              likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
-                              team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
-                              e_step_interval=e_step_interval, belief_input=belief_input, e_step_kwargs=e_step_kwargs,
-                              use_latent=use_latent, freeze_e_step=freeze_e_step, freeze_m_step=freeze_m_step)
+        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
                                                default_window=1000)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,

@@ -56,6 +56,13 @@ class LatentConfig:
         """The settings a model holds as attributes (what :meth:`_init_latent` set, or a loaded model's data)."""
         return cls(**{field.name: getattr(model, field.name) for field in fields(cls)})
 
+    @classmethod
+    def from_arguments(cls, arguments: dict[str, Any]) -> LatentConfig:
+        """The record of a constructor's arguments (``LatentConfig.from_arguments(locals())`` in EM-PPO's, EM-DDPG's
+        and VDN+EM's ``__init__``, whose latent parameters are named as the fields): every field is taken from
+        ``arguments``, so the three constructors gather their latent settings in one line each."""
+        return cls(**{field.name: arguments[field.name] for field in fields(cls)})
+
     def names(self) -> tuple[str, ...]:
         """The fields' names, in order."""
         return tuple(field.name for field in fields(self))
