@@ -259,8 +259,10 @@ def test_continuous_actions_move_and_broadcast():
 def test_out_of_range_discrete_actions_are_rejected():
     env = make()
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"discrete actions must be 1 ints in \[0, 14\]"):
+    with pytest.raises(ValueError, match=r"the action of uav_0 must be an int in \[0, 14\] or None, got 15"):
         env.step({"uav_0": 15})
+    with pytest.raises(ValueError, match=r"discrete actions must be 1 ints in \[0, 14\]"):
+        env.step_arrays(np.array([15]))
 
 
 def _subnormal(values: np.ndarray) -> np.ndarray:
