@@ -462,3 +462,19 @@ def test_the_0_1_0_repeat_trains_only_on_0_1_0(tmp_path):
     with pytest.raises(SystemExit, match=rf"run needs sb3-emmarl 0.1.0 on the path .* got {re.escape(__version__)} "):
         load_benchmark("mode_value_0_1_0").main(["run", "--variant", "told", "--seed", "0", "--folder", str(tmp_path)])
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("algo", ["oracle", "message"])
+def test_predict_on_plain_observations_names_wrap_env(algo):
+    from sb3_emmarl import MessagePPO, OraclePPO
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 10}
+    env = make_vec_env(1, seed=0, env_kwargs=kwargs)
+    model = (OraclePPO if algo == "oracle" else MessagePPO)("MlpPolicy", env, n_steps=16, batch_size=16)
+    plain = make_vec_env(1, seed=1, env_kwargs=kwargs)
+    with pytest.raises(ValueError, match=r"evaluate it on model.wrap_env\(env\)"):
+        model.predict(plain.reset())
+    wrapped = model.wrap_env(make_vec_env(1, seed=1, env_kwargs=kwargs))
+    actions, _ = model.predict(wrapped.reset())
+    assert actions.shape == (2,)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -39,6 +40,15 @@ class WrapsEnv(_AlgorithmBase):
         :param data: the saved model's data (its constructor arguments and attributes)
         """
         raise NotImplementedError
+
+    def _refuse_plain(self, observation: Any) -> None:
+        """Refuse observations without the wrapper's part (a plain environment's) with one line naming the fix, before
+        SB3's own shape message; for the algorithms whose ``predict`` needs the wrapped observations."""
+        shape = getattr(self.observation_space, "shape", None)
+        obs = np.asarray(observation) if not isinstance(observation, dict) else None
+        if shape and obs is not None and obs.ndim >= 1 and obs.shape[-1] != shape[-1]:
+            raise ValueError(f"{type(self).__name__} acts on observations of {shape[-1]} values, got {obs.shape[-1]}: "
+                             f"evaluate it on model.wrap_env(env), which adds what training added")
 
     def set_env(self, env: Any, force_reset: bool = True) -> None:
         """As SB3's ``set_env``; a plain environment gets the model's wrapper."""

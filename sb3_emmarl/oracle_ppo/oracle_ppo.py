@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
@@ -75,6 +76,13 @@ class OraclePPO(WrapsEnv, PPO):
         """``venv`` with the true mode (or the random label) appended to its observations (for evaluation and
         recording)."""
         return wrap_with_mode(venv, random_labels=self.random_label)
+
+    def predict(self, observation: Any, state: tuple[np.ndarray, ...] | None = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict`` on the wrapped observations; plain ones are refused naming ``model.wrap_env(env)``."""
+        self._refuse_plain(observation)
+        return super().predict(observation, state, episode_start, deterministic)
 
     def _wrap_own_env(self, env: Any) -> VecEnv:
         return wrap_with_mode(env, self.verbose, self.random_label)
