@@ -4,13 +4,13 @@ PYTHON ?= python
 TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
-.PHONY: install main test pytest lint type format check-codestyle commit-checks benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
+.PHONY: install main test pytest lint type format check-codestyle commit-checks docs docs-check benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
 	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-zone-patrol-gate benchmark-zone-patrol-value benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
 	experiments-quick experiments-full experiments-report
 
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
-	$(PIP) -e ".[tests]"
+	$(PIP) -e ".[tests,docs]"
 
 # The main job: a short EM-PPO run on the default reserve (a few minutes on 2 cores), tensorboard
 # logs in runs/, the run in logs/em_ppo/, then the team metrics (and latent accuracy) of 5 evaluation episodes.
@@ -21,7 +21,7 @@ main: install
 pytest:
 	$(PYTHON) -m pytest -n 2 tests
 
-test: install lint type pytest
+test: install lint type pytest docs-check
 
 lint:
 	$(PYTHON) -m ruff check .
@@ -38,6 +38,17 @@ type:
 	$(PYTHON) -m mypy sb3_emmarl envs/wildlife_reserve
 
 commit-checks: lint type pytest
+
+# The documentation site (Sphinx with myst-parser, as SB3's; the API reference generated from the docstrings at build
+# time) in docs/_build/html; open docs/_build/html/index.html.
+SPHINXBUILD = OMP_NUM_THREADS=1 $(PYTHON) -m sphinx -b html -q
+docs:
+	$(SPHINXBUILD) docs docs/_build/html
+
+# The same from scratch (-E: every page re-read) with warnings as errors, as `make test` (so CI) runs it: a broken
+# reference or a docstring that does not parse fails, and --keep-going lists every one before failing.
+docs-check:
+	$(SPHINXBUILD) -E -W --keep-going docs docs/_build/html
 
 benchmark-env: install
 	$(PIP) -e ".[tests,bench]"

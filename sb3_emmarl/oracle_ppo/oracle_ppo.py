@@ -47,6 +47,7 @@ class OraclePPO(WrapsEnv, PPO):
         other network's weights on it are held at zero (their gradient is masked); needs SB3's ``FlattenExtractor``
     :param random_label: append a random label per episode instead of the mode (the control above); saved with the
         model, so that ``load`` and :meth:`wrap_env` give it random labels again
+
     Every other argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
     """
 
