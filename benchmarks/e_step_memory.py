@@ -5,7 +5,7 @@ the reserve's) for ``-n`` agent-steps, with only the E-step's schedule overridde
 calls on the last ``--window``. Prints the process's peak resident memory (the zoo's ``peak_rss_mib``). The run goes
 to a temporary folder that is removed afterwards. Compare windows in separate processes, and with
 ``MALLOC_MMAP_THRESHOLD_=131072`` set in the environment to see how much of the difference is the C allocator's
-(docs/lab/results-0.20.0.md, EM-DDPG against DDPG).
+(docs/lab/results-history.md, EM-DDPG against DDPG).
 
 Example: ``python benchmarks/e_step_memory.py --window 800 --interval 200`` then ``--window 20 --interval 20``
 """

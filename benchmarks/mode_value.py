@@ -42,8 +42,8 @@ learned drops out of the difference.
 Whether PPO can act on the mode at all, wherever it pays: ``--env-kwargs coverage_sectors:True
 "reward_weights:{'coverage':0.2}"`` makes the coverage term pay only in the sector of the episode's poacher strategy,
 which nothing a UAV observes marks (the reserve's ``coverage_sectors``): the strategy alone decides where about half
-of what a trained team earns lies, and the mode-use table tells whether the told runs go there (docs/lab/results-0.20.0.md, "On
-0.18.9"). Give it its own ``-f``.
+of what a trained team earns lies, and the mode-use table tells whether the told runs go there
+(docs/lab/results-history.md, "On 0.18.9"). Give it its own ``-f``.
 
 ``--scripted-only`` stops after the scripted part: with ``--env-kwargs`` it tells in a few minutes how much a
 candidate reserve's mode can pay, before any training on it.

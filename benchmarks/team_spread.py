@@ -12,7 +12,7 @@ observe and do (a :class:`SpreadMonitor` between the model and the reserve):
   are unrelated), over every pair of moving UAVs and every step.
 
 A deterministic actor shared by every UAV (DDPG, EM-DDPG) gives two UAVs that observe the same thing the same move
-for good: docs/lab/results-0.20.0.md ("EM-DDPG against DDPG") uses these figures to tell a team that piles up at the boundary
+for good: docs/lab/results-history.md ("EM-DDPG against DDPG") uses these figures to tell a team that piles up at the boundary
 from one that collides in the open.
 
 Example: ``python benchmarks/team_spread.py -f logs/compare --variants em_ddpg ddpg --seeds 0 1 2`` (a variant as

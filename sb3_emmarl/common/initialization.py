@@ -5,7 +5,7 @@ Inputs that stay constant over an episode, or over long stretches of it, enter e
 which the policy must correct for each value separately, from a fraction of the data. Started at zero, the networks
 start as the same functions with or without those inputs, learn first what serves every value of them, and let
 their weights grow only as far as the gradient finds that they pay. Measured on the reserve at 500k agent-steps
-(docs/lab/results-0.20.0.md, "How much knowing the mode pays"): PPO told the mode scores 2.0 points of team reward more with
+(docs/lab/results-history.md, "How much knowing the mode pays"): PPO told the mode scores 2.0 points of team reward more with
 the zero start over 10 seeds (p = 0.33); EM-PPO's belief, no difference over 5.
 """
 

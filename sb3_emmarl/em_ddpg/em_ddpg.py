@@ -108,7 +108,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         # As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq
         # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
         # Every 20 calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves
-        # the belief near chance on the reserve (docs/lab/results-0.20.0.md, EM-DDPG against DDPG).
+        # the belief near chance on the reserve (docs/lab/results-history.md, EM-DDPG against DDPG).
         latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
         env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
                                                default_window=400)

@@ -73,7 +73,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param zero_belief_weights: start at zero the weights with which the policy's and the value's first layers read
         the belief, so that the networks start as PPO's (as ``OraclePPO`` does for the told mode; see
         :mod:`sb3_emmarl.common.initialization`); off by default: on the reserve it changed neither team reward nor
-        the belief's accuracy beyond the seeds' spread (docs/lab/results-0.20.0.md)
+        the belief's accuracy beyond the seeds' spread (docs/lab/results-history.md)
     :param policy_kwargs: policy arguments (``net_arch``, ...)
     :param tensorboard_log: tensorboard folder
     :param verbose: verbosity
