@@ -123,6 +123,16 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return self.config.obs_dim
 
     @property
+    def zone_map(self) -> dict[str, Any]:
+        """Where the zones lie and where an observation holds the window and the UAV's cell, as plain values: the map
+        a reader of the evidence needs to tell in which zone a track was seen (EM's zone features,
+        :func:`sb3_emmarl.common.latent.features.zone_features`)."""
+        cfg, cells = self.config, self.config.window_cells
+        return {"grid_size": cfg.grid_size, "zone_size": cfg.zone_size, "window_radius": cfg.window_radius,
+                "zone_origins": cfg.zone_origins().tolist(), "tracks": [0, cells], "detections": [cells, 2 * cells],
+                "own": [3 * cells, 3 * cells + 2], "visibility": 3 * cells + 2}
+
+    @property
     def mode(self) -> int:
         """The hidden mode of the current episode (for evaluation)."""
         return int(self.world.modes[0])
