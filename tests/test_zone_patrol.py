@@ -13,7 +13,8 @@ from wildlife_reserve.zone_patrol.scripted import BlindTeam, ToldTeam, play, pos
 from wildlife_reserve.zone_patrol.world import NARROW, WIDE, ZonePatrolConfig, ZonePatrolWorld
 
 CONFIGS = [{}, {"n_uavs": 1}, {"n_uavs": 6, "grid_size": 12, "zone_size": 3, "max_cycles": 20},
-           {"told": True, "window_radius": 1}, {"initial_tracks": 0, "spawn_prob": 1.0, "intruder_life": 1}]
+           {"told": True, "window_radius": 1}, {"initial_tracks": 0, "spawn_prob": 1.0, "intruder_life": 1},
+           {"agent_ids": True, "told": True, "n_uavs": 3}]
 
 
 @pytest.mark.parametrize("kwargs", CONFIGS)
@@ -57,11 +58,23 @@ def test_a_mode_can_be_fixed_and_told_observations_end_with_its_one_hot():
     assert env.state().shape == env.state_space.shape == (2 * 4 + 2 * 28 * 28 + 1,)
 
 
+def test_agent_ids_append_each_uav_s_index_as_a_one_hot_before_the_told_mode():
+    env = zone_patrol_v0.parallel_env(agent_ids=True, told=True, n_uavs=3)
+    obs, _ = env.reset(seed=0, options={"mode": 6})
+    plain = zone_patrol_v0.parallel_env(n_uavs=3).reset(seed=0, options={"mode": 6})[0]
+    for i, agent in enumerate(env.agents):
+        assert obs[agent].shape == env.observation_space(agent).shape == (79 + 3 + 8,)
+        np.testing.assert_array_equal(obs[agent][:79], plain[agent])
+        np.testing.assert_array_equal(obs[agent][79:82], np.eye(3)[i])
+        assert obs[agent][-8:].argmax() == 6 and obs[agent][-8:].sum() == 1
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"grid_size": 3}, "grid_size must be an int in"), ({"n_uavs": 0}, "n_uavs must be an int in"),
     ({"spawn_prob": 1.5}, "spawn_prob must be a finite number in"), ({"wide_detect": (0.5,)}, "wide_detect must be a pair"),
     ({"narrow_detect": (0.2, float("nan"))}, r"narrow_detect\[1\] must be a finite number"),
     ({"zone_size": 20}, "zone_size must be an int in"), ({"told": 1}, "told must be a bool"),
+    ({"agent_ids": "yes"}, "agent_ids must be a bool"),
     ({"speed": 3}, r"unknown ZonePatrol argument\(s\) \['speed'\]"), ({"render_mode": "ansi"}, "render_mode must be"),
 ])
 def test_bad_arguments_raise_a_value_error_naming_them(kwargs, message):

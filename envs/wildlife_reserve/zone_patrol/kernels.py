@@ -151,10 +151,11 @@ def advance(actions, team, intruders, origins, weathers, draws, rules, counts): 
 
 
 @njit(cache=True)
-def observe(team, intruders, visibility, progress, radius, track_life, told_modes, out):  # pragma: no cover (compiled)
+def observe(team, intruders, visibility, progress, radius, track_life, ids, told_modes, out):  # pragma: no cover (compiled)
     """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout): its window of the tracks,
     of this step's detections and of its teammates, its cell, its visibility reading and the episode's progress;
-    ``told_modes`` ``(c,)`` the modes to append as one-hots, or empty."""
+    with ``ids`` (a bool), the one-hot of its index in the team; ``told_modes`` ``(c,)`` the modes to append as
+    one-hots, or empty."""
     positions, detections = team.positions, team.detections
     tracks, detected_cells = intruders.tracks, intruders.detected_cells
     n_copies, n_uavs = positions.shape[0], positions.shape[1]
@@ -189,6 +190,11 @@ def observe(team, intruders, visibility, progress, radius, track_life, told_mode
             out[c, u, at + 1] = col / span * 2.0 - 1.0
             out[c, u, at + 2] = min(max(visibility[c, u], -3.0), 4.0) / 4.0
             out[c, u, at + 3] = progress
+            at += 4
+            if ids:
+                for v in range(n_uavs):
+                    out[c, u, at + v] = 1.0 if v == u else 0.0
+                at += n_uavs
             if told_modes.shape[0]:
-                for k in range(out.shape[2] - at - 4):
-                    out[c, u, at + 4 + k] = 1.0 if k == told_modes[c] else 0.0
+                for k in range(out.shape[2] - at):
+                    out[c, u, at + k] = 1.0 if k == told_modes[c] else 0.0

@@ -56,6 +56,9 @@ class ZonePatrolConfig:
     :param comm_range: Chebyshev distance within which teammates hear each other (``infos["heard_from"]``)
     :param escape_cost: team reward lost per intruder that escapes
     :param window_radius: radius of the observed window (``(2r + 1)^2`` cells per channel)
+    :param agent_ids: append the one-hot of the UAV's index in the team to its observation (EPyMARL's
+        ``obs_agent_id``): with parameter sharing, what lets UAVs that see alike act apart, as a blind team that splits
+        over the zones must
     :param told: append the one-hot of the hidden mode to every observation (the told oracle)
     """
 
@@ -76,6 +79,7 @@ class ZonePatrolConfig:
     comm_range: int = 4
     escape_cost: float = 0.25
     window_radius: int = 2
+    agent_ids: bool = False
     told: bool = False
 
     def __post_init__(self) -> None:
@@ -99,8 +103,9 @@ class ZonePatrolConfig:
         _check("comm_range", self.comm_range, 0, self.grid_size)
         _check("escape_cost", self.escape_cost, 0.0, 1000.0, float)
         _check("window_radius", self.window_radius, 0, self.grid_size)
-        if not isinstance(self.told, (bool, np.bool_)):
-            raise ValueError(f"told must be a bool, got {self.told!r}")
+        for name in ("agent_ids", "told"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
 
     @classmethod
     def from_kwargs(cls, **kwargs) -> ZonePatrolConfig:
@@ -121,8 +126,9 @@ class ZonePatrolConfig:
 
     @property
     def obs_dim(self) -> int:
-        """Window channels, own position (2), the visibility reading, the episode's progress, [the told one-hot]."""
-        return N_CHANNELS * self.window_cells + 4 + (self.n_modes if self.told else 0)
+        """Window channels, own position (2), the visibility reading, the episode's progress, [the UAV's index as a
+        one-hot], [the told one-hot]."""
+        return N_CHANNELS * self.window_cells + 4 + (self.n_uavs if self.agent_ids else 0) + (self.n_modes if self.told else 0)
 
     @property
     def state_dim(self) -> int:
@@ -249,8 +255,7 @@ class ZonePatrolWorld:
         cfg = self.config
         out = np.empty((self.n_copies, cfg.n_uavs, cfg.obs_dim), dtype=np.float32)
         kernels.observe(self._team, self._intruders, self.visibility, self.t / cfg.max_cycles, cfg.window_radius,
-                        cfg.track_life,
-                        self.modes if cfg.told else self.modes[:0], out)
+                        cfg.track_life, cfg.agent_ids, self.modes if cfg.told else self.modes[:0], out)
         return out
 
     def near(self) -> np.ndarray:

@@ -8,7 +8,7 @@
 | Manual control     | No                                                                      |
 | Agents             | `agents= ['uav_0', 'uav_1', 'uav_2', 'uav_3']` (default `n_uavs=4`)     |
 | Action shape       | `Discrete(10)`: `move + 5 * sensor`                                     |
-| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`told=True`: 8 more)            |
+| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`agent_ids`: n more, `told`: 8)  |
 | Observation values | [-1, 1]                                                                 |
 | State shape        | `(2 n_uavs + 2 grid_size^2 + 1,)`: 1577 by default                      |
 
@@ -30,7 +30,9 @@ the weather over many steps, not in one.
 Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window (`r = window_radius`) of three channels
 (tracks, as their remaining life over `track_life`, -1 off the grid; this UAV's detections this step; teammates),
 then its own position (row, column, scaled to [-1, 1]), the visibility reading (clipped to [-3, 4], over 4) and the
-episode's progress (`t / max_cycles`); with `told=True`, the one-hot of the mode last.
+episode's progress (`t / max_cycles`); with `agent_ids=True`, the one-hot of the UAV's index in the team (EPyMARL's
+`obs_agent_id`: with parameter sharing, what lets UAVs that see alike split over the zones); with `told=True`, the
+one-hot of the mode last.
 
 ### Actions
 `move + 5 * sensor`, with move in {stay, up, down, left, right} and sensor in {wide, narrow}.
