@@ -93,3 +93,26 @@ def test_the_mode_evidence_probe_recovers_a_mode_given_as_input():
     probe = load_benchmark("mode_evidence")
     labels = np.repeat(np.arange(8), 20)
     assert (probe.probe_accuracy(np.eye(8)[labels], labels, np.eye(8), 8, epochs=40, seed=0) == np.arange(8)).all()
+
+
+def test_the_summary_says_what_each_metric_is_and_which_way_is_better():
+    from sb3_emmarl.common.metrics import LATENT_METRICS, METRIC_MEANINGS
+
+    assert set(TEAM_METRICS) | set(LATENT_METRICS) | {"detections", "escapes", "intruders"} <= set(METRIC_MEANINGS)
+    summary = summarize([dict.fromkeys(TEAM_METRICS, 1.0), dict.fromkeys(TEAM_METRICS, 3.0)])
+    lines = format_summary(summary).splitlines()
+    assert lines[0].startswith("team_reward") and lines[0].endswith("(higher is better)")
+    assert next(line for line in lines if line.startswith("collisions")).endswith("(lower is better)")
+    assert format_summary(summary, explain=False).splitlines()[0].rstrip().endswith("1.000")
+
+
+def test_a_finished_run_says_where_its_curves_are_and_what_to_run_next():
+    from argparse import Namespace
+
+    from sb3_emmarl.zoo.cli import next_steps
+
+    args = Namespace(algo="em_ppo", env="WildlifeReserve-v0", tensorboard_log="runs", log_folder="logs")
+    text = next_steps(args, "logs/em_ppo/WildlifeReserve-v0_1", 5120)
+    assert "tensorboard --logdir runs" in text and "zoo/enjoy.py --algo em_ppo" in text and "-n 5120" in text
+    text = next_steps(Namespace(**{**vars(args), "env": "ZonePatrol-v0", "tensorboard_log": ""}), "x", 10)
+    assert "tensorboard" not in text and "zone_patrol_value.py" in text

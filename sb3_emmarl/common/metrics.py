@@ -58,9 +58,44 @@ def summarize(records: Sequence[dict[str, float]], keys: Sequence[str] | None = 
     return {k: (float(np.mean([r[k] for r in records])), float(np.std([r[k] for r in records]))) for k in keys}
 
 
-def format_summary(summary: dict[str, tuple[float, float]], title: str = "") -> str:
-    """A plain-text table of ``summarize``'s output, one metric per line."""
+#: What each metric of an evaluation record is, and which way is better (``"higher"``, ``"lower"`` or ``""`` when
+#: neither is): printed beside the numbers by :func:`format_summary`. The reserve's are defined in docs/env.md,
+#: ZonePatrol's in its card, the latent ones in docs/em.md.
+METRIC_MEANINGS: dict[str, tuple[str, str]] = {
+    "team_reward": ("the team reward summed over the episode (unshaped)", "higher"),
+    "coverage_efficiency": ("share of the high-risk cells seen at least once", "higher"),
+    "detection_rate": ("threats detected over threats that came (poachers; ZonePatrol: intruders)", "higher"),
+    "false_alarms": ("spurious poacher readings (sensor noise, decoys), all UAVs", "lower"),
+    "poaching_events": ("leopards poached", "lower"),
+    "collisions": ("UAV pairs sharing a cell, summed over the steps", "lower"),
+    "energy": ("battery spent by the whole team (a full battery is 1)", "lower"),
+    "time_to_first_detection": ("steps from the first poacher's entry to its first detection", "lower"),
+    "signs_found": ("distinct real signs of poacher activity found", "higher"),
+    "detections": ("intruders detected", "higher"),
+    "escapes": ("intruders that escaped undetected", "lower"),
+    "intruders": ("intruders that appeared (the episode's, not the team's doing)", ""),
+    "latent_accuracy": ("share of steps whose belief names the true mode (components matched to modes)", "higher"),
+    **{f"latent_accuracy_{fraction_label(f)}": (f"the same, at {f:.0%} of the episode", "higher")
+       for f in EPISODE_FRACTIONS},
+    "latent_kl": ("KL from the belief to the true mode's one-hot (smoothed), mean over steps", "lower"),
+    "latent_nmi": ("mutual information of the belief's choice and the mode, 0 (none) to 1", "higher"),
+    "belief_use": ("how far the actions move when the belief is permuted (KL): does the policy read it", ""),
+}
+
+
+def format_summary(summary: dict[str, tuple[float, float]], title: str = "", explain: bool = True) -> str:
+    """A plain-text table of ``summarize``'s output, one metric per line.
+
+    :param summary: ``{metric: (mean, std)}``
+    :param title: a first line
+    :param explain: add what each metric is and which way is better (:data:`METRIC_MEANINGS`)
+    """
     width = max(len(k) for k in summary)
     lines = [title] if title else []
-    lines += [f"{k:<{width}}  {mean:10.3f} +- {std:.3f}" for k, (mean, std) in summary.items()]
+    for k, (mean, std) in summary.items():
+        line = f"{k:<{width}}  {mean:10.3f} +- {std:<8.3f}"
+        meaning, better = METRIC_MEANINGS.get(k, ("", ""))
+        if explain and meaning:
+            line += f"  {meaning}" + (f" ({better} is better)" if better else "")
+        lines.append(line.rstrip())
     return "\n".join(lines)

@@ -305,7 +305,29 @@ def train_main(argv: list[str] | None = None) -> int:
         eval_seed = args.seed + TEAM_EVAL_SEED_OFFSET
         title = f"{args.algo} on {args.env}: {len(records)} evaluation episodes, seed {eval_seed} (mean +- std)"
         print(format_summary(summarize(records), title))
+    print(next_steps(args, str(manager.save_path), int(model.num_timesteps)))
     return 0
+
+
+def next_steps(args: argparse.Namespace, save_path: str, n_timesteps: int) -> str:
+    """What a finished ``train`` tells a newcomer: where the run and its curves are, and what to run next.
+
+    :param args: the train command's arguments
+    :param save_path: the run's folder
+    :param n_timesteps: the agent-steps the run trained
+    """
+    lines = ["", f"the run: {save_path} (the model, checkpoints, config.yml, team_eval.json)"]
+    if args.tensorboard_log:
+        lines.append(f"the learning curves (rollout/, train/, and the team's metrics): tensorboard --logdir "
+                     f"{args.tensorboard_log}")
+    lines += [f"watch the team (metrics and a GIF in the run folder): python zoo/enjoy.py --algo {args.algo} "
+              f"--env {args.env} -f {args.log_folder}",
+              (f"compare with PPO over seeds: python zoo/compare.py --variants {args.algo}={args.algo} ppo=ppo "
+               f"--seeds 0 1 2 -n {n_timesteps}" if args.env == ENV_ID else
+               "compare with PPO, PPO told the mode and EM-PPO over seeds: python benchmarks/zone_patrol_value.py run "
+               "--seeds 0 1 2 --folder zp"),
+              "the paper's experiments: python zoo/experiment.py --list"]
+    return "\n".join(lines)
 
 
 def enjoy_parser() -> argparse.ArgumentParser:
