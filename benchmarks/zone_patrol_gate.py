@@ -34,11 +34,12 @@ def episodes(team, config: ZonePatrolConfig, n: int, seed: int) -> tuple[np.ndar
 
 
 def gate(config: ZonePatrolConfig, fit: int = 300, held_out: int = 300) -> str:
-    lines = [f"{'blind plan (search, sensor)':<32}{'fitting episodes':>20}"]
+    header = "blind plan (search, sensor, confidence)" if config.zone_cue else "blind plan (search, sensor)"
+    lines = [f"{header:<40}{'fitting episodes':>20}"]
     scores = {}
-    for plan in blind_plans():
+    for plan in blind_plans(bool(config.zone_cue)):
         scores[plan] = episodes(BlindTeam(*plan), config, fit, 0)[0].mean()
-        lines.append(f"{plan!s:<32}{scores[plan]:>20.3f}")
+        lines.append(f"{plan!s:<40}{scores[plan]:>20.3f}")
     best = max(scores, key=scores.get)
     told, modes = episodes(ToldTeam(), config, held_out, 1)
     blind, _ = episodes(BlindTeam(*best), config, held_out, 1)
@@ -100,10 +101,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit", type=int, default=300, help="fitting episodes per blind plan")
     parser.add_argument("--episodes", type=int, default=300, help="held-out episodes")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed comparison")
+    parser.add_argument("--zone-cue", type=float, default=0.0, help="ZonePatrol's zone_cue (0: no zone readings)")
     args = parser.parse_args(argv)
     if args.fit < 1 or args.episodes < 2:
         parser.error(f"--fit must be >= 1 and --episodes >= 2, got {args.fit} and {args.episodes}")
-    print(gate(ZonePatrolConfig(), args.fit, args.episodes))
+    try:
+        config = ZonePatrolConfig(zone_cue=args.zone_cue)
+    except ValueError as error:
+        parser.error(str(error))
+    print(gate(config, args.fit, args.episodes))
     if not args.no_speed:
         print(speed())
     return 0

@@ -41,6 +41,16 @@ def test_each_zone_s_tracks_and_cells_in_the_window_are_counted_where_they_lie(k
             assert features[u, 8] == pytest.approx(obs[u, env.zone_map["visibility"]])
 
 
+def test_the_zone_readings_are_features_when_the_observation_has_them():
+    env = zone_patrol_v0.parallel_env(zone_cue=0.5)
+    env.reset(seed=0)
+    obs = env.world.observations()[0]
+    fn, dim = zone_features(env.zone_map)
+    assert dim == 14 and env.zone_map["cues"] == [79, 83]
+    np.testing.assert_array_equal(fn(obs)[:, 10:], obs[:, 79:83])
+    assert zone_map()["cues"] is None
+
+
 def test_detections_in_the_window_are_counted():
     env = zone_patrol_v0.parallel_env()
     env.reset(seed=0)

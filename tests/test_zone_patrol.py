@@ -14,7 +14,7 @@ from wildlife_reserve.zone_patrol.world import NARROW, WIDE, ZonePatrolConfig, Z
 
 CONFIGS = [{}, {"n_uavs": 1}, {"n_uavs": 6, "grid_size": 12, "zone_size": 3, "max_cycles": 20},
            {"told": True, "window_radius": 1}, {"initial_tracks": 0, "spawn_prob": 1.0, "intruder_life": 1},
-           {"agent_ids": True, "told": True, "n_uavs": 3}]
+           {"agent_ids": True, "told": True, "n_uavs": 3}, {"zone_cue": 0.2, "agent_ids": True}]
 
 
 @pytest.mark.parametrize("kwargs", CONFIGS)
@@ -69,12 +69,40 @@ def test_agent_ids_append_each_uav_s_index_as_a_one_hot_before_the_told_mode():
         assert obs[agent][-8:].argmax() == 6 and obs[agent][-8:].sum() == 1
 
 
+def test_zone_readings_carry_the_mode_s_zone_under_noise_and_a_blind_team_reads_them():
+    config = ZonePatrolConfig(zone_cue=1.0, agent_ids=True)
+    world, rng = ZonePatrolWorld(config, 200), np.random.default_rng(0)
+    world.reset(rng)
+    obs = world.observations()
+    assert obs.shape == (200, 4, 79 + 4 + 4) and config.obs_dim == 87
+    readings = []
+    for _ in range(20):
+        world.step(rng.integers(10, size=(200, 4)), rng)
+        readings.append(world.observations()[..., 79:83])
+    readings = np.stack(readings)  # (steps, copies, uavs, 4), clipped to [-4, 4] over 4
+    mine = np.arange(4)[None, :] == world.zones[:, None]  # (copies, 4)
+    assert readings.mean((0, 2))[mine].mean() == pytest.approx(0.25, abs=0.02)
+    assert readings.mean((0, 2))[~mine].mean() == pytest.approx(0.0, abs=0.02)
+    np.testing.assert_array_equal(obs[..., 83:], np.broadcast_to(np.eye(4), (200, 4, 4)))  # the ids follow
+    team = BlindTeam("together", "estimate", confidence=0.9)
+    world.reset(rng)
+    team.reset(world)
+    for _ in range(10):
+        world.step(team.act(world), rng)
+    assert (team.zone_posterior(world).argmax(1) == world.zones).mean() > 0.95
+    uniform = BlindTeam()
+    uniform.reset(ZonePatrolWorld(ZonePatrolConfig(), 2))
+    np.testing.assert_array_equal(uniform.zone_posterior(ZonePatrolWorld(ZonePatrolConfig(), 2)), np.full((2, 4), 0.25))
+    with pytest.raises(ValueError, match="confidence must be in"):
+        BlindTeam(confidence=1.0)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"grid_size": 3}, "grid_size must be an int in"), ({"n_uavs": 0}, "n_uavs must be an int in"),
     ({"spawn_prob": 1.5}, "spawn_prob must be a finite number in"), ({"wide_detect": (0.5,)}, "wide_detect must be a pair"),
     ({"narrow_detect": (0.2, float("nan"))}, r"narrow_detect\[1\] must be a finite number"),
     ({"zone_size": 20}, "zone_size must be an int in"), ({"told": 1}, "told must be a bool"),
-    ({"agent_ids": "yes"}, "agent_ids must be a bool"),
+    ({"agent_ids": "yes"}, "agent_ids must be a bool"), ({"zone_cue": -0.5}, "zone_cue must be a finite number in"),
     ({"speed": 3}, r"unknown ZonePatrol argument\(s\) \['speed'\]"), ({"render_mode": "ansi"}, "render_mode must be"),
 ])
 def test_bad_arguments_raise_a_value_error_naming_them(kwargs, message):

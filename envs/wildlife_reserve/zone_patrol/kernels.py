@@ -151,11 +151,12 @@ def advance(actions, team, intruders, origins, weathers, draws, rules, counts): 
 
 
 @njit(cache=True)
-def observe(team, intruders, visibility, progress, radius, track_life, ids, told_modes, out):  # pragma: no cover (compiled)
+def observe(team, intruders, visibility, progress, radius, track_life, cues, ids, told_modes, out):  # pragma: no cover (compiled)
     """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout): its window of the tracks,
     of this step's detections and of its teammates, its cell, its visibility reading and the episode's progress;
-    with ``ids`` (a bool), the one-hot of its index in the team; ``told_modes`` ``(c,)`` the modes to append as
-    one-hots, or empty."""
+    its zone readings ``cues`` ``(c, n, 4)`` (clipped to [-4, 4], over 4; none when the last axis is empty); with
+    ``ids`` (a bool), the one-hot of its index in the team; ``told_modes`` ``(c,)`` the modes to append as one-hots,
+    or empty."""
     positions, detections = team.positions, team.detections
     tracks, detected_cells = intruders.tracks, intruders.detected_cells
     n_copies, n_uavs = positions.shape[0], positions.shape[1]
@@ -191,6 +192,9 @@ def observe(team, intruders, visibility, progress, radius, track_life, ids, told
             out[c, u, at + 2] = min(max(visibility[c, u], -3.0), 4.0) / 4.0
             out[c, u, at + 3] = progress
             at += 4
+            for k in range(cues.shape[2]):
+                out[c, u, at + k] = min(max(cues[c, u, k], -4.0), 4.0) / 4.0
+            at += cues.shape[2]
             if ids:
                 for v in range(n_uavs):
                     out[c, u, at + v] = 1.0 if v == u else 0.0

@@ -6,7 +6,9 @@ and uses the weather's sensor. A blind team knows what any of its UAVs has seen 
 detections, visibility readings: the team shares everything, as no learned team can), never the mode: it flies to
 zones by its ``search`` plan until a zone shows a track or a detection, then the whole team goes there, and picks
 its sensor by ``sensor`` (``"estimate"``: wide while the team's mean visibility reading is above one half, i.e.
-clear). :func:`blind_plans` lists the plans; the best is chosen on fitting episodes and compared on held-out ones
+clear). With ZonePatrol's zone readings (``zone_cue``) the team also sums every UAV's readings and, once the
+posterior of a zone (the readings' exact Bayes posterior) passes ``confidence``, goes there as on a track.
+:func:`blind_plans` lists the plans; the best is chosen on fitting episodes and compared on held-out ones
 (``benchmarks/zone_patrol_gate.py``).
 """
 
@@ -16,17 +18,20 @@ from itertools import product
 
 import numpy as np
 
-from wildlife_reserve.zone_patrol.world import CLEAR, N_MOVES, NARROW, WIDE, ZonePatrolWorld
+from wildlife_reserve.zone_patrol.world import CLEAR, N_MOVES, N_ZONES, NARROW, WIDE, ZonePatrolWorld
 
 #: How a blind team searches before a zone shows evidence: each UAV to its own zone (``"split"``), or the whole team
 #: through the zones one after another (``"together"``).
 SEARCHES = ("split", "together")
 SENSORS = ("estimate", "wide", "narrow")
+#: How sure of a zone the zone readings must make a blind team before it goes there (with ``zone_cue`` only).
+CONFIDENCES = (0.6, 0.9, 0.99)
 
 
-def blind_plans() -> list[tuple[str, str]]:
-    """Every ``(search, sensor)`` plan of a blind team."""
-    return list(product(SEARCHES, SENSORS))
+def blind_plans(cues: bool = False) -> list[tuple]:
+    """Every ``(search, sensor)`` plan of a blind team; with ``cues`` (ZonePatrol's ``zone_cue``), every
+    ``(search, sensor, confidence)``."""
+    return list(product(SEARCHES, SENSORS, CONFIDENCES)) if cues else list(product(SEARCHES, SENSORS))
 
 
 def posts(world: ZonePatrolWorld) -> np.ndarray:
@@ -65,21 +70,25 @@ class BlindTeam:
 
     :param search: ``"split"`` or ``"together"``
     :param sensor: ``"estimate"``, ``"wide"`` or ``"narrow"``
+    :param confidence: the posterior of a zone, from the zone readings, at which the team goes there (in (0, 1))
     """
 
-    def __init__(self, search: str = "split", sensor: str = "estimate") -> None:
+    def __init__(self, search: str = "split", sensor: str = "estimate", confidence: float = 0.9) -> None:
         if search not in SEARCHES or sensor not in SENSORS:
             raise ValueError(f"search must be one of {list(SEARCHES)} and sensor one of {list(SENSORS)}, "
                              f"got {search!r} and {sensor!r}")
-        self.search, self.sensor = search, sensor
+        if not 0 < confidence < 1:
+            raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+        self.search, self.sensor, self.confidence = search, sensor, float(confidence)
 
     def reset(self, world: ZonePatrolWorld) -> None:
         c = world.n_copies
         self.posts = posts(world)
-        self.evidence = np.zeros((c, 4))
-        self.visited = np.zeros((c, 4), dtype=bool)
+        self.evidence = np.zeros((c, N_ZONES))
+        self.visited = np.zeros((c, N_ZONES), dtype=bool)
         self.readings = np.zeros(c)
         self.n_readings = 0
+        self.cue_sums = np.zeros((c, N_ZONES))
 
     def _observe(self, world: ZonePatrolWorld) -> None:
         cfg = world.config
@@ -98,14 +107,26 @@ class BlindTeam:
             self.visited[:, z] |= here.any(1)
         self.readings += world.visibility.mean(1)
         self.n_readings += 1
+        if world.cues.shape[-1]:
+            self.cue_sums += world.cues.sum(1)
+
+    def zone_posterior(self, world: ZonePatrolWorld) -> np.ndarray:
+        """``(c, 4)``: each zone's posterior from the team's zone readings so far (uniform without them): unit-variance
+        Gaussian readings with mean ``zone_cue`` on the mode's zone, so the log-odds are ``zone_cue`` times the sums."""
+        logits = world.config.zone_cue * self.cue_sums
+        logits -= logits.max(1, keepdims=True)
+        weights = np.exp(logits)
+        return weights / weights.sum(1, keepdims=True)
 
     def act(self, world: ZonePatrolWorld) -> np.ndarray:
         self._observe(world)
         n = world.config.n_uavs
-        known = self.evidence.max(1) > 0
-        best = self.evidence.argmax(1)
+        tracked = self.evidence.max(1) > 0
+        posterior = self.zone_posterior(world)
+        known = tracked | (posterior.max(1) >= self.confidence)
+        best = np.where(tracked, self.evidence.argmax(1), posterior.argmax(1))
         if self.search == "split":
-            zones = np.broadcast_to(np.arange(n) % 4, (world.n_copies, n))
+            zones = np.broadcast_to(np.arange(n) % N_ZONES, (world.n_copies, n))
         else:  # together: the first zone not yet visited
             nxt = np.where(self.visited.all(1), 0, (~self.visited).argmax(1))
             zones = np.broadcast_to(nxt[:, None], (world.n_copies, n))

@@ -20,6 +20,8 @@ WIDE, NARROW = 0, 1
 N_MOVES, N_SENSORS = 5, 2
 CLEAR, FOG = 0, 1
 N_WEATHERS = 2
+#: The four corner zones (mode = N_WEATHERS * zone + weather).
+N_ZONES = 4
 #: Window channels: tracks (remaining life / track_life; -1 off the grid), this UAV's detections this step, teammates.
 N_CHANNELS = 3
 
@@ -53,6 +55,10 @@ class ZonePatrolConfig:
     :param wide_detect: ``(clear, fog)`` chance per step that the wide sensor detects an intruder within reach
     :param narrow_detect: the same for the narrow sensor
     :param visibility_noise: standard deviation of the visibility reading (1 in clear weather, 0 in fog, plus noise)
+    :param zone_cue: strength of a faint reading of the zone that reaches every UAV wherever it is (radio chatter):
+        each step, per zone, ``zone_cue`` if it is the mode's zone, plus standard normal noise; 0 (the default): no
+        such reading, episodes and observations as without the option. Its evidence builds up as ``zone_cue *
+        sqrt(steps)``: a team can infer the zone without searching, if it integrates the readings over time
     :param comm_range: Chebyshev distance within which teammates hear each other (``infos["heard_from"]``)
     :param escape_cost: team reward lost per intruder that escapes
     :param window_radius: radius of the observed window (``(2r + 1)^2`` cells per channel)
@@ -76,6 +82,7 @@ class ZonePatrolConfig:
     wide_detect: tuple[float, float] = (0.4, 0.03)
     narrow_detect: tuple[float, float] = (0.3, 0.3)
     visibility_noise: float = 1.0
+    zone_cue: float = 0.0
     comm_range: int = 4
     escape_cost: float = 0.25
     window_radius: int = 2
@@ -100,6 +107,7 @@ class ZonePatrolConfig:
                 raise ValueError(f"{name} must be a pair (clear, fog) of chances in [0, 1], got {value!r}")
             object.__setattr__(self, name, tuple(_check(f"{name}[{i}]", v, 0.0, 1.0, float) for i, v in enumerate(value)))
         _check("visibility_noise", self.visibility_noise, 0.0, 100.0, float)
+        _check("zone_cue", self.zone_cue, 0.0, 100.0, float)
         _check("comm_range", self.comm_range, 0, self.grid_size)
         _check("escape_cost", self.escape_cost, 0.0, 1000.0, float)
         _check("window_radius", self.window_radius, 0, self.grid_size)
@@ -118,7 +126,7 @@ class ZonePatrolConfig:
     @property
     def n_modes(self) -> int:
         """Hidden modes: 4 zones x 2 weathers (mode = 2 * zone + weather)."""
-        return 4 * N_WEATHERS
+        return N_ZONES * N_WEATHERS
 
     @property
     def window_cells(self) -> int:
@@ -126,9 +134,10 @@ class ZonePatrolConfig:
 
     @property
     def obs_dim(self) -> int:
-        """Window channels, own position (2), the visibility reading, the episode's progress, [the UAV's index as a
-        one-hot], [the told one-hot]."""
-        return N_CHANNELS * self.window_cells + 4 + (self.n_uavs if self.agent_ids else 0) + (self.n_modes if self.told else 0)
+        """Window channels, own position (2), the visibility reading, the episode's progress, [the zone readings (4)],
+        [the UAV's index as a one-hot], [the told one-hot]."""
+        return (N_CHANNELS * self.window_cells + 4 + (N_ZONES if self.zone_cue else 0) + (self.n_uavs if self.agent_ids else 0)
+                + (self.n_modes if self.told else 0))
 
     @property
     def state_dim(self) -> int:
@@ -171,6 +180,7 @@ class ZonePatrolWorld:
         self.spawned = np.zeros(c, dtype=np.int64)
         self.team_reward = np.zeros(c)
         self.visibility = np.zeros((c, n))
+        self.cues = np.zeros((c, n, N_ZONES if config.zone_cue else 0))  # the zone readings (zone_cue > 0)
         self.sensors = np.zeros((c, n), dtype=np.int64)
         radii = np.array([config.wide_radius, config.narrow_radius], dtype=np.int64)
         chances = np.array([config.wide_detect, config.narrow_detect], dtype=np.float64)  # (sensor, weather)
@@ -220,10 +230,18 @@ class ZonePatrolWorld:
         self.team_reward[:] = 0.0
         self.sensors[:] = WIDE
         self.visibility = self._read_visibility(rng)
+        self.cues = self._read_cues(rng)
 
     def _read_visibility(self, rng: np.random.Generator) -> np.ndarray:
         clear = (self.weathers == CLEAR).astype(np.float64)[:, None]
         return clear + self.config.visibility_noise * rng.standard_normal((self.n_copies, self.config.n_uavs))
+
+    def _read_cues(self, rng: np.random.Generator) -> np.ndarray:
+        """The zone readings ``(c, n, 4)`` (none without ``zone_cue``: nothing is drawn, the episodes stay as they were)."""
+        if not self.config.zone_cue:
+            return self.cues
+        signal = self.config.zone_cue * (np.arange(N_ZONES)[None, :] == self.zones[:, None])  # (c, 4)
+        return signal[:, None, :] + rng.standard_normal((self.n_copies, self.config.n_uavs, N_ZONES))
 
     def step(self, actions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One step of every copy; ``actions`` ``(n_copies, n_uavs)`` ints in ``[0, 10)``. Returns the team rewards.
@@ -245,6 +263,7 @@ class ZonePatrolWorld:
         rewards = found - cfg.escape_cost * escaped
         self.team_reward += rewards
         self.visibility = self._read_visibility(rng)
+        self.cues = self._read_cues(rng)
         self.t += 1
         return rewards.astype(np.float64)
 
@@ -255,7 +274,7 @@ class ZonePatrolWorld:
         cfg = self.config
         out = np.empty((self.n_copies, cfg.n_uavs, cfg.obs_dim), dtype=np.float32)
         kernels.observe(self._team, self._intruders, self.visibility, self.t / cfg.max_cycles, cfg.window_radius,
-                        cfg.track_life, cfg.agent_ids, self.modes if cfg.told else self.modes[:0], out)
+                        cfg.track_life, self.cues, cfg.agent_ids, self.modes if cfg.told else self.modes[:0], out)
         return out
 
     def near(self) -> np.ndarray:

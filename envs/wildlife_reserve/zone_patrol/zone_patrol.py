@@ -8,7 +8,7 @@
 | Manual control     | No                                                                      |
 | Agents             | `agents= ['uav_0', 'uav_1', 'uav_2', 'uav_3']` (default `n_uavs=4`)     |
 | Action shape       | `Discrete(10)`: `move + 5 * sensor`                                     |
-| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`agent_ids`: n more, `told`: 8)  |
+| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`zone_cue`: 4 more, `agent_ids`: n, `told`: 8) |
 | Observation values | [-1, 1]                                                                 |
 | State shape        | `(2 n_uavs + 2 grid_size^2 + 1,)`: 1577 by default                      |
 
@@ -24,13 +24,17 @@ blind scripted team earns, though that team shares everything its UAVs see (`ben
 
 The evidence builds up: intruders leave tracks that fade after `track_life` steps, and older tracks lie in the zone
 at the start; the visibility reading (1 in clear weather, 0 in fog, plus noise of deviation `visibility_noise`) shows
-the weather over many steps, not in one.
+the weather over many steps, not in one. With `zone_cue > 0` every UAV also reads, each step and wherever it is, a
+faint signal of the zone (radio chatter: per zone, `zone_cue` for the mode's zone plus standard normal noise): its
+evidence grows as `zone_cue * sqrt(steps)`, so a team that integrates the readings over time can infer the zone
+without searching, which a memoryless policy cannot.
 
 ### Observations
 Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window (`r = window_radius`) of three channels
 (tracks, as their remaining life over `track_life`, -1 off the grid; this UAV's detections this step; teammates),
 then its own position (row, column, scaled to [-1, 1]), the visibility reading (clipped to [-3, 4], over 4) and the
-episode's progress (`t / max_cycles`); with `agent_ids=True`, the one-hot of the UAV's index in the team (EPyMARL's
+episode's progress (`t / max_cycles`); with `zone_cue > 0`, the four zone readings (clipped to [-4, 4], over 4); with
+`agent_ids=True`, the one-hot of the UAV's index in the team (EPyMARL's
 `obs_agent_id`: with parameter sharing, what lets UAVs that see alike split over the zones); with `told=True`, the
 one-hot of the mode last.
 
@@ -132,7 +136,8 @@ class ZonePatrolParallelEnv(ParallelEnv):
         cfg, cells = self.config, self.config.window_cells
         return {"grid_size": cfg.grid_size, "zone_size": cfg.zone_size, "window_radius": cfg.window_radius,
                 "zone_origins": cfg.zone_origins().tolist(), "tracks": [0, cells], "detections": [cells, 2 * cells],
-                "own": [3 * cells, 3 * cells + 2], "visibility": 3 * cells + 2}
+                "own": [3 * cells, 3 * cells + 2], "visibility": 3 * cells + 2,
+                "cues": [3 * cells + 4, 3 * cells + 8] if cfg.zone_cue else None}
 
     @property
     def mode(self) -> int:

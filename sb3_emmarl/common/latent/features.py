@@ -99,18 +99,19 @@ def reserve_features(layout: dict) -> FeatureFn:
 
 def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
     """Compact features of an observation made of an egocentric window and the UAV's cell, on a map with zones where
-    the hidden mode puts its events (ZonePatrol's ``zone_map``): ``2 * zones + 2`` by default 10.
+    the hidden mode puts its events (ZonePatrol's ``zone_map``): ``2 * zones + 2``, by default 10 (14 with
+    ZonePatrol's ``zone_cue``).
 
     Per zone, the window cells of the zone that hold a track (capped at 5, over 5) and the window cells of the zone
-    (over the window's cells, the exposure); then the visibility reading as observed and the window's detection cells
-    this step. The zone is where the mode shows, so it says *where* the tracks were seen, which an egocentric window
+    (over the window's cells, the exposure); then the visibility reading as observed, the window's detection cells
+    this step and, when the observation has them (``zone_cue``), the zone readings as observed. The zone is where the mode shows, so it says *where* the tracks were seen, which an egocentric window
     alone does not; the visibility is where the weather shows. On ZonePatrol's episodes of the best scripted blind team,
     EM fitted with team pooling tells the mode at mid-episode 0.75 of the time from these features against 0.56 from
     :func:`generic_features` (``docs/lab/2026-12-05/zone_patrol_latent_ceiling.py``, one seed).
 
     :param zone_map: plain values: ``grid_size``, ``zone_size``, ``window_radius``, ``zone_origins`` (top-left cells),
         the observation's ``tracks``, ``detections`` and ``own`` parts as ``[start, stop]`` (``own``: row and column
-        scaled to [-1, 1]) and the index of its ``visibility``
+        scaled to [-1, 1]), the index of its ``visibility`` and its ``cues`` as ``[start, stop]`` or None
     """
     g, size, r = int(zone_map["grid_size"]), int(zone_map["zone_size"]), int(zone_map["window_radius"])
     origins = np.asarray(zone_map["zone_origins"], dtype=np.int64).reshape(-1, 2)
@@ -125,7 +126,9 @@ def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
     inside = (at_rows >= 0) & (at_rows < g) & (at_cols >= 0) & (at_cols < g)
     window_zones = np.where(inside, zone_of[np.clip(at_rows, 0, g - 1), np.clip(at_cols, 0, g - 1)], -1)
     tracks, detections, own = (slice(*zone_map[part]) for part in ("tracks", "detections", "own"))
-    visibility, dim = int(zone_map["visibility"]), 2 * n_zones + 2
+    cues = slice(*zone_map["cues"]) if zone_map.get("cues") else slice(0, 0)
+    visibility, n_cues = int(zone_map["visibility"]), cues.stop - cues.start
+    dim = 2 * n_zones + 2 + n_cues
 
     def features(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float32)
@@ -139,6 +142,7 @@ def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
             out[:, n_zones + z] = here.sum(1) / (side * side)
         out[:, 2 * n_zones] = obs[:, visibility]
         out[:, 2 * n_zones + 1] = (obs[:, detections] > 0).sum(1)
+        out[:, 2 * n_zones + 2:] = obs[:, cues]
         return out
 
     return features, dim
