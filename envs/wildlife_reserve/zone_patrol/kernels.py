@@ -151,7 +151,8 @@ def advance(actions, team, intruders, origins, weathers, draws, rules, counts): 
 
 
 @njit(cache=True)
-def observe(team, intruders, visibility, progress, radius, track_life, cues, ids, told_modes, out):  # pragma: no cover (compiled)
+def observe(team, intruders, visibility, progress, radius, track_life, cues, ids, told_modes,
+            out):  # pragma: no cover (compiled)
     """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout): its window of the tracks,
     of this step's detections and of its teammates, its cell, its visibility reading and the episode's progress;
     its zone readings ``cues`` ``(c, n, 4)`` (clipped to [-4, 4], over 4; none when the last axis is empty); with
@@ -191,14 +192,21 @@ def observe(team, intruders, visibility, progress, radius, track_life, cues, ids
             out[c, u, at + 1] = col / span * 2.0 - 1.0
             out[c, u, at + 2] = min(max(visibility[c, u], -3.0), 4.0) / 4.0
             out[c, u, at + 3] = progress
-            at += 4
-            for k in range(cues.shape[2]):
-                out[c, u, at + k] = min(max(cues[c, u, k], -4.0), 4.0) / 4.0
-            at += cues.shape[2]
-            if ids:
-                for v in range(n_uavs):
-                    out[c, u, at + v] = 1.0 if v == u else 0.0
-                at += n_uavs
-            if told_modes.shape[0]:
-                for k in range(out.shape[2] - at):
-                    out[c, u, at + k] = 1.0 if k == told_modes[c] else 0.0
+            _observe_tail(out[c, u], at + 4, cues[c, u], ids, u, n_uavs, told_modes[c] if told_modes.shape[0] else -1)
+
+
+@njit(cache=True)
+def _observe_tail(row, at, cues, ids, uav, n_uavs, told_mode):  # pragma: no cover (compiled)
+    """The optional end of one UAV's observation ``row`` from index ``at``: its zone readings ``cues`` (clipped to
+    [-4, 4], over 4; none when empty), with ``ids`` the one-hot of its index ``uav``, and the one-hot of ``told_mode``
+    (-1: none) in the rest."""
+    for k in range(cues.shape[0]):
+        row[at + k] = min(max(cues[k], -4.0), 4.0) / 4.0
+    at += cues.shape[0]
+    if ids:
+        for v in range(n_uavs):
+            row[at + v] = 1.0 if v == uav else 0.0
+        at += n_uavs
+    if told_mode >= 0:
+        for k in range(row.shape[0] - at):
+            row[at + k] = 1.0 if k == told_mode else 0.0

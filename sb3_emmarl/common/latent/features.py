@@ -104,9 +104,10 @@ def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
 
     Per zone, the window cells of the zone that hold a track (capped at 5, over 5) and the window cells of the zone
     (over the window's cells, the exposure); then the visibility reading as observed, the window's detection cells
-    this step and, when the observation has them (``zone_cue``), the zone readings as observed. The zone is where the mode shows, so it says *where* the tracks were seen, which an egocentric window
-    alone does not; the visibility is where the weather shows. On ZonePatrol's episodes of the best scripted blind team,
-    EM fitted with team pooling tells the mode at mid-episode 0.75 of the time from these features against 0.56 from
+    this step and, when the observation has them (``zone_cue``), the zone readings as observed. The zone is where the
+    mode shows, so the features say *where* the tracks were seen, which an egocentric window alone does not; the
+    visibility is where the weather shows. On ZonePatrol's episodes of the best scripted blind team, EM fitted with
+    team pooling tells the mode at mid-episode 0.75 of the time from these features against 0.56 from
     :func:`generic_features` (``docs/lab/2026-12-05/zone_patrol_latent_ceiling.py``, one seed).
 
     :param zone_map: plain values: ``grid_size``, ``zone_size``, ``window_radius``, ``zone_origins`` (top-left cells),
