@@ -49,24 +49,26 @@ EVAL_SEED = 50_000
 BUDGET = 1_000_000
 
 
-def make_env(seed: int, n_copies: int | None = None):
-    """``n_copies`` ZonePatrol copies (default: the zoo YAML's ``n_envs``) through the batched vector environment."""
+def make_env(seed: int, n_copies: int | None = None, env_kwargs: dict | None = None):
+    """``n_copies`` ZonePatrol copies (default: the zoo YAML's ``n_envs``) with ZonePatrol's arguments ``env_kwargs``,
+    through the batched vector environment."""
     from sb3_emmarl.common.environments import ZONE_PATROL_ID
     from sb3_emmarl.common.vec_env import make_vec_env
     from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
     from wildlife_reserve import zone_patrol_v0
 
     n_copies = n_copies or int(zoo_hyperparams("ppo", ZONE_PATROL_ID)["n_envs"])
-    return make_vec_env(n_copies, seed=seed, env_fn=zone_patrol_v0.parallel_env, vec_env_type="batched")
+    return make_vec_env(n_copies, seed=seed, env_fn=zone_patrol_v0.parallel_env, env_kwargs=env_kwargs,
+                        vec_env_type="batched")
 
 
-def build(variant: str, seed: int):
-    """The variant's model with its zoo YAML's settings on ZonePatrol."""
+def build(variant: str, seed: int, env_kwargs: dict | None = None):
+    """The variant's model with its zoo YAML's settings on ZonePatrol (with ``env_kwargs``)."""
     from sb3_emmarl.common.environments import ZONE_PATROL_ID
     from sb3_emmarl.zoo.exp_manager import zoo_model
 
     algo, overrides = ALGOS[variant]
-    return zoo_model(algo, make_env(seed), seed, ZONE_PATROL_ID, **overrides)
+    return zoo_model(algo, make_env(seed, env_kwargs=env_kwargs), seed, ZONE_PATROL_ID, **overrides)
 
 
 def play(model, venv, episodes: int, seed: int, random: bool = False,
@@ -103,11 +105,11 @@ def play(model, venv, episodes: int, seed: int, random: bool = False,
     return rewards[:episodes], np.stack(visited)
 
 
-def wrong(relabel: list[int]):
+def wrong(relabel: list[int], env_kwargs: dict | None = None):
     """A vector environment maker whose observations end with the one-hot of ``relabel[mode]``."""
     from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 
-    return lambda: ModeObservationWrapper(make_env(EVAL_SEED), relabel=relabel)
+    return lambda: ModeObservationWrapper(make_env(EVAL_SEED, env_kwargs=env_kwargs), relabel=relabel)
 
 
 #: Told each wrong zone (``shift`` zones on, the same weather) and the wrong weather (the same zone); modes are
@@ -118,19 +120,21 @@ WRONG = {**{f"wrong_zone_{shift}": [(2 * ((m // 2 + shift) % 4)) + m % 2 for m i
 MID_EPISODE = 30
 
 
-def run(variant: str, seed: int, budget: int, episodes: int) -> dict:
+def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None) -> dict:
     import torch as th
 
     from sb3_emmarl.common.latent.diagnostics import belief_use, permute_beliefs
 
     th.set_num_threads(1)
-    model = build(variant, seed)
+    env_kwargs = dict(env_kwargs or {})
+    model = build(variant, seed, env_kwargs)
     start = time.perf_counter()
     model.learn(budget)
-    record = {"variant": variant, "seed": seed, "budget": budget, "seconds": time.perf_counter() - start}
+    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs,
+              "seconds": time.perf_counter() - start}
     wrap = getattr(model, "wrap_env", lambda v: v)
     beliefs: list = []
-    record["team_reward"], visited = play(model, wrap(make_env(EVAL_SEED)), episodes, EVAL_SEED,
+    record["team_reward"], visited = play(model, wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs)), episodes, EVAL_SEED,
                                           beliefs=beliefs if variant.startswith("em_ppo") else None)
     if beliefs:
         from sb3_emmarl.common.latent.metrics import align_components, latent_accuracy
@@ -141,7 +145,7 @@ def run(variant: str, seed: int, budget: int, episodes: int) -> dict:
         record["swap_kl"] = belief_use(model.policy, visited, 8)
     if variant == "told":
         for name, relabel in WRONG.items():
-            record[name] = play(model, wrong(relabel)(), episodes, EVAL_SEED)[0]
+            record[name] = play(model, wrong(relabel, env_kwargs)(), episodes, EVAL_SEED)[0]
     if variant.startswith("em_ppo"):
         from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -153,15 +157,16 @@ def run(variant: str, seed: int, budget: int, episodes: int) -> dict:
                 obs, rewards, dones, infos = self.venv.step_wait()
                 return permute_beliefs(obs, 8), rewards, dones, infos
 
-        record["permuted"] = play(model, Permuted(wrap(make_env(EVAL_SEED))), episodes, EVAL_SEED)[0]
+        record["permuted"] = play(model, Permuted(wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs))), episodes,
+                                  EVAL_SEED)[0]
     return record
 
 
-def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: int) -> str:
+def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None) -> str:
     path = Path(folder) / f"{variant}_{seed}.json"
     if path.exists():
         return f"{path.name}: kept"
-    record = run(variant, seed, budget, episodes)
+    record = run(variant, seed, budget, episodes, env_kwargs)
     from sb3_emmarl.common.checkpoints import write_text
     from sb3_emmarl.version import __version__
 
@@ -239,12 +244,22 @@ def recovered(by: dict[str, dict[int, dict]], variant: str) -> list[str]:
     return [share, paired(variant, em, f"{variant}, belief permuted", means(variant, "permuted"))]
 
 
-def report(runs: list[dict], random_team: float | None = None) -> str:
-    by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
+def heading(runs: list[dict]) -> str:
+    """The report's first line: the task and the budget, which every run must share (else SystemExit)."""
     budgets = {r["budget"] for r in runs}
     if len(budgets) != 1:
         raise SystemExit(f"runs of different budgets {sorted(budgets)}: report one budget at a time")
-    lines = [f"ZonePatrol, {budgets.pop():,} agent-steps per run; mean team reward over each run's evaluation episodes"]
+    kwargs = {json.dumps(r.get("env_kwargs") or {}, sort_keys=True) for r in runs}
+    if len(kwargs) != 1:
+        raise SystemExit(f"runs of different ZonePatrol arguments {sorted(kwargs)}: report one task at a time")
+    task = kwargs.pop()
+    return (f"ZonePatrol{'' if task == '{}' else ' ' + task}, {budgets.pop():,} agent-steps per run; mean team reward "
+            f"over each run's evaluation episodes")
+
+
+def report(runs: list[dict], random_team: float | None = None) -> str:
+    by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
+    lines = [heading(runs)]
 
     def means(variant: str, key: str = "team_reward", seeds: list[int] | None = None) -> np.ndarray:
         return np.array([np.mean(by[variant][s][key]) for s in seeds])
@@ -308,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("--eval-episodes", type=int, default=200)
     run_parser.add_argument("--n-jobs", type=int, default=2, help="runs at once, each in its own process (1: here)")
     run_parser.add_argument("--folder", required=True)
+    run_parser.add_argument("--env-kwargs", default="{}", help="ZonePatrol's arguments as JSON, e.g. '{\"zone_cue\": 0.2}'")
     report_parser = commands.add_parser("report", help="the tables of the runs in --folder")
     report_parser.add_argument("--folder", required=True)
     args = parser.parse_args(argv)
@@ -317,13 +333,23 @@ def main(argv: list[str] | None = None) -> int:
         if not runs:
             raise SystemExit(f"no runs in {folder}: run `zone_patrol_value.py run --folder {folder}` first")
         episodes = len(runs[0]["team_reward"])
-        random_team = float(np.mean(play(None, make_env(EVAL_SEED), episodes, EVAL_SEED, random=True)[0]))
+        random_team = float(np.mean(play(None, make_env(EVAL_SEED, env_kwargs=runs[0].get("env_kwargs")), episodes,
+                                         EVAL_SEED, random=True)[0]))
         print(report(runs, random_team))
         return 0
     if args.n < 1 or args.eval_episodes < 2 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds):
         parser.error("-n and --n-jobs must be >= 1, --eval-episodes >= 2 and --seeds distinct")
+    from wildlife_reserve.zone_patrol.world import ZonePatrolConfig
+
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+        if not isinstance(env_kwargs, dict):
+            raise ValueError(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
+        ZonePatrolConfig.from_kwargs(**env_kwargs)
+    except ValueError as error:  # (json's JSONDecodeError is one)
+        parser.error(f"--env-kwargs: {error}")
     folder.mkdir(parents=True, exist_ok=True)
-    jobs = [(str(folder), v, s, args.n, args.eval_episodes) for s in args.seeds for v in args.variants]
+    jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs) for s in args.seeds for v in args.variants]
     if args.n_jobs == 1:  # in this process (each run sets torch to one thread, as the workers do)
         for job in jobs:
             print(run_and_save(*job), flush=True)

@@ -251,6 +251,14 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert "(em_ppo - ppo) / (told - ppo)" in text and "em_ppo, belief permuted" in text
     with pytest.raises(SystemExit, match="no runs in"):
         bench.main(["report", "--folder", str(tmp_path / "empty")])
+    assert all(r["env_kwargs"] == {} for r in runs)
+    cue = {**runs[0], "env_kwargs": {"zone_cue": 0.2}}
+    assert bench.heading([cue]).startswith('ZonePatrol {"zone_cue": 0.2}, 4,096 agent-steps per run')
+    with pytest.raises(SystemExit, match="runs of different ZonePatrol arguments"):
+        bench.heading([runs[0], cue])
+    with pytest.raises(SystemExit):  # argparse: the argument named, before anything runs
+        bench.main(["run", "--folder", str(tmp_path / "bad"), "--env-kwargs", '{"zone_cue": -1}'])
+    assert "zone_cue must be" in capsys.readouterr().err and not (tmp_path / "bad").exists()
 
 
 def test_the_protocols_bar_and_its_null_calibration():
