@@ -13,8 +13,9 @@
 - :class:`ResumableCheckpointCallback`: SB3's ``CheckpointCallback`` that saves at the start of a rollout
   (after the previous update, before any action of the next rollout is drawn), so that a run continued from
   the checkpoint collects exactly the rollouts the uninterrupted run collects;
-  :class:`AtomicEvalCallback` and :class:`SaveVecNormalize`: SB3's ``EvalCallback`` and rl_zoo3's
-  statistics saver with atomic files (``evaluations.npz``, ``best_model.zip``, ``vecnormalize.pkl``).
+  :class:`AtomicEvalCallback` and :class:`SaveVecNormalize`: the team-counting ``EvalCallback``
+  (:class:`sb3_emmarl.common.callbacks.EvalCallback`) and rl_zoo3's statistics saver with atomic files
+  (``evaluations.npz``, ``best_model.zip``, ``vecnormalize.pkl``).
 
 SB3 writes its files in place (``model.save``, ``VecNormalize.save``, ``save_to_pkl``) and has no notion
 of the environment's state in a checkpoint; this module adds both without changing SB3's file formats.
@@ -36,9 +37,11 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
+
+from sb3_emmarl.common.callbacks import EvalCallback
 
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
@@ -405,7 +408,8 @@ class SaveVecNormalize(BaseCallback):
 
 
 class AtomicEvalCallback(EvalCallback):
-    """SB3's ``EvalCallback`` whose ``evaluations.npz`` and ``best_model.zip`` are written atomically (same arguments).
+    """The team-counting ``EvalCallback`` (:class:`sb3_emmarl.common.callbacks.EvalCallback`: SB3's, whose evaluations
+    are team episodes) whose ``evaluations.npz`` and ``best_model.zip`` are written atomically (same arguments).
 
     SB3 writes both in place; here the evaluations go to a hidden temporary file renamed over
     ``evaluations.npz``, and the best model is saved with :func:`save_model`.

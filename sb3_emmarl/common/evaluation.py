@@ -1,17 +1,23 @@
-"""Team evaluation: deterministic episodes on a seed, one record per episode, ready for tables."""
+"""Team evaluation: deterministic episodes on a seed, one record per episode, ready for tables
+(:func:`evaluate_team`); and SB3's ``evaluate_policy`` counting team episodes (:func:`evaluate_policy`)."""
 
 from __future__ import annotations
 
+import numbers
 import threading
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common import evaluation as sb3_evaluation
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize, is_vecenv_wrapped
 
 from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
@@ -184,6 +190,137 @@ def evaluate_team(
     if latent is not None:
         latent.annotate(records)
     return records
+
+
+def check_episode_count(n_eval_episodes: Any) -> int:
+    """``n_eval_episodes`` as an int, refused with one line unless it is a whole number >= 1 (SB3's own
+    ``evaluate_policy`` takes 0 and returns nan)."""
+    if isinstance(n_eval_episodes, bool) or not isinstance(n_eval_episodes, numbers.Integral) or n_eval_episodes < 1:
+        raise ValueError(f"n_eval_episodes must be a whole number >= 1, got {n_eval_episodes!r}")
+    return int(n_eval_episodes)
+
+
+def _team_episode(info: dict[str, Any], monitored: bool, reward: float, length: int) -> tuple[float, int] | None:
+    """The team reward and length of the episode that ended with ``info`` (a copy's first entry's): the team reward
+    the environment reports in its episode metrics (what :func:`evaluate_team` records), else as SB3 reads an
+    episode: the Monitor's record (None, no episode's end, without it), or the rewards and steps counted here."""
+    team_reward = info.get("metrics", {}).get("team_reward")
+    if team_reward is not None:
+        return float(team_reward), int(info["episode"]["l"]) if "episode" in info else length
+    if monitored:
+        return (float(info["episode"]["r"]), int(info["episode"]["l"])) if "episode" in info else None
+    return reward, length
+
+
+def evaluate_policy(
+    model: Predictor,
+    env: gym.Env | VecEnv,
+    n_eval_episodes: int = 10,
+    deterministic: bool = True,
+    render: bool = False,
+    callback: Callable[[dict[str, Any], dict[str, Any]], None] | None = None,
+    reward_threshold: float | None = None,
+    return_episode_rewards: bool = False,
+    warn: bool = True,
+) -> tuple[float, float] | tuple[list[float], list[int]]:
+    """SB3's ``evaluate_policy`` (same arguments, same return values) counting team episodes on a parameter-sharing
+    vector environment.
+
+    Each vector entry of :func:`~sb3_emmarl.common.vec_env.make_vec_env` is one UAV, and every UAV of a copy receives
+    the team reward: SB3's own function counts each UAV's episode as an episode, so ``n_eval_episodes=10`` on a team of
+    ten scores the ten UAVs of one team episode (ten equal rewards, a std of 0). Here one episode is one episode of a
+    copy (``agents_per_copy`` entries): its reward is the copy's team reward, read from its first entry (the episode's
+    ``infos[i]["metrics"]["team_reward"]`` when the environment reports it, as the reserve and ZonePatrol do: the very
+    number :func:`evaluate_team` records; otherwise that entry's Monitor return), its length the episode's steps.
+    Episodes are divided among the copies as SB3 divides them among entries (copy ``c`` plays
+    ``(n_eval_episodes + c) // n_copies``, a static division that does not favour short episodes). Recurrent
+    policies and EM models get ``state`` and ``episode_start`` back at every step, as in SB3.
+
+    A model with ``wrap_env`` (EM-PPO, EM-DDPG, VDN+EM, OraclePPO, MessagePPO) is evaluated on ``model.wrap_env(env)``:
+    pass the plain environment it was trained on (an environment that already carries the wrapper is kept as it is).
+    On any other environment (no ``agents_per_copy``, or one agent per copy) this is SB3's ``evaluate_policy``.
+
+    :param model: the agent: anything with SB3's ``predict`` (an algorithm or a policy)
+    :param env: the evaluation environment: a parameter-sharing vector environment, or any Gymnasium or vector env
+    :param n_eval_episodes: team episodes to play (a whole number >= 1)
+    :param deterministic: the most likely actions (SB3's default; with one policy shared by identical UAVs, two UAVs
+        that see the same thing then act alike, see :func:`evaluate_team`)
+    :param render: render the environment at every step
+    :param callback: called after each step once per copy still counting, with ``locals()`` and ``globals()``
+        (``i`` the copy's first entry, ``reward``, ``done`` and ``info`` that entry's), as SB3 calls it once per entry
+    :param reward_threshold: minimum expected mean team reward (an ``AssertionError`` below it, as in SB3)
+    :param return_episode_rewards: return the per-episode team rewards and lengths instead of the mean and std
+    :param warn: warn when the environment has no ``Monitor`` / ``VecMonitor`` wrapper (as SB3)
+    :return: the mean and std of the team reward per episode, or, with ``return_episode_rewards``, the list of team
+        rewards and the list of episode lengths (in steps), one item per team episode
+    """
+    n_eval_episodes = check_episode_count(n_eval_episodes)
+    if hasattr(model, "wrap_env"):
+        env = model.wrap_env(env)
+    per_copy = int(getattr(env, "agents_per_copy", 1)) if isinstance(env, VecEnv) else 1
+    if per_copy <= 1:
+        return sb3_evaluation.evaluate_policy(model, env, n_eval_episodes, deterministic, render,  # type: ignore[arg-type]
+                                              callback, reward_threshold, return_episode_rewards, warn)
+    assert isinstance(env, VecEnv)  # (only a vector environment has agents_per_copy here)
+    if env.num_envs % per_copy:
+        raise ValueError(f"the environment has {env.num_envs} entries, not a whole number of copies of "
+                         f"{per_copy} agents")
+    is_monitor_wrapped = is_vecenv_wrapped(env, VecMonitor) or env.env_is_wrapped(Monitor)[0]
+    if not is_monitor_wrapped and warn:
+        warnings.warn(
+            "Evaluation environment is not wrapped with a ``Monitor`` wrapper. "
+            "This may result in reporting modified episode lengths and rewards, if other wrappers happen to modify these. "
+            "Consider wrapping environment first with ``Monitor`` wrapper.",
+            UserWarning,
+        )
+    n_copies = env.num_envs // per_copy
+    firsts = np.arange(n_copies) * per_copy  # the entry that speaks for each copy
+    episode_rewards: list[float] = []
+    episode_lengths: list[int] = []
+    episode_counts = np.zeros(n_copies, dtype="int")
+    # Divides episodes among the copies as evenly as possible (SB3's division among entries).
+    episode_count_targets = np.array([(n_eval_episodes + c) // n_copies for c in range(n_copies)], dtype="int")
+    current_rewards = np.zeros(n_copies)
+    current_lengths = np.zeros(n_copies, dtype="int")
+    observations = env.reset()
+    states = None
+    episode_starts = np.ones((env.num_envs,), dtype=bool)
+    while (episode_counts < episode_count_targets).any():
+        actions, states = model.predict(
+            observations,  # type: ignore[arg-type]
+            state=states,
+            episode_start=episode_starts,
+            deterministic=deterministic,
+        )
+        new_observations, rewards, dones, infos = env.step(actions)
+        current_rewards += rewards[firsts]
+        current_lengths += 1
+        episode_starts = np.array(dones, dtype=bool)  # every entry's, the other UAVs' states reset with their copy's
+        for c, i in enumerate(firsts):
+            if episode_counts[c] < episode_count_targets[c]:
+                # unpack values so that the callback can access the local variables (as in SB3)
+                reward, done, info = rewards[i], dones[i], infos[i]
+                if callback is not None:
+                    callback(locals(), globals())
+                if done:
+                    episode = _team_episode(info, is_monitor_wrapped, float(current_rewards[c]),
+                                            int(current_lengths[c]))
+                    if episode is not None:
+                        episode_rewards.append(episode[0])
+                        episode_lengths.append(episode[1])
+                        episode_counts[c] += 1
+                    current_rewards[c] = 0
+                    current_lengths[c] = 0
+        observations = new_observations
+        if render:
+            env.render()
+    mean_reward = np.mean(episode_rewards)
+    std_reward = np.std(episode_rewards)
+    if reward_threshold is not None:
+        assert mean_reward > reward_threshold, f"Mean reward below threshold: {mean_reward:.2f} < {reward_threshold:.2f}"
+    if return_episode_rewards:
+        return episode_rewards, episode_lengths
+    return float(mean_reward), float(std_reward)
 
 
 class LatentTracker:

@@ -6,8 +6,8 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 
 - ``create_envs`` builds :func:`~sb3_emmarl.common.vec_env.make_vec_env` (``n_envs`` reserve copies,
   one vector entry per UAV) instead of ``gym.make`` copies, with the true mode for ``oracle_ppo`` (the EM
-  algorithms add their belief wrapper themselves, and evaluate on plain environments through
-  ``predict(obs, state, episode_start)``); the centralised algorithms keep rl_zoo3's own path
+  algorithms add their belief wrapper themselves, to the evaluation environment too); the centralised algorithms keep
+  rl_zoo3's own path
   through the Gymnasium id ``WildlifeReserve-v0``; ``ppo_gat`` / ``ppo_transformer`` get the neighbour messages
   (training and evaluation environments alike);
 - ``oracle_ppo`` reads ``ppo.yml``: the same settings as PPO by construction;
@@ -18,6 +18,9 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms);
 - the hyperparameters are checked by :func:`~sb3_emmarl.common.validation.check_hyperparams` before anything
   is built, and the YAML file must be a mapping holding the environment's entry;
+- the periodic evaluations (``--eval-freq``) and optuna's trials count team episodes
+  (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.checkpoints.AtomicEvalCallback`
+  and :class:`TeamTrialEvalCallback`), not the UAVs of one episode as SB3's does;
 - every file is written atomically (:mod:`sb3_emmarl.common.checkpoints`), ``config.yml`` and ``args.yml``
   as plain YAML (rl_zoo3 writes Python tags), checkpoints by
   :class:`~sb3_emmarl.common.checkpoints.ResumableCheckpointCallback` with the training state;
@@ -36,7 +39,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rl_zoo3.exp_manager
 import yaml
+from rl_zoo3.callbacks import TrialEvalCallback
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
@@ -44,6 +49,7 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sb3_emmarl.common.callbacks import EvalCallback as TeamEvalCallback
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.centralized import register_envs
 from sb3_emmarl.common.checkpoints import (
@@ -199,6 +205,12 @@ def plain(value: Any) -> Any:
 def write_yaml(path: str | Path, data: Any) -> None:
     """Write plain YAML atomically (readable with ``yaml.safe_load``)."""
     write_text(path, yaml.safe_dump(plain(data), sort_keys=True))
+
+
+class TeamTrialEvalCallback(TrialEvalCallback, TeamEvalCallback):
+    """rl_zoo3's ``TrialEvalCallback`` (an optuna trial's evaluations, reported to the pruner) whose evaluations count
+    team episodes: its ``super()._on_step()`` is :class:`~sb3_emmarl.common.callbacks.EvalCallback`'s. Same arguments
+    as rl_zoo3's."""
 
 
 class ReserveExperimentManager(ExperimentManager):
@@ -373,7 +385,7 @@ class ReserveExperimentManager(ExperimentManager):
                     callback.save_freq, callback.save_path, callback.name_prefix,
                     save_replay_buffer=self.save_replay_buffer, save_vecnormalize=bool(self.normalize),
                     verbose=callback.verbose)
-            elif type(callback) is EvalCallback:  # written in place too: evaluations.npz, best_model.zip
+            elif type(callback) is EvalCallback:  # SB3's: ours counts team episodes, and writes its files atomically
                 assert callback.log_path is not None  # (rl_zoo3 gives its evaluations a folder)
                 self.callbacks[i] = AtomicEvalCallback(
                     callback.eval_env, callback_on_new_best=SaveVecNormalize(self.params_path),
@@ -383,6 +395,15 @@ class ReserveExperimentManager(ExperimentManager):
         self.callbacks.append(TeamMetricsCallback())
         if self.algo in LATENT_ALGOS:
             self.callbacks.append(LatentMetricsCallback())
+
+    def objective(self, trial: Any) -> float:
+        """rl_zoo3's optuna objective, its trial's evaluations counting team episodes (rl_zoo3 builds its
+        ``TrialEvalCallback`` by its module's name, hence :class:`TeamTrialEvalCallback` there).
+
+        :param trial: the optuna trial
+        """
+        rl_zoo3.exp_manager.TrialEvalCallback = TeamTrialEvalCallback  # type: ignore[misc]
+        return super().objective(trial)
 
     def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
         """Load ``-i`` / the checkpoint to resume (checked), with its replay buffer; resuming, its training state is
