@@ -7,7 +7,13 @@ process on a tiny reserve with a one-rollout budget. A case fails if an invalid 
 valid one refused, an error does not name the argument or leaves a run folder, or it takes more than
 60 s. Exit code 1 on any failure.
 
-Example: ``python benchmarks/fuzz_zoo.py`` (about a minute)
+Then the hostile cases of issue 52 (``tests/fuzz_zoo.py``, ``hostile_cases``): command lines, ``-conf`` files and
+tampered run folders (``--resume``, ``enjoy``) that try to run code (attribute walks, ``lambda``, ``__import__``,
+``th.os``, names rl_zoo3 imports and calls, Python tags, YAML bombs), each trying to create a marker file. It prints
+how many created their marker, printed a traceback (or not one ``error:`` line), left files behind or were accepted:
+all must be 0.
+
+Example: ``python benchmarks/fuzz_zoo.py`` (about two minutes); ``--hostile-only`` for the hostile cases alone
 """
 
 from __future__ import annotations
@@ -21,11 +27,36 @@ from pathlib import Path
 import torch as th
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from fuzz_zoo import FAILURES, cases, run_case
+from fuzz_zoo import FAILURES, cases, hostile_cases, run_case, run_hostile_case, train_template_run
+
+HOSTILE_COUNTS = ("marker", "traceback", "leftover", "accepted")
 
 
-def main() -> int:
+def run_hostile(every: int = 1) -> collections.Counter:
+    """Run every ``every``-th hostile case; print each failure and the counts; return the counts."""
+    all_cases = hostile_cases()[::every]
+    counts: collections.Counter = collections.Counter()
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        template = train_template_run(Path(tmp) / "template") if any(c.config for c in all_cases) else None
+        for i, case in enumerate(all_cases):
+            outcome = run_hostile_case(case, Path(tmp) / str(i), template)
+            for name in HOSTILE_COUNTS:
+                if outcome[name]:
+                    counts[name] += 1
+                    print(f"{name}: {case.name}: {outcome['text']}")
+    print(f"{len(all_cases)} hostile cases in {time.perf_counter() - start:.0f} s: "
+          + ", ".join(f"{counts[name]} {name}s" for name in HOSTILE_COUNTS))
+    return counts
+
+
+def main(argv: list[str] | None = None) -> int:
     th.set_num_threads(1)
+    hostile = run_hostile()
+    if any(hostile.values()):
+        return 1
+    if "--hostile-only" in (sys.argv[1:] if argv is None else argv):
+        return 0
     all_cases = cases()
     counts: collections.Counter = collections.Counter()
     slowest = (0.0, "")

@@ -224,3 +224,205 @@ def run_case(case: Case, folder: Path, time_limit: int = 60) -> tuple[str, str]:
     if code == 2 and "error:" in text and case.mention in text and not left:
         return ("clean" if not case.valid else "rejected"), text
     return ("rejected" if case.valid and code == 2 and not left else "unclear"), text + (f"\nleft: {left}" if left else "")
+
+
+# ---------------------------------------------------------------------------------------------- hostile cases
+# Issue 52: command lines, config files and run folders that try to run code. Every case tries to create the file
+# ``<case folder>/marker``; the zoo must refuse each with exit code 2 and one ``error:`` line, before anything runs.
+# ``{m}`` stands for the marker's path.
+PY_PAYLOADS = [
+    "[c for c in ().__class__.__base__.__subclasses__() if c.__name__ == '_wrap_close'][0].__init__.__globals__"
+    "['system']('touch {m}')",
+    "[x for x in ().__class__.__mro__[1].__subclasses__() if x.__name__ == 'Popen'][0]('touch {m}', shell=True)",
+    "__import__('os').system('touch {m}')",
+    "th.os.system('touch {m}')",
+    "th.save(1, '{m}')",
+    "torch.save(1, '{m}')",
+    "nn.Module.__init__.__globals__['os'].system('touch {m}')",
+    "open('{m}', 'w')",
+    "lambda: open('{m}', 'w')",
+    "(lambda: __import__('os').system('touch {m}'))()",
+    "dict(a=__import__('os').system('touch {m}'))",
+    "[__import__('os').system('touch {m}') for _ in [1]]",
+    "exec(\"open('{m}', 'w')\")",
+    "eval(\"open('{m}', 'w')\")",
+    "getattr(__import__('os'), 'system')('touch {m}')",
+    "f\"{{open('{m}', 'w')}}\"",
+    "__builtins__['open']('{m}', 'w')",
+    "globals()['__builtins__'].open('{m}', 'w')",
+    "dict(**{{'a': open('{m}', 'w')}})",
+    "9**9**9 or open('{m}', 'w')",
+    "'x' * 10**10 or open('{m}', 'w')",
+    "dict(activation_fn=th.nn.modules.module.os.system('touch {m}'))",
+]
+# Callables that create the marker when rl_zoo3 imports them by name and calls them with keyword arguments.
+CALLABLES = [
+    ("pydoc.pipepager", {"text": "x", "cmd": "touch {m}"}),
+    ("os.system", {"command": "touch {m}"}),
+    ("subprocess.getoutput", {"cmd": "touch {m}"}),
+    ("subprocess.run", {"args": "touch {m}", "shell": True}),
+    ("io.open", {"file": "{m}", "mode": "w"}),
+    ("codecs.open", {"filename": "{m}", "mode": "w"}),
+]
+# Keys rl_zoo3 evaluates as Python when they hold a string, and an algorithm that takes each.
+EVAL_KEYS = [("policy_kwargs", "ppo"), ("normalize", "ppo"), ("monitor_kwargs", "ppo"), ("replay_buffer_kwargs", "dqn"),
+             ("replay_buffer_class", "dqn")]
+# Keys rl_zoo3 imports by name and calls, and an algorithm whose set-up calls each.
+IMPORT_KEYS = [("callback", "ppo"), ("vec_env_wrapper", "ppo"), ("env_wrapper", "cppo")]
+BOMB = "".join(["    a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n"] + [
+    f"    {chr(97 + i)}: &{chr(97 + i)} [" + ", ".join([f"*{chr(96 + i)}"] * 9) + "]\n" for i in range(1, 9)])
+YAML_CASES = [  # (name, the file's text ({m}: the marker), mention)
+    ("billion laughs under monitor_kwargs", "{env}:\n  n_timesteps: 64\n  policy: MlpPolicy\n  monitor_kwargs:\n" + BOMB,
+     "expand"),
+    ("billion laughs under policy_kwargs", "{env}:\n  n_timesteps: 64\n  policy: MlpPolicy\n  policy_kwargs:\n" + BOMB,
+     "expand"),
+    ("billion laughs under env_kwargs", "{env}:\n  n_timesteps: 64\n  policy: MlpPolicy\n  env_kwargs:\n" + BOMB,
+     "expand"),
+    ("recursive alias", "{env}: &e\n  n_timesteps: 64\n  policy: MlpPolicy\n  env_kwargs: *e\n", "recursive"),
+    ("python tag os.system", "{env}: !!python/object/apply:os.system ['touch {m}']\n", "Python object tag"),
+    ("python tag Popen", "{env}:\n  n_timesteps: !!python/object/new:subprocess.Popen [['touch', '{m}']]\n",
+     "Python object tag"),
+    ("python tag open", "{env}:\n  policy_kwargs: !!python/object/apply:io.open ['{m}', 'w']\n", "Python object tag"),
+    ("python name", "{env}:\n  callback: !!python/name:pydoc.pipepager\n", "Python object tag"),
+    ("oversized file", "{env}:\n  n_timesteps: 64\n  monitor_kwargs: {{info_keywords: [" + "'x', " * 300_000 + "]}}\n",
+     "bytes"),
+    ("deep nesting", "{env}:\n  env_kwargs: " + "[" * 3000 + "]" * 3000 + "\n", "YAML"),
+]
+# Run-folder keys tampered with in config.yml before --resume or enjoy (value, with {m}).
+RUN_CASES = [
+    *[("policy_kwargs", payload) for payload in PY_PAYLOADS[:6]],
+    ("normalize", "dict(norm_obs=__import__('os').system('touch {m}') == 0)"),
+    ("monitor_kwargs", "__import__('os').system('touch {m}') or {{}}"),
+    *[(key, {name: kwargs}) for key in ("vec_env_wrapper", "callback") for name, kwargs in CALLABLES[:3]],
+    ("policy", "pydoc.pipepager"),
+]
+
+
+@dataclass
+class HostileCase:
+    """One hostile attempt: a ``zoo/train.py`` (or, with ``enjoy``, ``zoo/enjoy.py``) command line; ``{m}`` in any
+    text is the marker's path; ``yaml_text`` is written to a ``-conf`` file; ``config`` updates a copy of a finished
+    run's ``config.yml`` (the copy is resumed, or played by ``enjoy``)."""
+
+    name: str
+    argv: list[str]
+    yaml_text: str | None = None
+    config: dict | None = None
+    enjoy: bool = False
+
+
+def _fill(value, marker: str):
+    if isinstance(value, str):
+        return value.replace("{m}", marker)
+    if isinstance(value, dict):
+        return {k: _fill(v, marker) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_fill(v, marker) for v in value]
+    return value
+
+
+def hostile_cases() -> list[HostileCase]:
+    """Every hostile case, in a fixed order."""
+    env = "WildlifeReserve-v0"
+    out: list[HostileCase] = []
+    for i, payload in enumerate(PY_PAYLOADS):
+        out.append(HostileCase(f"-params learning_rate #{i}", ["--algo", "ppo", "-params", f"learning_rate:{payload}"]))
+        out.append(HostileCase(f"-params policy_kwargs #{i}", ["--algo", "ppo", "-params", f"policy_kwargs:{payload}"]))
+        out.append(HostileCase(f"--env-kwargs #{i}", ["--algo", "ppo", "--env-kwargs", f"region:{payload}"]))
+        out.append(HostileCase(f"-params normalize string #{i}", ["--algo", "ppo", "-params", f"normalize:{payload!r}"]))
+        for key, algo in EVAL_KEYS:
+            entry = {**zoo_hyperparams(algo), key: "__VALUE__"}
+            text = yaml.safe_dump({env: entry}).replace("__VALUE__", yaml.safe_dump(payload).strip().removesuffix("..."))
+            out.append(HostileCase(f"-conf {key} #{i}", ["--algo", algo], yaml_text=text.replace("\n...", "")))
+    for key, algo in IMPORT_KEYS:
+        for name, kwargs in CALLABLES:
+            value = {name: kwargs}
+            out.append(HostileCase(f"-params {key} {name}", ["--algo", algo, "-params", f"{key}:{value!r}"]))
+            out.append(HostileCase(f"-params {key} [{name}]", ["--algo", algo, "-params", f"{key}:{[value]!r}"]))
+            text = yaml.safe_dump({env: {**zoo_hyperparams(algo), key: value}})
+            out.append(HostileCase(f"-conf {key} {name}", ["--algo", algo], yaml_text=text))
+    for name, _ in CALLABLES:
+        out.append(HostileCase(f"-params policy {name}", ["--algo", "ppo", "-params", f"policy:{name!r}"]))
+    for name, text, _ in YAML_CASES:
+        out.append(HostileCase(f"yaml {name}", ["--algo", "ppo"], yaml_text=text.replace("{env}", env)))
+    for key, value in RUN_CASES:
+        out.append(HostileCase(f"--resume config.yml {key} {str(value)[:40]}", ["--algo", "ppo"], config={key: value}))
+    for name, kwargs in CALLABLES:  # enjoy plays under the run's vec_env_wrapper
+        for value in ({name: kwargs}, name, [{name: kwargs}]):
+            out.append(HostileCase(f"enjoy config.yml vec_env_wrapper {str(value)[:40]}", ["--algo", "ppo"],
+                                   config={"vec_env_wrapper": value}, enjoy=True))
+    return out
+
+
+def train_template_run(folder: Path) -> Path:
+    """A tiny finished PPO run with checkpoints, which the run-folder cases copy; returns its run folder."""
+    from sb3_emmarl.zoo.cli import train_main
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        code = train_main(["--algo", "ppo", "-n", "384", *TINY, *QUICK, "--save-freq", "128", "-f", str(folder),
+                           "-params", "n_steps:16", "batch_size:32"])
+    assert code == 0, "the template run failed"
+    return folder / "ppo" / "WildlifeReserve-v0_1"
+
+
+def _files(folder: Path) -> set[Path]:
+    return set(folder.rglob("*")) if folder.exists() else set()
+
+
+def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = None, time_limit: int = 30) -> dict:
+    """Run one hostile case in ``folder`` (fresh); ``template`` is :func:`train_template_run`'s run (for the cases
+    with a ``config``). Returns ``{"marker", "traceback", "leftover", "accepted", "text"}``: the marker was created;
+    an exception escaped, a traceback was printed, the error was not one ``error:`` line, or the case hung; files were
+    left behind (a new run folder, or new files in the tampered run); the case ran (exit code 0)."""
+    import shutil
+
+    from sb3_emmarl.zoo.cli import enjoy_main, train_main
+
+    folder.mkdir(parents=True, exist_ok=True)
+    marker = str(folder / "marker")
+    logs = folder / "logs"
+    argv = [_fill(a, marker) for a in case.argv]
+    if case.yaml_text is not None:
+        conf = folder / "conf.yml"
+        conf.write_text(case.yaml_text.replace("{m}", marker))
+        argv += ["-conf", str(conf)]
+    before: set[Path] = set()
+    if case.config is not None:
+        assert template is not None, "run-folder cases need the template run"
+        run = logs / "ppo" / template.name
+        shutil.copytree(template, run)
+        if not case.enjoy:
+            (run / "WildlifeReserve-v0.zip").unlink()
+        config_file = run / "WildlifeReserve-v0" / "config.yml"
+        config = yaml.safe_load(config_file.read_text())
+        config.update(_fill(case.config, marker))
+        config_file.write_text(yaml.safe_dump(config))
+        before = _files(logs)
+        argv = (["--algo", "ppo", "-f", str(logs), "--episodes", "1", "--no-record"] if case.enjoy else
+                ["--algo", "ppo", "--resume", str(run), "--verbose", "0"])
+    else:
+        argv = [*argv, "-n", "64", *QUICK, *(TINY if "--env-kwargs" not in argv else []), "-f", str(logs)]
+    out, err = io.StringIO(), io.StringIO()
+    escaped = hung = False
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(time_limit)
+    code: object = None
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = (enjoy_main if case.enjoy else train_main)(argv)
+            except SystemExit as exit_info:
+                code = exit_info.code
+    except _Timeout:
+        hung = True
+    except Exception as error:
+        escaped = True
+        err.write(f"{type(error).__name__}: {error}")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    text = err.getvalue().strip()
+    lines = text.splitlines()
+    one_line = len(lines) == 1 and "error:" in lines[0] and "Traceback" not in text
+    return {"marker": Path(marker).exists(), "traceback": escaped or hung or (code != 0 and not one_line),
+            "leftover": _files(logs) != before, "accepted": code == 0, "text": text[-300:]}

@@ -42,6 +42,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
 from sb3_emmarl.common.callbacks import EvalCallback
+from sb3_emmarl.common.safe_zip import check_zip_pickles
 
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
@@ -149,9 +150,10 @@ def load_pickle(path: str | Path) -> Any:
 
 # ---------------------------------------------------------------------------------------------- checked loading
 def check_model_file(path: str | Path) -> Path:
-    """Check that ``path`` is a complete SB3 model zip.
+    """Check that ``path`` is a complete SB3 model zip whose pickles name only allowed globals
+    (:func:`~sb3_emmarl.common.safe_zip.check_zip_pickles`).
 
-    :raise ValueError: naming the file when it is missing, truncated, corrupt or not a model
+    :raise ValueError: naming the file when it is missing, truncated, corrupt, not a model, or names a foreign global
     """
     path = Path(path)
     if not path.is_file():
@@ -167,6 +169,7 @@ def check_model_file(path: str | Path) -> Path:
         raise ValueError(f"{path} is corrupt (member {bad!r} fails its checksum): use an earlier checkpoint")
     if "data" not in names:
         raise ValueError(f"{path} is not a Stable-Baselines3 model (no 'data' in the zip)")
+    check_zip_pickles(path)  # before anything in it is unpickled (a zip from an unknown source is code)
     return path
 
 

@@ -24,6 +24,8 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sb3_emmarl.common.safe_config import ACTIVATIONS, OPTIMIZERS, check_imports, is_plain, parse_kwargs, parse_value
+
 #: Keys of a zoo YAML entry that are not constructor arguments (rl_zoo3 handles them).
 ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "env_wrapper", "vec_env_wrapper", "callback",
             "frame_stack", "monitor_kwargs", "noise_type", "noise_std")
@@ -35,6 +37,9 @@ MAX_N_ENVS = 256
 MAX_LAYER = 4096
 MAX_BUFFER = 10**7
 MAX_STEPS = 10**6
+#: Keys of ``normalize`` (SB3's ``VecNormalize`` arguments) and of ``monitor_kwargs`` (SB3's ``Monitor``'s).
+NORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon", "norm_obs_keys")
+MONITOR_KEYS = ("allow_early_resets", "reset_keywords", "info_keywords", "override_existing")
 SCHEDULE = re.compile(r"^lin_(?P<value>[-+0-9.eE]+)$")
 
 
@@ -61,6 +66,12 @@ def _is_int(value: Any) -> bool:
 def _is_number(value: Any) -> bool:
     return (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
             and math.isfinite(float(value)))
+
+
+def _non_empty(name: str, value: Any, parsed: dict[str, Any]) -> dict[str, Any]:
+    if not parsed:
+        fail(name, value, "a non-empty mapping (true normalizes with the defaults)")
+    return parsed
 
 
 def integer(low: int, high: int, allow_float: bool = False) -> Rule:
@@ -229,9 +240,21 @@ E_STEP_RULES: dict[str, Rule] = {
 RULES: dict[str, Rule] = {
     "n_timesteps": integer(1, MAX_TIMESTEPS, allow_float=True),
     "n_envs": integer(1, MAX_N_ENVS),
-    "normalize": one_of(boolean(), Rule(lambda n, v: v if isinstance(v, str) and v.startswith("dict(") else
-                                        fail(n, v, "a dict(...) expression"), "a dict(...) expression")),
-    "policy": Rule(lambda n, v: v if isinstance(v, str) else fail(n, v, "a policy name (str)"), "a policy name"),
+    # rl_zoo3 evaluates these strings and imports these names: here they are parsed as data (safe_config.parse_value)
+    # and the names checked against an allow-list (safe_config.IMPORT_KEYS), so that rl_zoo3 never sees a string
+    "normalize": one_of(boolean(), Rule(lambda n, v: _non_empty(n, v, parse_kwargs(n, v, NORMALIZE_KEYS)),
+                                        f"a non-empty mapping (or \"dict(...)\" string) with keys among "
+                                        f"{list(NORMALIZE_KEYS)}")),
+    "monitor_kwargs": Rule(lambda n, v: parse_kwargs(n, v, MONITOR_KEYS), "a mapping of Monitor's arguments"),
+    "replay_buffer_kwargs": Rule(lambda n, v: parse_kwargs(n, v), "a mapping of the replay buffer's arguments"),
+    "replay_buffer_class": Rule(lambda n, v: v if v is None else fail(n, v, "null (the algorithms choose their own)"),
+                                "null"),
+    "frame_stack": optional(integer(1, 64)),
+    "callback": Rule(lambda n, v: check_imports(n, v), "an allowed callback"),
+    "env_wrapper": Rule(lambda n, v: check_imports(n, v), "an allowed wrapper"),
+    "vec_env_wrapper": Rule(lambda n, v: check_imports(n, v), "an allowed wrapper"),
+    "policy": Rule(lambda n, v: v if isinstance(v, str) and v.isidentifier() else
+                   fail(n, v, "a policy name such as 'MlpPolicy' (not a module path)"), "a policy name"),
     "learning_rate": number(0.0, 10.0, low_open=True, schedule=True),
     "n_steps": integer(1, MAX_STEPS),
     "batch_size": integer(1, MAX_BUFFER),
@@ -312,25 +335,33 @@ RULES: dict[str, Rule] = {
     "sequence_length": integer(1, 10**4),
     "burn_in": integer(0, 10**4 - 1),
 }
-#: Names usable in a ``policy_kwargs`` string (rl_zoo3 evaluates it; we evaluate it with these names only).
-POLICY_KWARGS_NAMES = {"dict": dict, "list": list, "tuple": tuple, "nn": th.nn, "th": th, "True": True, "False": False,
-                       "None": None}
+#: The ``policy_kwargs`` keys that may name a class, and the classes each may name.
+POLICY_CLASS_KEYS: dict[str, dict[str, type]] = {"activation_fn": ACTIVATIONS, "optimizer_class": OPTIMIZERS}
 
 
 def parse_policy_kwargs(value: Any) -> dict[str, Any]:
-    """``policy_kwargs`` as a dict: rl_zoo3's ``"dict(net_arch=[64, 64])"`` string or a mapping; ``net_arch``
-    checked (layer sizes, or ``dict(pi=[...], vf=[...])`` / ``qf``)."""
+    """``policy_kwargs`` as a dict: rl_zoo3's ``"dict(net_arch=[64, 64])"`` string (read by
+    :func:`~sb3_emmarl.common.safe_config.parse_value`, never evaluated) or a mapping; ``net_arch`` checked (layer
+    sizes, or ``dict(pi=[...], vf=[...])`` / ``qf``), classes only as ``activation_fn`` (an activation) and
+    ``optimizer_class`` (an optimizer).
+
+    :param value: the string or mapping
+    :raise ValueError: naming ``policy_kwargs`` and what is wrong
+    """
     if value is None:
         return {}
     if isinstance(value, str):
-        try:
-            value = eval(value, {"__builtins__": {}}, dict(POLICY_KWARGS_NAMES))
-        except Exception as error:
-            raise ValueError(f"policy_kwargs: {value!r} is not a valid expression ({type(error).__name__}: {error}); "
-                             "write e.g. \"dict(net_arch=[64, 64])\"") from None
+        value = parse_value(value, "policy_kwargs")
     if not isinstance(value, dict):
         fail("policy_kwargs", value, "a dict or a \"dict(...)\" string")
     value = dict(value)
+    for key, item in value.items():
+        classes = POLICY_CLASS_KEYS.get(key)
+        if classes is not None and isinstance(item, type):
+            if item not in classes.values():
+                fail(f"policy_kwargs {key}", item, f"one of {sorted(classes)}")
+        elif not is_plain(item):
+            fail(f"policy_kwargs {key}", item, "plain data (classes only as " + " or ".join(POLICY_CLASS_KEYS) + ")")
     if "net_arch" in value:
         arch = value["net_arch"]
         if isinstance(arch, dict):
@@ -384,6 +415,9 @@ def check_hyperparams(algo_name: str, algo: type[BaseAlgorithm], hyperparams: An
             checked[key] = parse_policy_kwargs(value)
         elif key == "env_kwargs" and not isinstance(value, (dict, type(None))):
             fail(key, value, "a mapping of the reserve's arguments")
+    aliases = sorted(getattr(algo, "policy_aliases", None) or {})
+    if "policy" in checked and aliases and checked["policy"] not in aliases:
+        fail("policy", checked["policy"], f"one of {aliases}")
     return checked
 
 

@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, check_env_kwargs
+from sb3_emmarl.common.safe_config import load_yaml
 
 #: Where the package's specifications live.
 SPECS_DIR = Path(__file__).resolve().parent / "specs"
@@ -308,9 +307,9 @@ def load_spec(name_or_path: str | Path) -> ExperimentSpec:
         if not path.is_file():
             raise ValueError(f"unknown experiment {str(name_or_path)!r}; known: {list_specs()}")
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as error:
-        raise ValueError(f"cannot read the specification {path}: {error}") from None
+        data = load_yaml(path, "the specification")
+    except ValueError as error:
+        raise ValueError(f"cannot read the specification: {error}") from None
     spec = parse_spec(data, str(path))
     if spec.name != path.stem:
         raise ValueError(f"{path}: name: {spec.name!r} must be the file's name {path.stem!r}")

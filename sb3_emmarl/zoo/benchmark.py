@@ -10,13 +10,13 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from rl_zoo3.utils import get_wrapper_class
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.checkpoints import vec_normalize_stats
+from sb3_emmarl.common.checkpoints import check_model_file, vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
@@ -256,6 +256,7 @@ def evaluate_run(algo: str, run: str | Path, n_episodes: int, seed: int, relabel
         :class:`~sb3_emmarl.common.mode_aware.ModeObservationWrapper`); None tells the truth
     :return: one record per episode
     """
+    check_model_file(Path(run) / f"{ENV_ID}.zip")  # its pickles name only allowed globals
     model = load_for_evaluation(ZOO_ALGOS[algo], Path(run) / f"{ENV_ID}.zip", device="cpu")
     if relabel is None:
         return evaluate_team(model, n_episodes, seed=seed, **run_settings(run))
@@ -277,7 +278,7 @@ def run_settings(run: str | Path) -> dict[str, Any]:
     """
     config = read_yaml(Path(run) / ENV_ID / "config.yml", "the run's config")
     return {"env_kwargs": dict(config.get("env_kwargs") or {}),
-            "vec_env_wrapper": get_wrapper_class(config, "vec_env_wrapper"),
+            "vec_env_wrapper": wrapper_from_config(config, "vec_env_wrapper"),
             "vec_normalize_path": vec_normalize_stats(Path(run) / ENV_ID)}
 
 

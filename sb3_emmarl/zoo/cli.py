@@ -18,7 +18,7 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, NoReturn, cast
 
 import numpy as np
 import yaml
@@ -35,6 +35,7 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
+from sb3_emmarl.common.safe_config import parse_value, wrapper_from_config
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
@@ -59,7 +60,8 @@ def peak_rss_mib() -> float:
 
 
 def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
-    """rl-zoo's ``key:value`` pairs; values are Python expressions (quote strings: ``region:"'forest'"``).
+    """rl-zoo's ``key:value`` pairs; values are Python literals read as data by
+    :func:`~sb3_emmarl.common.safe_config.parse_value` (quote strings: ``region:"'forest'"``), never evaluated.
 
     :param items: the ``key:value`` strings
     :param flag: the flag's name, for error messages
@@ -69,12 +71,8 @@ def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
     for item in items or []:
         key, sep, value = item.partition(":")
         if not sep or not key:
-            raise ValueError(f"{flag} expects key:value pairs, got {item!r}")
-        try:
-            result[key] = eval(value, {"__builtins__": {"dict": dict, "list": list, "tuple": tuple}}, {})
-        except Exception as error:
-            raise ValueError(f"{flag} {key}: {value!r} is not a valid Python value ({error}); "
-                             f"quote strings, e.g. {key}:\"'text'\"") from None
+            raise ValueError(f"{flag} expects key:value pairs, got {item[:80]!r}")
+        result[key] = parse_value(value, f"{flag} {key}")
     return result
 
 
@@ -103,8 +101,16 @@ class KeyValues(argparse.Action):
             parser.error(str(error))
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line (``<prog>: error: <message> (--help for usage)``, exit code 2),
+    without the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (--help for usage)\n")
+
+
 def train_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description="Train an agent on the wildlife reserve or ZonePatrol "
+    parser = OneLineParser(description="Train an agent on the wildlife reserve or ZonePatrol "
                                                  "(rl-baselines3-zoo flags).")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
     parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
@@ -331,7 +337,7 @@ def next_steps(args: argparse.Namespace, save_path: str, n_timesteps: int) -> st
 
 
 def enjoy_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description="Watch a trained team: team metrics and an animation of its patrol.")
+    parser = OneLineParser(description="Watch a trained team: team metrics and an animation of its patrol.")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
     parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
     parser.add_argument("-f", "--folder", default="logs", help="log folder of the runs")
@@ -354,7 +360,7 @@ def enjoy_parser() -> argparse.ArgumentParser:
 
 def enjoy_main(argv: list[str] | None = None) -> int:
     """Load a saved run, print its team metrics on evaluation episodes and record one episode."""
-    from rl_zoo3.utils import EnvironmentName, get_model_path, get_wrapper_class
+    from rl_zoo3.utils import EnvironmentName, get_model_path
 
     from sb3_emmarl.common.recording import record_episode
 
@@ -378,7 +384,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
         parallel_env_fn(args.env)(**env_kwargs).close()  # checked before anything runs
         vec_normalize_path = vec_normalize_stats(params_path)
         # What the run was trained under (rl_zoo3 annotates get_wrapper_class for gym.Env wrappers only)
-        vec_env_wrapper = cast("Callable[[VecEnv], VecEnv] | None", get_wrapper_class(config, "vec_env_wrapper"))
+        vec_env_wrapper = cast("Callable[[VecEnv], VecEnv] | None", wrapper_from_config(config, "vec_env_wrapper"))
         model = load_model(ZOO_ALGOS[args.algo], model_path, candidates=ZOO_ALGOS, device="cpu")
     except (AssertionError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)

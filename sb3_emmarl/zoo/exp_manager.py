@@ -71,6 +71,7 @@ from sb3_emmarl.common.checkpoints import (
 )
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
+from sb3_emmarl.common.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO
@@ -92,19 +93,14 @@ EVAL_SEED_OFFSET = 10_000
 
 
 def read_yaml(path: str | Path, what: str) -> Any:
-    """A YAML file read as data (``yaml.safe_load``): a Python tag is refused with a message naming the file.
+    """A YAML file read as data (:func:`~sb3_emmarl.common.safe_config.load_yaml`): a Python tag, an oversized file and
+    aliases that expand beyond the limit are refused with a message naming the file.
 
     :param path: the file
     :param what: what the file is, for messages
-    :raise ValueError: if the file does not parse or holds Python objects
+    :raise ValueError: if the file does not parse, holds Python objects or is too large
     """
-    try:
-        return yaml.safe_load(Path(path).read_text())
-    except yaml.constructor.ConstructorError as error:
-        raise ValueError(f"{path}: refusing to load {what} holding a Python object tag ({error.problem}); "
-                         "run folders and configs are read as data only") from None
-    except yaml.YAMLError as error:
-        raise ValueError(f"{path} is not valid YAML ({error})") from None
+    return load_yaml(path, what)
 
 
 #: The key of a YAML section that names the zoo file whose settings it starts from (``base: ppo``).
@@ -279,13 +275,24 @@ class ReserveExperimentManager(ExperimentManager):
         if self._eval_env_kwargs_args is None:
             self.eval_env_kwargs = self.env_kwargs
         saved_hyperparams = {key: hyperparams[key] for key in sorted(hyperparams)}
-        if isinstance(original_policy_kwargs, str):  # saved as written (it may name torch classes)
+        for key, value in saved_hyperparams.items():  # a value holding classes: saved as the text that names them
+            if not is_plain(value):
+                saved_hyperparams[key] = to_source(value)
+        if isinstance(original_policy_kwargs, str):  # saved as written
             saved_hyperparams["policy_kwargs"] = original_policy_kwargs
         if self.verbose > 0:
             print(f"Hyperparameters from {self.config}: {saved_hyperparams}")
         return dict(hyperparams), saved_hyperparams
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
+        # rl_zoo3 evaluates these strings and imports dotted names: check_hyperparams has made them data (a guard)
+        for key in ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs", "monitor_kwargs", "normalize"):
+            if isinstance(hyperparams.get(key), str):
+                raise ValueError(f"{key}: refusing the unparsed string {hyperparams[key]!r} (rl_zoo3 would evaluate it)")
+        if "." in str(hyperparams.get("policy", "")):
+            raise ValueError(f"policy must be a policy name, not a module path: {hyperparams['policy']!r}")
+        for key in IMPORT_KEYS:
+            check_imports(key, hyperparams.get(key))
         processed = super()._preprocess_hyperparams(hyperparams)
         if self.n_timesteps <= 0:
             raise ValueError(f"n_timesteps must be >= 1, got {self.n_timesteps}")
