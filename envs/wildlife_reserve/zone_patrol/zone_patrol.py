@@ -70,7 +70,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, ZonePatrolConfig, ZonePatrolWorld
+from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, ZonePatrolConfig, ZonePatrolWorld
 
 #: The render modes (``metadata["render_modes"]``).
 RENDER_MODES = ("human", "rgb_array")
@@ -137,7 +137,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return {"grid_size": cfg.grid_size, "zone_size": cfg.zone_size, "window_radius": cfg.window_radius,
                 "zone_origins": cfg.zone_origins().tolist(), "tracks": [0, cells], "detections": [cells, 2 * cells],
                 "own": [3 * cells, 3 * cells + 2], "visibility": 3 * cells + 2,
-                "cues": [3 * cells + 4, 3 * cells + 8] if cfg.zone_cue else None}
+                "cues": [3 * cells + 4, 3 * cells + 4 + N_ZONES] if cfg.zone_cue else None}
 
     @property
     def mode(self) -> int:
