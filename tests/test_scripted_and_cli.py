@@ -104,6 +104,10 @@ def test_the_summary_says_what_each_metric_is_and_which_way_is_better():
     assert lines[0].startswith("team_reward") and lines[0].endswith("(higher is better)")
     assert next(line for line in lines if line.startswith("collisions")).endswith("(lower is better)")
     assert format_summary(summary, explain=False).splitlines()[0].rstrip().endswith("1.000")
+    # A metric with no better direction says how to read it instead: belief_use's scale and its zero.
+    belief = format_summary({"belief_use": (0.4, 0.1)})
+    assert "0 when the policy ignores its belief" in belief and "is better" not in belief
+    assert all(meaning for meaning, _ in METRIC_MEANINGS.values())
 
 
 def test_a_finished_run_says_where_its_curves_are_and_what_to_run_next():

@@ -79,7 +79,8 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
        for f in EPISODE_FRACTIONS},
     "latent_kl": ("KL from the belief to the true mode's one-hot (smoothed), mean over steps", "lower"),
     "latent_nmi": ("mutual information of the belief's choice and the mode, 0 (none) to 1", "higher"),
-    "belief_use": ("how far the actions move when the belief is permuted (KL): does the policy read it", ""),
+    "belief_use": ("how far the actions move when the belief is permuted (KL, nats): 0 when the policy ignores its "
+                   "belief, higher the more its actions follow it (good only where the belief is right)", ""),
 }
 
 
