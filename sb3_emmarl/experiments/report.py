@@ -32,6 +32,7 @@ from matplotlib.figure import Figure
 from sb3_emmarl.common.checkpoints import write_text
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec
+from sb3_emmarl.experiments.store import UNKNOWN
 
 #: Shown in a table where there is no value.
 MISSING = "-"
@@ -381,7 +382,8 @@ def figure_file(spec: ExperimentSpec, kind: str, metric: str) -> str:
 
 def render_section(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], budget: str, figures_dir: str | Path,
                    command: str, hardware: str) -> str:
-    """The experiment's section of ``docs/results.md``: heading, command, hardware, budget, table and figures.
+    """The experiment's section of a results page: heading, command, hardware, budget, table, the package versions
+    and git commits that made its cells (:func:`made_with`), and figures.
 
     The figures of the outputs of kind ``bars`` and ``curves`` are drawn into ``figures_dir`` and linked as
     ``figures/<file>`` (the page sits beside its ``figures`` folder); a figure that cannot be drawn (no cell has its
@@ -413,7 +415,7 @@ def render_section(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], budget:
                  + (f"; diff: mean paired difference from {spec.reference} over the seeds both have, p: paired t-test "
                     "over those seeds" if spec.reference is not None else "")
                  + ("; paper: the value the paper reports." if spec.claims else "."))
-    lines += ["", markdown_table(spec, rows).rstrip("\n")]
+    lines += ["", markdown_table(spec, rows).rstrip("\n"), "", made_with(rows)]
     figures_dir = Path(figures_dir)
     for output in spec.outputs:
         if output.kind == "trajectories":
@@ -449,6 +451,48 @@ def _trajectory_figures(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], fi
             figure_trajectories(data["positions"], figures_dir / file, title, data["terrain"], data["poachers"])
         lines += ["", f"![{spec.paper}: {title}, one evaluation episode](figures/{file})"]
     return lines
+
+
+def _count(items: Sequence[str]) -> str:
+    """``"0.19.0 (3 cells) and 0.20.0 (9 cells)"``: each distinct item with how many cells have it, sorted."""
+    counts = {item: items.count(item) for item in sorted(set(items))}
+    parts = [f"{item} ({n} cell{'s' * (n != 1)})" for item, n in counts.items()]
+    return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
+
+
+def check_versions(name: str, budget: str, rows: Sequence[dict[str, Any]], allow_mixed: bool = False) -> list[str]:
+    """The package versions that made an experiment's finished cells, refused when there are several.
+
+    :param name: the experiment (for the message)
+    :param budget: its budget (for the message)
+    :param rows: its finished cells (:meth:`~sb3_emmarl.experiments.store.ResultStore.rows`; cells stored before the
+        store recorded versions are ``"unknown"``)
+    :param allow_mixed: report several versions together
+    :return: the versions, sorted
+    :raise ValueError: one line naming the versions and how to go on, when there are several and not ``allow_mixed``
+    """
+    versions = [str(r.get("version") or UNKNOWN) for r in rows]
+    if len(set(versions)) > 1 and not allow_mixed:
+        raise ValueError(f"{name} ({budget}): the store holds cells of sb3-emmarl {_count(versions)}"
+                         + (" (unknown: stored before cells recorded their version)" if UNKNOWN in versions else "")
+                         + "; run the others again with --rerun-stale, or report them together with "
+                         "--allow-mixed-versions")
+    return sorted(set(versions))
+
+
+def _short_commit(commit: str) -> str:
+    """A commit's first 12 hex digits, with its ``+dirty`` mark if any."""
+    sha, plus, mark = commit.partition("+")
+    return sha[:12] + plus + mark
+
+
+def made_with(rows: Sequence[dict[str, Any]]) -> str:
+    """The sentence naming the package versions and git commits that made the cells (a table's provenance)."""
+    versions = [str(r.get("version") or UNKNOWN) for r in rows]
+    commits = [_short_commit(str(r.get("git_commit") or UNKNOWN)) for r in rows]
+    several = len(set(commits)) > 1
+    return (f"Made with sb3-emmarl {_count(versions) if len(set(versions)) > 1 else versions[0]}, git commit"
+            f"{'s' * several} {_count(commits) if several else commits[0]}.")
 
 
 def _markers(name: str) -> tuple[str, str]:

@@ -7,37 +7,61 @@ another reserve (``-i``), evaluates the team on the budget's evaluation episodes
 and writes its result as JSON. The runner records each finished cell in the :class:`ResultStore` as soon as it
 finishes, so that a runner killed mid-way and started again runs only the missing cells.
 
+Several runners can share a store: each claims a cell in the store before starting it (a lease renewed by a heartbeat,
+:meth:`ResultStore.claim`), skips the cells other live runners hold, waits for them at the end and takes over those
+whose runner died. A runner's cells die with it: each cell process leads its own process group, which the runner
+kills when it stops (an error, SIGINT, SIGTERM); a runner killed outright (SIGKILL) cannot, so each cell asks Linux to
+kill it when its parent dies (``prctl(PR_SET_PDEATHSIG)``, chosen over polling ``os.getppid()`` because it acts at
+once and costs nothing while the cell trains; elsewhere a thread of the cell polls its parent every second).
+
 Backends: ``"local"`` (``n_jobs`` cells at once, each a subprocess) and ``"ray"`` (each cell a Ray task with one CPU
 running the same subprocess; ``address`` names a running cluster, None starts a local instance). Ray is an optional
-extra (``pip install sb3-emmarl[ray]``). On a cluster without a shared file system the run folders (and so the
-learning curves) stay on the workers; the store gets every metric.
+extra (``pip install sb3-emmarl[ray]``). A cell names its specification by name (the package's data, read on the
+worker) or ships the YAML text of a file the driver read; the results root is made absolute by the driver. Every node
+needs the same sb3-emmarl version as the driver (a cell refuses to run otherwise). On a cluster without a shared file
+system the run folders stay on the workers unless ``gather`` is set, which brings each one to the driver's root.
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
+import io
 import json
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
+import tarfile
+import threading
 import time
-from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from sb3_emmarl.common.environments import ENV_ID
-from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec
-from sb3_emmarl.experiments.store import ResultStore
+from sb3_emmarl.common.safe_config import load_yaml_text
+from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec, parse_spec
+from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore, RunnerId, code_version
 
 #: The backends of :func:`run_experiment`.
 BACKENDS = ("local", "ray")
 #: A cell's trajectory of one evaluation episode (for the trajectory figures), in its folder.
 TRAJECTORY_FILE = "trajectory.npz"
+#: Seconds between a waiting runner's looks at the store (for cells other runners hold).
+POLL_SECONDS = 1.0
+#: Linux's ``prctl`` option that sends a signal to a process when its parent dies.
+PR_SET_PDEATHSIG = 1
+
+#: The cell processes this process runs, by process id (each leads its own process group).
+_CELLS: dict[int, subprocess.Popen] = {}
+_CELLS_LOCK = threading.Lock()
 
 
 def hardware() -> str:
@@ -89,6 +113,9 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
              root: str | Path) -> dict[str, Any]:
     """Train, fine-tune if the condition says so, and evaluate one cell, in this process.
 
+    The cell's folder is cleared first (what an earlier, dead attempt left behind): call it only for a cell that no
+    live process works on (the runner's claim in the store ensures it).
+
     :return: ``{"metrics": {name: value}, "episodes": [evaluation records], "run_dir": folder}``: the mean of every
         episode metric over the evaluation episodes, and the run's ``train_seconds`` (both stages), ``peak_rss_mib``,
         ``cpu_percent`` (CPU time over wall time of training), ``agent_steps_per_second`` and ``n_timesteps``
@@ -101,7 +128,7 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
     th.set_num_threads(1)
     variant, cond, plan = spec.algorithms[algorithm], spec.conditions[condition], spec.budgets[budget]
     folder = cell_folder(root, spec, budget, algorithm, condition, seed)
-    shutil.rmtree(folder, ignore_errors=True)  # what a killed attempt left behind
+    shutil.rmtree(folder, ignore_errors=True)  # what a dead attempt left behind
     stages = [(plan.n_timesteps, cond.train)]
     if cond.fine_tune is not None:
         tuned = max(1, round(plan.n_timesteps * cond.fine_tune["fraction"]))
@@ -148,82 +175,255 @@ def compile_for_condition(spec: ExperimentSpec, condition: str) -> None:
         compile_reserve(env_kwargs)
 
 
-def run_cell_process(spec_path: str, budget: str, algorithm: str, condition: str, seed: int,
-                     root: str) -> dict[str, Any]:
-    """:func:`run_cell` in a fresh process (one torch thread), after :func:`compile_for_condition` in this one;
-    returns its result."""
-    compile_for_condition(load_spec(spec_path), condition)
-    result_file = Path(root) / ".results" / f"{Path(spec_path).stem}-{budget}-{algorithm}-{condition}-{seed}.json"
+def spec_from(name: str, text: str | None) -> ExperimentSpec:
+    """A cell's specification: the package's own by ``name`` (read where the cell runs), or parsed from the YAML
+    ``text`` the driver read from a file named ``name``."""
+    if text is None:
+        return load_spec(name)
+    spec = parse_spec(load_yaml_text(text, f"{name}.yml"), f"{name}.yml")
+    if spec.name != name:
+        raise ValueError(f"{name}.yml: name: {spec.name!r} must be the file's name {name!r}")
+    return spec
+
+
+def _pack(folder: Path) -> bytes:
+    """A folder as an in-memory gzipped tar (its entries relative to the folder)."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
+        archive.add(folder, arcname=".")
+    return buffer.getvalue()
+
+
+def unpack(data: bytes, folder: Path) -> None:
+    """Replace ``folder`` by the content of a :func:`_pack` archive (regular files and folders only)."""
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as archive:
+        archive.extractall(folder, filter="data")
+
+
+def run_cell_process(spec_name: str, spec_text: str | None, budget: str, algorithm: str, condition: str, seed: int,
+                     root: str, version: str | None = None, gather_from: str | None = None) -> dict[str, Any]:
+    """:func:`run_cell` in a fresh process (one torch thread, its own process group, killed if this process dies),
+    after :func:`compile_for_condition` in this one; returns its result.
+
+    :param spec_name: the specification's name (the package's own when ``spec_text`` is None)
+    :param spec_text: the YAML of a specification file the driver read, or None
+    :param budget: the budget
+    :param algorithm: the cell's algorithm
+    :param condition: its condition
+    :param seed: its seed
+    :param root: the (absolute) results root
+    :param version: the driver's package version: refused when this process's differs (None: not checked)
+    :param gather_from: when set, the id of the driver's Ray node: a cell run on another node returns its folder as
+        ``result["folder_archive"]`` (a gzipped tar) for the driver to unpack
+    :return: the cell's result (:func:`run_cell`) with the ``hardware`` it ran on
+    :raise RuntimeError: when the cell fails or the versions differ
+    """
+    mine = code_version()[0]
+    if version is not None and mine != version:
+        raise RuntimeError(f"{platform.node()} has sb3-emmarl {mine} and the driver {version}: install the driver's "
+                           "version on every node")
+    spec = spec_from(spec_name, spec_text)
+    compile_for_condition(spec, condition)
+    result_file = Path(root) / ".results" / f"{spec.name}-{budget}-{algorithm}-{condition}-{seed}.json"
     result_file.parent.mkdir(parents=True, exist_ok=True)
     result_file.unlink(missing_ok=True)
-    command = [sys.executable, "-m", "sb3_emmarl.experiments.runner", spec_path, budget, algorithm, condition,
-               str(seed), root, str(result_file)]
-    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
-    if done.returncode != 0 or not result_file.is_file():
-        raise RuntimeError(f"cell {algorithm} / {condition} / seed {seed} failed:\n{done.stderr[-3000:]}")
+    command = [sys.executable, "-m", "sb3_emmarl.experiments.runner", spec_name, budget, algorithm, condition,
+               str(seed), root, str(result_file), "--parent-pid", str(os.getpid())]
+    if spec_text is not None:
+        command.append("--spec-stdin")
+    cell = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    with _CELLS_LOCK:
+        _CELLS[cell.pid] = cell
+    try:
+        _, stderr = cell.communicate(spec_text)
+    finally:
+        with _CELLS_LOCK:
+            _CELLS.pop(cell.pid, None)
+        _kill_group(cell)  # anything the cell left running in its group
+    if cell.returncode != 0 or not result_file.is_file():
+        raise RuntimeError(f"cell {algorithm} / {condition} / seed {seed} failed (exit code {cell.returncode}):\n"
+                           f"{stderr[-3000:]}")
     result = json.loads(result_file.read_text())
     result_file.unlink()
+    result["hardware"] = hardware()
+    if gather_from is not None:
+        import ray
+
+        if ray.get_runtime_context().get_node_id() != gather_from:
+            result["folder_archive"] = _pack(Path(result["run_dir"]))
     return result
 
 
-def _spec_path(spec: ExperimentSpec, spec_path: str | None) -> str:
-    return spec_path or str(SPECS_DIR / f"{spec.name}.yml")
+def _kill_group(cell: subprocess.Popen) -> None:
+    """Kill a cell's process group (the cell leads it), if anything of it is left."""
+    try:
+        os.killpg(cell.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    cell.wait()
+
+
+def kill_cells() -> None:
+    """Kill the process group of every cell this process is running (their threads see them fail)."""
+    with _CELLS_LOCK:
+        cells = list(_CELLS.values())
+    for cell in cells:
+        try:
+            os.killpg(cell.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+@contextmanager
+def _stopped_by_signals() -> Iterator[None]:
+    """In the main thread, turn SIGTERM into :class:`SystemExit` (SIGINT is already KeyboardInterrupt), so that the
+    runner's cleanup runs; the previous handler is restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame: Any) -> None:
+        raise SystemExit(f"stopped by {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+class _Heartbeat(threading.Thread):
+    """Renews a runner's claims every ``interval`` seconds until stopped."""
+
+    def __init__(self, store: ResultStore, runner: RunnerId, interval: float) -> None:
+        super().__init__(name="experiment-heartbeat", daemon=True)
+        self.store, self.runner, self.interval = store, runner, interval
+        self.stopped = threading.Event()
+
+    def run(self) -> None:
+        import sqlite3
+
+        while not self.stopped.wait(self.interval):
+            try:
+                self.store.heartbeat(self.runner)
+            except sqlite3.Error:
+                pass  # the store is busy: the next beat comes before the lease ends
+
+
+def _spec_source(spec: ExperimentSpec, spec_path: str | None) -> tuple[str, str | None]:
+    """How a cell names its specification: the package's by name, or a file's YAML text."""
+    if spec_path is None or Path(spec_path).resolve() == (SPECS_DIR / f"{spec.name}.yml").resolve():
+        return spec.name, None
+    return spec.name, Path(spec_path).read_text()
 
 
 def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: str | Path, backend: str = "local",
                    n_jobs: int | None = None, address: str | None = None, spec_path: str | None = None,
-                   log: Callable[[str], None] = print) -> int:
+                   log: Callable[[str], None] = print, lease_seconds: float = LEASE_SECONDS,
+                   rerun_stale: bool = False, gather: bool = False) -> int:
     """Run every cell of ``spec`` at ``budget`` that the store does not hold yet, and record each as it finishes.
+
+    Cells are claimed in the store one by one before they start; cells that other live runners hold are left to
+    them, and waited for once nothing else is left (a runner that dies meanwhile has its cells taken over here).
 
     :param spec: the experiment
     :param budget: ``"quick"`` or ``"full"``
-    :param store: where finished cells are recorded (and looked up)
-    :param root: folder of the cells' runs
+    :param store: where finished cells are recorded (and looked up) and running ones claimed
+    :param root: folder of the cells' runs (made absolute here)
     :param backend: ``"local"`` or ``"ray"``
-    :param n_jobs: cells at once on the local backend (default: this machine's cores)
+    :param n_jobs: cells at once (default: this machine's cores on the local backend, the cluster's CPUs on Ray)
     :param address: the Ray cluster's address (None: a local Ray instance)
     :param spec_path: the specification's file when it is not one of the package's
     :param log: where progress lines go
-    :return: the number of cells run now
+    :param lease_seconds: how long after its last heartbeat a claim of a runner on another host stops holding its
+        cell (a runner on this host holds its cells exactly as long as its process lives); heartbeats come every
+        quarter of it
+    :param rerun_stale: run again the cells stored by another version of the package (replacing them)
+    :param gather: on Ray, bring the run folders of cells run on other nodes to this machine's ``root``
+    :return: the number of cells run (and recorded) by this runner
     """
     if budget not in spec.budgets:
         raise ValueError(f"budget must be one of {sorted(spec.budgets)}, got {budget!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
-    n_jobs = (os.cpu_count() or 1) if n_jobs is None else n_jobs
-    if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 1:
+    if n_jobs is not None and (isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 1):
         raise ValueError(f"n_jobs must be an int >= 1, got {n_jobs!r}")
-    done = store.finished(spec.name, budget)
-    cells = [cell for cell in spec.cells(budget) if cell not in done]
-    log(f"{spec.name} ({budget}): {len(spec.cells(budget))} cells, {len(done)} finished, {len(cells)} to run "
-        f"({backend})")
-    if not cells:
+    if isinstance(lease_seconds, bool) or not isinstance(lease_seconds, (int, float)) or not lease_seconds > 0:
+        raise ValueError(f"lease_seconds must be a number > 0, got {lease_seconds!r}")
+    root = str(Path(root).resolve())
+    version = code_version()
+    cells = spec.cells(budget)
+    current = version[0] if rerun_stale else None
+    done = store.finished(spec.name, budget, current)
+    log(f"{spec.name} ({budget}): {len(cells)} cells, {len(done)} finished"
+        + (f" by {version[0]}" if rerun_stale else "") + f", {len(cells) - len(done)} to run ({backend})")
+    if len(done) == len(cells):
         return 0
-    path, machine = _spec_path(spec, spec_path), hardware()
-    args = [(path, budget, a, c, s, str(root)) for a, c, s in cells]
+    name, text = _spec_source(spec, spec_path)
+    runner = RunnerId()
+    with _backend(backend, n_jobs, address, gather) as (slots, submit, wait_any, collect):
+        heartbeat = _Heartbeat(store, runner, lease_seconds / 4)
+        heartbeat.start()
+        running: dict[Any, tuple[str, str, int]] = {}
+        start, ran, waiting_said = time.perf_counter(), 0, False
+        try:
+            with _stopped_by_signals():
+                while True:
+                    while len(running) < slots:
+                        claim = store.claim(spec.name, budget, cells, runner, lease_seconds, current)
+                        if claim is None:
+                            break
+                        if claim.previous is not None:
+                            log(f"  taking over {' / '.join(map(str, claim.cell))} from runner {claim.previous[:8]}, "
+                                "which is gone")
+                        running[submit((name, text, budget, *claim.cell, root, version[0]))] = claim.cell
+                    if not running:
+                        others = store.held_by_others(spec.name, budget, runner, lease_seconds)
+                        if not others:
+                            break
+                        if not waiting_said:
+                            log(f"  waiting for {len(others)} cell(s) that other runners are running")
+                            waiting_said = True
+                        time.sleep(POLL_SECONDS)
+                        continue
+                    for handle in wait_any(list(running), POLL_SECONDS):
+                        algorithm, condition, seed = running.pop(handle)
+                        result = collect(handle)
+                        if not store.record(spec.name, budget, algorithm, condition, seed, result["metrics"],
+                                            result["episodes"], result["run_dir"], result["hardware"], runner, version):
+                            log(f"  dropped {algorithm} / {condition} / seed {seed}: its claim was taken over")
+                            continue
+                        ran += 1
+                        log(f"  finished {algorithm} / {condition} / seed {seed}: "
+                            + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in spec.metrics))
+        finally:
+            heartbeat.stopped.set()
+            kill_cells()
+            store.release(runner)
+    log(f"{spec.name} ({budget}): {ran} cells in {time.perf_counter() - start:.0f} s")
+    return ran
 
-    def record(cell_args: tuple, result: dict[str, Any]) -> None:
-        _, _, algorithm, condition, seed, _ = cell_args
-        store.record(spec.name, budget, algorithm, condition, seed, result["metrics"], result["episodes"],
-                     result["run_dir"], machine)
-        log(f"  finished {algorithm} / {condition} / seed {seed}: "
-            + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in spec.metrics))
 
-    start = time.perf_counter()
+@contextmanager
+def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool) -> Iterator[tuple]:
+    """``(slots, submit(args) -> handle, wait_any(handles, timeout) -> finished handles, collect(handle) -> result)``
+    of a backend, shut down on exit (running cells killed first)."""
     if backend == "local":
-        with ThreadPoolExecutor(max_workers=n_jobs) as pool:
-            pending = {pool.submit(run_cell_process, *a): a for a in args}
-            while pending:
-                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in finished:
-                    record(pending.pop(future), future.result())
-    else:
-        _run_on_ray(args, address, record)
-    log(f"{spec.name} ({budget}): {len(cells)} cells in {time.perf_counter() - start:.0f} s")
-    return len(cells)
+        slots = (os.cpu_count() or 1) if n_jobs is None else n_jobs
+        pool = ThreadPoolExecutor(max_workers=slots)
 
+        def wait_local(handles: list[Future], timeout: float) -> set[Future]:
+            return wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)[0]
 
-def _run_on_ray(args: list[tuple], address: str | None, record: Callable[[tuple, dict], None]) -> None:
+        try:
+            yield slots, lambda args: pool.submit(run_cell_process, *args), wait_local, Future.result
+        finally:
+            kill_cells()
+            pool.shutdown(wait=True, cancel_futures=True)
+        return
     try:
         import ray
     except ImportError:
@@ -231,28 +431,74 @@ def _run_on_ray(args: list[tuple], address: str | None, record: Callable[[tuple,
     started = not ray.is_initialized()
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    refs: set[Any] = set()
     try:
-        task = ray.remote(num_cpus=1)(run_cell_process)
-        pending = {task.remote(*a): a for a in args}
-        while pending:
-            finished, _ = ray.wait(list(pending), num_returns=1)
-            for ref in finished:
-                record(pending.pop(ref), ray.get(ref))
+        slots = n_jobs if n_jobs is not None else max(1, int(ray.cluster_resources().get("CPU", 1)))
+        task = ray.remote(num_cpus=1, max_retries=0)(run_cell_process)
+        gather_from = ray.get_runtime_context().get_node_id() if gather else None
+
+        def submit(args: tuple) -> Any:
+            ref = task.remote(*args, gather_from=gather_from)
+            refs.add(ref)
+            return ref
+
+        def wait_ray(handles: list[Any], timeout: float) -> list[Any]:
+            return ray.wait(handles, num_returns=1, timeout=timeout)[0]
+
+        def collect(ref: Any) -> dict[str, Any]:
+            refs.discard(ref)
+            try:
+                result = ray.get(ref)
+            except ray.exceptions.RayTaskError as error:
+                raise RuntimeError(str(error.cause)) from None
+            archive = result.pop("folder_archive", None)
+            if archive is not None:
+                unpack(archive, Path(result["run_dir"]))
+            return result
+
+        yield slots, submit, wait_ray, collect
     finally:
+        for ref in refs:
+            ray.cancel(ref, force=True)
         if started:
             ray.shutdown()
 
 
+def _die_with_parent(parent_pid: int) -> None:
+    """End this process when ``parent_pid`` (the runner that started it) dies: Linux's parent-death signal (SIGKILL),
+    else a thread that polls the parent every second; and at once if the parent is already gone."""
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    else:
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(1.0)
+            os.killpg(os.getpgrp(), signal.SIGKILL)
+
+        threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    if os.getppid() != parent_pid:  # it died before the signal was set
+        os._exit(1)
+
+
 def _cell_main(argv: list[str] | None = None) -> int:
-    """One cell in this process: ``SPEC BUDGET ALGORITHM CONDITION SEED ROOT RESULT_FILE``."""
+    """One cell in this process: ``SPEC BUDGET ALGORITHM CONDITION SEED ROOT RESULT_FILE [--parent-pid PID]
+    [--spec-stdin]``."""
     parser = argparse.ArgumentParser(description="Run one experiment cell (used by the runner).")
-    for name in ("spec", "budget", "algorithm", "condition"):
+    parser.add_argument("spec", help="the package's specification's name, or with --spec-stdin the file's")
+    for name in ("budget", "algorithm", "condition"):
         parser.add_argument(name)
     parser.add_argument("seed", type=int)
     parser.add_argument("root")
     parser.add_argument("result_file")
+    parser.add_argument("--parent-pid", type=int, default=None, help="die when this process (the runner) dies")
+    parser.add_argument("--spec-stdin", action="store_true", help="read the specification's YAML from stdin")
     args = parser.parse_args(argv)
-    result = run_cell(load_spec(args.spec), args.budget, args.algorithm, args.condition, args.seed, args.root)
+    if args.parent_pid is not None:
+        _die_with_parent(args.parent_pid)
+    spec = spec_from(args.spec, sys.stdin.read() if args.spec_stdin else None)
+    result = run_cell(spec, args.budget, args.algorithm, args.condition, args.seed, args.root)
     from sb3_emmarl.common.checkpoints import write_text
 
     write_text(args.result_file, json.dumps(result))

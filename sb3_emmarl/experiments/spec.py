@@ -50,6 +50,8 @@ METRICS = EPISODE_METRICS + RUN_METRICS
 #: Tensorboard scalars the learning-curve figures can draw (SB3's names).
 CURVE_TAGS = ("rollout/ep_rew_mean", "train/entropy_loss", "train/policy_gradient_loss", "train/actor_loss",
               "train/loss", "train/value_loss")
+#: Names an algorithm cannot take: the report's figures sit beside the algorithms' folders of a budget.
+RESERVED_NAMES = ("figures",)
 #: Agent-steps of one episode in the ``full`` budget's ``episodes`` (the reserve's default ``max_cycles``, 10 UAVs):
 #: the paper counts 5000 episodes of a team.
 FULL_EPISODE_AGENT_STEPS = 200 * 10
@@ -173,6 +175,8 @@ def _algorithms(where: str, data: Any) -> dict[str, Variant]:
     algorithms: dict[str, Variant] = {}
     for name, value in _mapping(f"{where}: algorithms", data).items():
         at = f"{where}: algorithms.{name}"
+        if name in RESERVED_NAMES:
+            _fail(at, f"{name!r} is the name of the report's folder beside the cells' folders; choose another name")
         value = _mapping(at, value)
         _keys(at, value, ("algo",), ("hyperparams",))
         if value["algo"] not in ZOO_ALGOS:
