@@ -6,11 +6,12 @@ PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks docs docs-check benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
 	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-zone-patrol-gate benchmark-zone-patrol-value benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
-	experiments-quick experiments-full experiments-report
+	experiments-quick experiments-full experiments-report wheel-check
 
+# Every extra (zoo, render, plots, ray, docs, tests, bench: setup.cfg), as the suite and the docs need them all.
 install:
 	$(PIP) "torch==$(TORCH_VERSION)"
-	$(PIP) -e ".[tests,docs]"
+	$(PIP) -e ".[all]"
 
 # The main job: a short EM-PPO run on the default reserve (a few minutes on 2 cores), tensorboard
 # logs in runs/, the run in logs/em_ppo/, then the team metrics (and latent accuracy) of 5 evaluation episodes.
@@ -51,7 +52,6 @@ docs-check:
 	$(SPHINXBUILD) -E -W --keep-going docs docs/_build/html
 
 benchmark-env: install
-	$(PIP) -e ".[tests,bench]"
 	$(PYTHON) benchmarks/env_speed.py
 
 # Decentralized PPO against the random team on the same episodes (about 10-15 minutes).
@@ -146,3 +146,9 @@ ZONE_PATROL_FOLDER ?= logs/zone_patrol_value
 benchmark-zone-patrol-value: install
 	$(PYTHON) benchmarks/zone_patrol_value.py run --folder $(ZONE_PATROL_FOLDER)
 	$(PYTHON) benchmarks/zone_patrol_value.py report --folder $(ZONE_PATROL_FOLDER)
+
+# The package as a user gets it: the wheel in a fresh venv outside the checkout, core only (trains EM-PPO; no rl_zoo3,
+# pygame or matplotlib; the zoo's import says which extra to add), then with [zoo]: emmarl train, enjoy, experiment
+# --list (about 15 minutes, most of it installing torch and compiling the reserve's kernels once).
+wheel-check:
+	$(PYTHON) benchmarks/wheel_check.py

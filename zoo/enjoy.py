@@ -1,11 +1,11 @@
-"""Watch a trained team: print its team metrics and record an animated GIF (or MP4) of its patrol.
+"""``emmarl enjoy``: watch a trained team, print its team metrics and record an animated GIF (or MP4) of its patrol.
 
 Example: ``python zoo/enjoy.py --algo ppo --env WildlifeReserve-v0 -f logs/ --episodes 5``
 """
 
 import sys
 
-from sb3_emmarl.zoo.cli import enjoy_main
+from sb3_emmarl.cli import main
 
 if __name__ == "__main__":
-    sys.exit(enjoy_main())
+    sys.exit(main(["enjoy", *sys.argv[1:]]))

@@ -11,6 +11,7 @@ import torch as th
 
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
+from sb3_emmarl.common.extras import requires
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -122,7 +123,8 @@ def record_episode(
         images = [Image.fromarray(frame) for frame in frames]
         images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0, optimize=True)
     else:
-        import imageio.v2 as imageio
+        with requires("imageio", "render", "an MP4 recording"):
+            import imageio.v2 as imageio
 
         imageio.mimwrite(path, cast("list[ArrayLike]", frames), fps=fps)  # (imageio annotates an invariant list)
     return metrics

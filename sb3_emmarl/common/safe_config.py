@@ -33,6 +33,8 @@ import torch as th
 import yaml
 from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
 
+from sb3_emmarl.common.extras import requires
+
 #: Longest text :func:`parse_value` reads (a value longer than this is a mistake or an attack).
 MAX_VALUE_CHARS = 10_000
 #: Deepest nesting :func:`parse_value` reads.
@@ -397,7 +399,8 @@ def wrapper_from_config(config: dict[str, Any], key: str = "vec_env_wrapper") ->
     :param key: ``vec_env_wrapper`` or ``env_wrapper``
     :raise ValueError: for a name outside :data:`IMPORT_KEYS`
     """
-    from rl_zoo3.utils import get_wrapper_class
+    with requires("rl_zoo3", "zoo", "a run folder's wrappers"):
+        from rl_zoo3.utils import get_wrapper_class
 
     check_imports(key, config.get(key))
     return get_wrapper_class(config, key)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from wildlife_reserve.extras import requires
 from wildlife_reserve.reserve.constants import POACHER_ACTIVE, POACHER_CAUGHT
 
 if TYPE_CHECKING:
@@ -37,7 +38,8 @@ class ReserveRenderer:
     def __init__(self, env: ReserveParallelEnv, mode: str) -> None:
         if mode == "rgb_array":
             os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-        import pygame
+        with requires("pygame", "render", "drawing the reserve"):
+            import pygame
 
         self.pygame = pygame
         self.env = env

@@ -71,6 +71,7 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 from wildlife_reserve.reserve import actors, kernels, sensing
 from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve import terrain as terrain_lib
+from wildlife_reserve.reserve.compilation import announce_compilation
 from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig, check_int
 from wildlife_reserve.reserve.constants import (
     COMM_BROADCAST,
@@ -336,6 +337,7 @@ class ReserveParallelEnv(ParallelEnv):
             it was)
         """
         seed, mode, start = self._check_reset(seed, options)
+        announce_compilation()
         self._ready = False  # until this reset is through, step(), state() and the rest refuse
         if seed is not None or self.np_random is None:
             self.np_random, _ = seeding.np_random(seed)

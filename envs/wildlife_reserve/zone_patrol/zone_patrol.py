@@ -70,6 +70,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
+from wildlife_reserve.extras import requires
 from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, ZonePatrolConfig, ZonePatrolWorld
 
 #: The render modes (``metadata["render_modes"]``).
@@ -230,7 +231,8 @@ class ZonePatrolParallelEnv(ParallelEnv):
         image = self._image()
         if self.render_mode == "rgb_array":
             return image
-        import pygame
+        with requires("pygame", "render", "ZonePatrol's human rendering"):
+            import pygame
 
         if self._window is None:
             pygame.init()
