@@ -11,7 +11,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_emmarl.common.initialization import zero_tail_weights
-from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
+from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin, rollout_transitions
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
 from sb3_emmarl.common.validation import RULES
@@ -141,14 +141,11 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     def _rollout_transitions(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The E-step's data from the rollout just collected: every step whose successor is in the same episode
         (the one after the rollout's last step is the algorithm's next observation)."""
-        buffer = self.rollout_buffer
         last_obs = self._last_obs
-        assert isinstance(last_obs, np.ndarray)  # (set by the rollout; flat Box observations)
-        # The observations are not stacked with the last ones: that would copy the rollout's (220 MiB at 200 UAVs)
-        features = np.concatenate([self._features(buffer.observations), self._features(last_obs[None])])
-        starts = np.concatenate([buffer.episode_starts, np.asarray(self._last_episode_starts, dtype=np.float32)[None]])
-        return self._transitions(features[:-1], buffer.actions, features[1:], starts[:-1] > 0, starts[1:] == 0,
-                                 (buffer.observations[1:], last_obs[None]))
+        starts = self._last_episode_starts
+        assert isinstance(last_obs, np.ndarray) and starts is not None  # (set by the rollout; flat Box observations)
+        return rollout_transitions(self.rollout_buffer, last_obs, starts, self._features,
+                                   self._transitions)
 
     def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
         return self._rollout_transitions()

@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
@@ -22,10 +23,12 @@ from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
 from sb3_emmarl.common.latent.layout import LatentLayout
+from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.wrapping import WrapsEnv
 
 if TYPE_CHECKING:
-    from stable_baselines3.common.buffers import ReplayBuffer
+    from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+    from stable_baselines3.common.logger import Logger
 
     from sb3_emmarl.common.latent.counts import ReadingCounter
     from sb3_emmarl.common.latent.policies import LatentPolicyMixin
@@ -50,6 +53,101 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
         raise ValueError(f"the environment's BeliefWrapper has {wrapper.n_components} components, "
                          f"but n_components={n_components}")
     return venv
+
+
+def make_e_step(latent_model: LatentModel, estimator: str, likelihood_temperature: float,
+                count_factors: tuple[int, int] | None, counter: ReadingCounter | None, seed: int,
+                e_step_kwargs: dict[str, Any]) -> EStep:
+    """The E-step of ``latent_model`` (its arguments: see :class:`~sb3_emmarl.common.latent.em.EStep`); the count
+    factors apply only with a ``counter`` (the reserve's count model). A bad value in ``e_step_kwargs``
+    (:data:`E_STEP_DEFAULTS` filled in) raises one ``ValueError`` naming ``e_step_kwargs``."""
+    try:
+        return EStep(latent_model, estimator=estimator, likelihood_temperature=likelihood_temperature, seed=seed,
+                     count_factors=count_factors if counter is not None else None,
+                     count_rings=counter.n_rings if counter is not None else 1, **e_step_kwargs)
+    except ValueError as error:
+        raise ValueError(f"e_step_kwargs: {error}") from None
+
+
+def augmented_features(feature_fn: Callable[[np.ndarray], np.ndarray], observations: np.ndarray,
+                       obs_dim: int) -> np.ndarray:
+    """Compact features of augmented observations ``(..., total_dim)`` -> ``(..., d_x)`` (their first ``obs_dim``
+    values are the environment's observation)."""
+    flat = observations.reshape(-1, observations.shape[-1])[:, :obs_dim]
+    return feature_fn(flat).reshape(*observations.shape[:-1], -1)
+
+
+def make_transitions(features: np.ndarray, actions: np.ndarray, next_features: np.ndarray, new_episode: np.ndarray,
+                     valid: np.ndarray, episode_counters: np.ndarray, encode_action: Callable[[np.ndarray], np.ndarray],
+                     agents_per_copy: int = 1, team_pooling: bool = False, counter: ReadingCounter | None = None,
+                     next_observations: np.ndarray | Sequence[np.ndarray] | None = None,
+                     device: th.device | str = "cpu") -> tuple[Transitions, EpisodeCounts | None]:
+    """E-step data from ``(T, n, ...)`` arrays of features, actions taken, the features that followed, flags of steps
+    that begin an episode, and flags of the transitions to keep; with a ``counter`` (the reserve's count model), also the
+    reading counts of the observations that followed (augmented ``(T, n, total_dim)``, or blocks ``(T_i, n, total_dim)``
+    that stack to it along time: read in place, not copied), summed per episode.
+
+    :param episode_counters: episodes begun so far per vector entry ``(n,)``, continued in place (episode ids run on
+        across calls, so that an episode spanning two rollouts is one episode)
+    :param encode_action: the actions' encoding (:func:`~sb3_emmarl.common.latent.features.encode_actions`)
+    :param agents_per_copy: agents per environment copy
+    :param team_pooling: the agents of one copy share their episode's id
+    :param device: torch device of the data
+    """
+    ids = episode_ids(episode_counters, new_episode, agents_per_copy, team_pooling)
+    t, e = np.nonzero(valid)
+    transitions = Transitions.from_numpy(features[t, e], encode_action(actions[t, e]), next_features[t, e], ids[t, e],
+                                         device)
+    if counter is None or next_observations is None:
+        return transitions, None
+    kept_ids = np.where(valid, ids, -1)  # the rows of the transitions left out are skipped
+    return transitions, EpisodeCounts.from_observations(counter, next_observations, kept_ids, device)
+
+
+TransitionsFn = Callable[..., tuple[Transitions, EpisodeCounts | None]]
+
+
+def rollout_transitions(buffer: RolloutBuffer, last_obs: np.ndarray, last_episode_starts: np.ndarray,
+                        features: Callable[[np.ndarray], np.ndarray],
+                        transitions: TransitionsFn) -> tuple[Transitions, EpisodeCounts | None]:
+    """The E-step's data from an on-policy rollout just collected: every step whose successor is in the same episode
+    (the one after the rollout's last step is the algorithm's next observation, ``last_obs``).
+
+    :param features: compact features of augmented observations (:func:`augmented_features`)
+    :param transitions: :func:`make_transitions` with the caller's counters and settings bound
+    """
+    # The observations are not stacked with the last ones: that would copy the rollout's (220 MiB at 200 UAVs)
+    all_features = np.concatenate([features(buffer.observations), features(last_obs[None])])
+    starts = np.concatenate([buffer.episode_starts, np.asarray(last_episode_starts, dtype=np.float32)[None]])
+    return transitions(all_features[:-1], buffer.actions, all_features[1:], starts[:-1] > 0, starts[1:] == 0,
+                       next_observations=(buffer.observations[1:], last_obs[None]))
+
+
+def replay_transitions(buffer: ReplayBuffer, position: int, last_dones: np.ndarray,
+                       features: Callable[[np.ndarray], np.ndarray], transitions: TransitionsFn,
+                       ) -> tuple[tuple[Transitions, EpisodeCounts | None], int, np.ndarray]:
+    """The replay buffer's rows added since ``position`` (the buffer's position at the last handover), as E-step data,
+    with the buffer's position now and the done flags of the last row handed over (``last_dones``: of the row before
+    the first one, all True at the start).
+
+    :param features: compact features of augmented observations (:func:`augmented_features`)
+    :param transitions: :func:`make_transitions` with the caller's counters and settings bound
+    """
+    rows = (position + np.arange((buffer.pos - position) % buffer.buffer_size)) % buffer.buffer_size
+    dones = buffer.dones[rows] > 0
+    new_episode = np.concatenate([last_dones[None], dones[:-1]])
+    if len(rows):
+        last_dones = dones[-1]
+    data = transitions(features(buffer.observations[rows]), buffer.actions[rows], features(buffer.next_observations[rows]),
+                       new_episode, np.ones_like(dones), next_observations=buffer.next_observations[rows])
+    return data, buffer.pos, last_dones
+
+
+def e_step_and_log(e_step: EStep, logger: Logger, train: bool = True) -> None:
+    """Run one E-step on the transitions ``e_step`` keeps (``train=False``: frozen, it only reports) and record its
+    statistics as ``latent/<name>``."""
+    for key, value in e_step.step(train=train).items():
+        logger.record(f"latent/{key}", value)
 
 
 #: The latent settings a model keeps as attributes of the same name (``n_components`` and ``decoder_hidden`` live in its
@@ -139,14 +237,8 @@ class LatentAlgorithmMixin(WrapsEnv):
         self.count_factors = check_factors(getattr(self, "count_factors", None), self.latent_layout.n_components)
         self.e_step = None
         if self.policy.latent_model is not None:
-            try:
-                self.e_step = EStep(self.policy.latent_model, estimator=self.estimator,
-                                    likelihood_temperature=self.likelihood_temperature, seed=self.seed or 0,
-                                    count_factors=self.count_factors if self._counter is not None else None,
-                                    count_rings=self._counter.n_rings if self._counter is not None else 1,
-                                    **self.e_step_kwargs)
-            except ValueError as error:
-                raise ValueError(f"e_step_kwargs: {error}") from None
+            self.e_step = make_e_step(self.policy.latent_model, self.estimator, self.likelihood_temperature,
+                                      self.count_factors, self._counter, self.seed or 0, self.e_step_kwargs)
         # A loaded model keeps the counters it was saved with (they number the episodes of the E-step's data).
         if getattr(self, "_episode_counters", None) is None or len(self._episode_counters) != self.n_envs:
             self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
@@ -189,8 +281,7 @@ class LatentAlgorithmMixin(WrapsEnv):
     # ------------------------------------------------------------------ the E-step, from train()
     def _features(self, observations: np.ndarray) -> np.ndarray:
         """Compact features of augmented observations ``(..., total_dim)`` -> ``(..., d_x)``."""
-        flat = observations.reshape(-1, observations.shape[-1])[:, : self.latent_layout.obs_dim]
-        return self._feature_fn(flat).reshape(*observations.shape[:-1], -1)
+        return augmented_features(self._feature_fn, observations, self.latent_layout.obs_dim)
 
     def _transitions(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray,
                      new_episode: np.ndarray, valid: np.ndarray,
@@ -200,14 +291,9 @@ class LatentAlgorithmMixin(WrapsEnv):
         steps that begin an episode, and flags of the transitions to keep; with a count model, also the reading
         counts of the observations that followed (augmented ``(T, n, total_dim)``, or blocks ``(T_i, n, total_dim)``
         that stack to it along time: read in place, not copied), summed per episode."""
-        ids = episode_ids(self._episode_counters, new_episode, self.agents_per_copy, self.team_pooling)
-        t, e = np.nonzero(valid)
-        transitions = Transitions.from_numpy(features[t, e], self._encode_action(actions[t, e]), next_features[t, e],
-                                             ids[t, e], self.device)
-        if self._counter is None or next_observations is None:
-            return transitions, None
-        kept_ids = np.where(valid, ids, -1)  # the rows of the transitions left out are skipped
-        return transitions, EpisodeCounts.from_observations(self._counter, next_observations, kept_ids, self.device)
+        return make_transitions(features, actions, next_features, new_episode, valid, self._episode_counters,
+                                self._encode_action, self.agents_per_copy, self.team_pooling, self._counter,
+                                next_observations, self.device)
 
     def _init_replay_e_step(self) -> None:
         """Off-policy EM algorithms: the E-step reads the replay buffer's rows added since its last handover (a loaded
@@ -224,15 +310,9 @@ class LatentAlgorithmMixin(WrapsEnv):
         if buffer.optimize_memory_usage:
             raise ValueError(f"{type(self).__name__} needs the replay buffer's next observations: "
                              "optimize_memory_usage=False")
-        rows = (self._e_step_pos + np.arange((buffer.pos - self._e_step_pos) % buffer.buffer_size)) % buffer.buffer_size
-        self._e_step_pos = buffer.pos
-        dones = buffer.dones[rows] > 0
-        new_episode = np.concatenate([self._last_dones[None], dones[:-1]])
-        if len(rows):
-            self._last_dones = dones[-1]
-        return self._transitions(self._features(buffer.observations[rows]), buffer.actions[rows],
-                                 self._features(buffer.next_observations[rows]), new_episode, np.ones_like(dones),
-                                 buffer.next_observations[rows])
+        data, self._e_step_pos, self._last_dones = replay_transitions(buffer, self._e_step_pos, self._last_dones,
+                                                                      self._features, self._transitions)
+        return data
 
     def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None]) -> bool:
         """Remember the rollout's transitions (and reading counts); every ``e_step_interval`` rollouts, run the E-step
@@ -243,9 +323,7 @@ class LatentAlgorithmMixin(WrapsEnv):
         self._n_rollouts += 1
         if self._n_rollouts % self.e_step_interval:
             return False
-        stats = self.e_step.step(train=not self.freeze_e_step)
-        for key, value in stats.items():
-            self.logger.record(f"latent/{key}", value)
+        e_step_and_log(self.e_step, self.logger, train=not self.freeze_e_step)
         return True
 
     def _log_belief_use(self, observations: np.ndarray) -> None:

@@ -1,0 +1,226 @@
+"""The belief for any SB3 algorithm: an ``EMCallback`` that refits the mixture model between rollouts.
+
+EM-PPO, EM-DDPG and VDN+EM run their E-step inside their own ``train()``. A user of another SB3 algorithm (A2C, PPO,
+DQN, SAC, TD3, ...) adds the same belief with three lines: the callback's :meth:`EMCallback.wrap_env` appends the
+belief ``q(z | o_{1:t}, a_{1:t-1})`` to the environment's observations (the :class:`~.belief.BeliefWrapper` of the EM
+algorithms, computed from the callback's :class:`~.model.LatentModel`), :attr:`EMCallback.policy_kwargs` gives the
+policy the features extractor that reads ``[observation, belief]`` (:class:`~.policies.BeliefFeaturesExtractor`), and
+``learn(..., callback=callback)`` refits the model. At the end of every rollout (on-policy: SB3's ``n_steps``;
+off-policy: every ``train_freq`` collection) the callback hands the new transitions to the E-step, read from the
+rollout buffer or from the rows the replay buffer gained, with the functions EM-PPO and EM-DDPG use
+(:func:`~.algorithm.rollout_transitions`, :func:`~.algorithm.replay_transitions`, :func:`~.algorithm.make_transitions`);
+every ``e_step_every`` agent-steps it runs one E-step (:class:`~.em.EStep`, built by :func:`~.algorithm.make_e_step`)
+on the transitions of the last ``window`` such intervals. The algorithm's own update then trains on observations that
+carry the belief, as EM-PPO's M-step does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any, TypeVar
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_emmarl.common.latent.algorithm import (
+    E_STEP_DEFAULTS,
+    augmented_features,
+    e_step_and_log,
+    make_e_step,
+    make_transitions,
+    replay_transitions,
+    rollout_transitions,
+    wrap_with_belief,
+)
+from sb3_emmarl.common.latent.belief import BeliefWrapper, agents_per_copy, find_belief_wrapper
+from sb3_emmarl.common.latent.config import LatentConfig
+from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions
+from sb3_emmarl.common.latent.layout import LatentLayout
+from sb3_emmarl.common.latent.model import LatentModel
+from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
+from sb3_emmarl.common.validation import integer
+
+Part = TypeVar("Part", Transitions, EpisodeCounts)
+
+
+def _concatenate(parts: list[Part]) -> Part:
+    """One part of E-step data from several (field by field, in order)."""
+    kind = type(parts[0])
+    return kind(*(th.cat([getattr(part, field.name) for part in parts]) for field in fields(kind)))
+
+
+class EMCallback(BaseCallback):
+    """Give an SB3 algorithm a belief over a latent mode, refitted by EM between rollouts (docs/em.md, "Any SB3
+    algorithm: EMCallback").
+
+    Build the model on :meth:`wrap_env`'s environment (with :attr:`policy_kwargs`), train it with the callback, and
+    evaluate it on another environment wrapped by :meth:`wrap_env` (SB3's ``evaluate_policy`` works on it). The
+    latent model and the E-step live in the callback (:attr:`latent_model`, :attr:`e_step`), not in the SB3 model:
+    the algorithm's optimizers never see them. The environment must give flat ``Box`` observations, and no wrapper
+    that changes observations (e.g. ``VecNormalize``) may sit over the belief wrapper.
+
+    :param n_components: ``K``, components of the latent variable
+    :param e_step_every: agent-steps (``num_timesteps``) between E-steps; an E-step runs at the first rollout end at
+        least this many steps after the last one
+    :param decoder_hidden: hidden layer sizes of the transition models' shared trunk
+    :param likelihood_temperature: ``beta``, the factor on every log-likelihood in the beliefs and responsibilities
+    :param fusion: fuse the evidence of teammates heard from (the reserve's ``infos[i]["heard_from"]``)
+    :param estimator: the E-step's estimator, ``"enumerate"`` or ``"gumbel"``
+    :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
+    :param reading_counts: on the reserve, the reading-count model beside the transition model; ignored elsewhere
+    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factored (EM-PPO's)
+    :param belief_input: how the networks read the belief (:attr:`policy_kwargs`): ``"probabilities"``, ``"map"``
+        (the most likely component's one-hot) or ``"both"``
+    :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`; its ``window``
+        counts E-step intervals here (the transitions of the last ``window`` intervals of ``e_step_every`` steps)
+    :param freeze_e_step: ablation: the latent model keeps its initial values (the belief is a fixed function of the
+        episode, not fitted to the modes)
+    :param seed: seed of the latent model's initial weights (drawn without touching torch's global generator) and of
+        the E-step
+    :param verbose: SB3's callback verbosity
+    """
+
+    def __init__(self, n_components: int = 4, e_step_every: int = 2000, decoder_hidden: tuple[int, ...] = (64, 64),
+                 likelihood_temperature: float = 1.0, fusion: bool = True, estimator: str = "enumerate",
+                 team_pooling: bool = False, reading_counts: bool = True, count_factors: tuple[int, int] | None = None,
+                 belief_input: str = "probabilities", e_step_kwargs: dict[str, Any] | None = None,
+                 freeze_e_step: bool = False, seed: int = 0, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.config = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
+                                   likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
+                                   team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
+                                   belief_input=belief_input, e_step_kwargs=e_step_kwargs, freeze_e_step=freeze_e_step)
+        self.e_step_every = integer(1, 10**12)("e_step_every", e_step_every)
+        self.seed = integer(0, 2**63 - 1)("seed", seed)
+        self.latent_model: LatentModel | None = None
+        self.e_step: EStep | None = None
+        self._wrapper: BeliefWrapper | None = None  # the first wrapper: its features, action encoding and counter
+        self._pending: list[tuple[Transitions, EpisodeCounts | None]] = []
+        self._episode_counters = np.zeros(0, dtype=np.int64)
+        self._replay_pos, self._last_dones = 0, np.zeros(0, dtype=bool)
+        self._last_e_step = 0
+
+    # ------------------------------------------------------------------ what the user builds the model with
+    @property
+    def layout(self) -> LatentLayout:
+        """The latent layout (sizes), known once :meth:`wrap_env` has seen an environment."""
+        if self.latent_model is None:
+            raise ValueError("EMCallback has no latent model yet: call callback.wrap_env(env) first")
+        return self.latent_model.layout
+
+    def wrap_env(self, env: Any) -> VecEnv:
+        """``env`` (a vector or Gymnasium environment) with the belief appended to its observations, computed with the
+        callback's latent model (built from the first environment wrapped; later ones must have its sizes)."""
+        venv = wrap_with_belief(env, self.config.n_components, self.verbose)
+        wrapper = find_belief_wrapper(venv)
+        assert wrapper is not None  # (wrap_with_belief gives an environment with one)
+        if self.latent_model is None:
+            self._build(wrapper)
+        layout = self.layout
+        sizes = (wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim)
+        if sizes != (layout.obs_dim, layout.feature_dim, layout.action_dim):
+            raise ValueError(f"the environment's (observation, feature, action) sizes are {sizes}, the callback's "
+                             f"latent model's {(layout.obs_dim, layout.feature_dim, layout.action_dim)}: wrap "
+                             "environments of the task it was built for")
+        wrapper.attach(self.latent_model, self.config.likelihood_temperature, self.config.fusion)
+        return venv
+
+    @property
+    def policy_kwargs(self) -> dict[str, Any]:
+        """``policy_kwargs`` whose features extractor reads ``[observation, belief]`` in the form ``belief_input``
+        names (:class:`~sb3_emmarl.common.latent.policies.BeliefFeaturesExtractor`), for any SB3 policy."""
+        return {"features_extractor_class": BeliefFeaturesExtractor,
+                "features_extractor_kwargs": {"head_dim": self.layout.obs_dim, "belief_input": self.config.belief_input}}
+
+    def _build(self, wrapper: BeliefWrapper) -> None:
+        """The latent model and the E-step, sized by ``wrapper``'s environment."""
+        config = self.config
+        counter = wrapper.counter if config.reading_counts else None
+        layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, config.n_components,
+                              config.decoder_hidden, count_channels=counter.n_channels if counter else 0,
+                              count_bins=counter.n_bins if counter else 0)
+        with th.random.fork_rng(devices=[]):  # the model's initial weights from the callback's seed alone
+            th.manual_seed(self.seed)
+            model = LatentModel(layout)
+        self.e_step = make_e_step(model, config.estimator, config.likelihood_temperature, config.count_factors, counter,
+                                  self.seed, {**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
+        self.latent_model, self._wrapper = model, wrapper
+
+    # ------------------------------------------------------------------ SB3's callback hooks
+    def _init_callback(self) -> None:
+        env = self.model.get_env()
+        wrapper = find_belief_wrapper(env) if env is not None else None
+        if env is None or wrapper is None:
+            raise ValueError("EMCallback: the model's environment has no belief; build the model on "
+                             "callback.wrap_env(env)")
+        self.wrap_env(env)  # (attaches the latent model to the model's belief wrapper)
+        if self.model.observation_space.shape != (self.layout.total_dim,):
+            raise ValueError(f"EMCallback: the model reads observations of shape {self.model.observation_space.shape}, "
+                             f"the belief wrapper gives ({self.layout.total_dim},): no wrapper may change observations "
+                             "over it")
+        n_envs = env.num_envs
+        if len(self._episode_counters) != n_envs:
+            self._episode_counters = np.zeros(n_envs, dtype=np.int64)
+        if isinstance(self.model, OffPolicyAlgorithm):
+            buffer = self.model.replay_buffer
+            assert buffer is not None  # (set up with the model)
+            if buffer.optimize_memory_usage:
+                raise ValueError("EMCallback needs the replay buffer's next observations: optimize_memory_usage=False")
+            self._replay_pos, self._last_dones = buffer.pos, np.ones(n_envs, dtype=bool)
+        elif not isinstance(self.model, OnPolicyAlgorithm):
+            raise ValueError(f"EMCallback works with SB3's on-policy and off-policy algorithms, got "
+                             f"{type(self.model).__name__}")
+        self._last_e_step = self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        """Hand the rollout's transitions to the E-step's queue; run an E-step when ``e_step_every`` steps have passed."""
+        data = self._rollout_data()
+        if len(data[0]):
+            self._pending.append(data)
+        if self.model.num_timesteps - self._last_e_step < self.e_step_every or not self._pending:
+            return
+        e_step = self.e_step
+        assert e_step is not None  # (built with the latent model)
+        counts = [part[1] for part in self._pending]
+        e_step.add(_concatenate([part[0] for part in self._pending]),
+                   None if any(part is None for part in counts) else _concatenate([c for c in counts if c is not None]))
+        e_step_and_log(e_step, self.logger, train=not self.config.freeze_e_step)
+        self._pending, self._last_e_step = [], self.model.num_timesteps
+
+    # ------------------------------------------------------------------ the E-step's data
+    def _features(self, observations: np.ndarray) -> np.ndarray:
+        assert self._wrapper is not None  # (built with the latent model)
+        return augmented_features(self._wrapper.feature_fn, observations, self.layout.obs_dim)
+
+    def _transitions(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray,
+                     new_episode: np.ndarray, valid: np.ndarray,
+                     next_observations: np.ndarray | tuple[np.ndarray, ...] | None = None,
+                     ) -> tuple[Transitions, EpisodeCounts | None]:
+        assert self._wrapper is not None  # (built with the latent model)
+        env = self.model.get_env()
+        counter = self._wrapper.counter if self.layout.count_bins else None
+        return make_transitions(features, actions, next_features, new_episode, valid, self._episode_counters,
+                                self._wrapper.encode_action, agents_per_copy(env) if env is not None else 1,
+                                self.config.team_pooling, counter, next_observations)
+
+    def _rollout_data(self) -> tuple[Transitions, EpisodeCounts | None]:
+        """The transitions collected since the last rollout end: the rollout buffer (on-policy) or the rows the replay
+        buffer gained (off-policy)."""
+        model = self.model
+        if isinstance(model, OffPolicyAlgorithm):
+            assert model.replay_buffer is not None  # (set up with the model)
+            data, self._replay_pos, self._last_dones = replay_transitions(model.replay_buffer, self._replay_pos,
+                                                                          self._last_dones, self._features,
+                                                                          self._transitions)
+            return data
+        assert isinstance(model, OnPolicyAlgorithm)  # (checked when training began)
+        last_obs, starts = model._last_obs, model._last_episode_starts
+        assert isinstance(last_obs, np.ndarray) and starts is not None  # (set by the rollout; flat Box observations)
+        return rollout_transitions(model.rollout_buffer, last_obs, starts, self._features, self._transitions)
