@@ -4,11 +4,11 @@ per-seed bars that one outlying seed does not flatten.
 Runs are found in the zoo's layout, ``<log-folder>/<algo>/<env>_<n>/`` (one run per seed, as ``emmarl train`` and
 ``zoo/train.py`` write them), and read with the libraries that wrote them:
 
-- ``-k reward`` / ``-k length`` read the runs' monitor files with SB3's :func:`~stable_baselines3.common.monitor.
-  load_results` and :func:`~stable_baselines3.common.results_plotter.ts2xy`. On a parameter-sharing environment every
-  vector entry is a UAV that receives the team reward, so a monitor file holds one row per *UAV* episode: the rows of
-  one team episode (the ``agents_per_copy`` UAVs of a copy, written together when the copy's episode ends) are taken
-  as one team episode (:func:`team_episodes`), as :func:`sb3_emmarl.common.evaluation.evaluate_policy` counts them.
+- ``-k reward`` / ``-k length`` read the runs' monitor files with SB3's ``monitor.load_results`` and
+  ``results_plotter.ts2xy``. On a parameter-sharing environment every vector entry is a UAV that receives the team
+  reward, so a monitor file holds one row per *UAV* episode: the rows of one team episode (the ``agents_per_copy`` UAVs
+  of a copy, written together when the copy's episode ends) are taken as one team episode (:func:`team_episodes`), as
+  :func:`sb3_emmarl.common.evaluation.evaluate_policy` counts them.
 - any other key is a tensorboard scalar (``reserve/team_reward``, ``rollout/ep_rew_mean``, ``eval/mean_reward``...),
   read with tensorboard's ``EventAccumulator`` (:func:`read_scalars`) from the event files under each run folder, or,
   with ``-tb``, from the folder given to ``train -tb`` (``<tb>/<env>/<ALGO>_<n>/``).
@@ -332,6 +332,10 @@ def draw_curves(ax: Axes, curves: Mapping[str, Curve], x_axis: str = "steps", yl
         ax.plot(x, curve.center, color=colour, marker="o" if x.size == 1 else None,
                 label=f"{label} ({curve.n_runs} run{'s' * (curve.n_runs > 1)})")
         ax.fill_between(x, curve.low, curve.high, color=colour, alpha=0.2, linewidth=0)
+    if x_axis == "steps":
+        from matplotlib.ticker import EngFormatter
+
+        ax.xaxis.set_major_formatter(EngFormatter(sep=""))  # 300k, 2M
     ax.set_xlabel("agent-steps (one per UAV per step)" if x_axis == "steps" else f"wall time ({unit})")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
@@ -595,7 +599,7 @@ def build_figure(args: argparse.Namespace) -> Figure:
     else:
         aggregated = {algo: aggregate_curves(algo_curves, args.band) for algo, algo_curves in curves.items()}
         draw_curves(ax, aggregated, args.x_axis, ylabel)
-        spread = "mean +- standard error" if args.band == "se" else "median and quartiles"
+        spread = "mean ± standard error" if args.band == "se" else "median and quartiles"
         ax.set_title(f"{env_id}: {spread} over runs", fontsize="medium")
     return figure
 
