@@ -4,7 +4,7 @@ Core install (no extras): rl_zoo3, pygame and matplotlib are absent, EM-PPO trai
 agent-steps, save, load, ``evaluate_policy``), ``emmarl patrol`` runs, the first run says that it compiles the reserve's
 kernels, and ``import sb3_emmarl.zoo`` / ``emmarl train`` fail with one line naming the ``[zoo]`` extra. Then with
 ``[zoo]`` (and ``[plots]`` when the wheel has ``sb3_emmarl/plots.py``): ``emmarl train`` (20k agent-steps),
-``emmarl enjoy`` (metrics; its GIF names the ``[render]`` extra), ``emmarl experiment --list``, ``emmarl plot --help``.
+``emmarl enjoy`` (metrics; its GIF names the ``[render]`` extra), ``emmarl experiment --list``, ``emmarl plot``.
 
 Each step prints ``ok`` or ``FAIL`` with its time; the script exits 1 at the first failure. Torch is installed first,
 at the Makefile's ``TORCH_VERSION`` (the CPU build, as ``make install`` does). About 15 minutes on 2 cores::
@@ -169,7 +169,10 @@ def main(argv: list[str] | None = None) -> int:
                     show=0)
         checker.run("emmarl experiment --list", ["emmarl", "experiment", "--list"], show=20)
         if has_plots:
-            checker.run("emmarl plot --help", ["emmarl", "plot", "--help"], show=5)
+            checker.run("emmarl plot (learning curve of the run)", ["emmarl", "plot", "-f", "logs", "-a", "em_ppo", "-w", "4",
+                                                                    "-o", "curves.png"], show=2)
+            checker.run("the figure is a PNG", [python, "-c", "import pathlib; data = pathlib.Path('curves.png')"
+                                                ".read_bytes(); raise SystemExit(0 if data[:4] == b'\\x89PNG' else 1)"])
         else:
             print("skip emmarl plot (the wheel has no sb3_emmarl/plots.py)")
         print("wheel check passed")

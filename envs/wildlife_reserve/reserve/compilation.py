@@ -1,6 +1,6 @@
 """The first episode after an install compiles the reserve's numba kernels (:mod:`wildlife_reserve.reserve.kernels`,
-``cache=True``), about a minute on a 2-core machine; this module says so, once, instead of leaving that minute silent.
-Later processes load numba's cache in well under a second and say nothing.
+``cache=True``): 55 s on an idle 2-core machine, about 150 s on a busy one. This module says so, once, instead of
+leaving that time silent; later processes load numba's cache in well under a second and say nothing.
 """
 
 from __future__ import annotations
@@ -34,5 +34,5 @@ def announce_compilation() -> None:
     """Say on stderr, once per process and only while the cache is cold (:func:`cache_is_cold`), that the kernels
     are being compiled and roughly how long that takes; the reserve calls this at each ``reset``."""
     if cache_is_cold():
-        print(f"wildlife_reserve: compiling the reserve's kernels with numba, once per install (about a minute on 2 "
-              f"cores); later runs load them from {cache_folder()}", file=sys.stderr)
+        print(f"wildlife_reserve: compiling the reserve's kernels with numba, once per install (one to three minutes "
+              f"on 2 cores); later runs load them from {cache_folder()}", file=sys.stderr)
