@@ -15,6 +15,7 @@ import yaml
 from sb3_emmarl.experiments import ResultStore, list_specs, load_spec
 from sb3_emmarl.experiments.cli import experiment_main
 from sb3_emmarl.experiments.spec import RUN_METRICS, parse_spec
+from sb3_emmarl.version import __version__
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
@@ -111,6 +112,14 @@ def test_an_experiment_on_zone_patrol_runs_its_cells_through_the_zoo(tmp_path):
     assert (Path(cell["run_dir"]) / "stage_0" / "ppo" / "ZonePatrol-v0_1" / "ZonePatrol-v0.zip").is_file()
 
 
+def test_the_listing_keeps_its_columns_apart_and_gives_each_budget_s_cost(capsys):
+    assert experiment_main(["--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("experiment ") and len(lines) == len(list_specs()) + 1
+    (line,) = [line for line in lines if line.startswith("table4_fig3_coverage_detection")]
+    assert re.match(r"table4_fig3_coverage_detection +Table 4, Figure 3 +\d+ x [\d,]+ +\d+ x 10,000,000 +\S", line)
+
+
 def test_unknown_experiment_and_bad_flags_are_refused(capsys):
     for argv, message in ((["table99"], "unknown experiment 'table99'"), ([], "name experiments or give --all"),
                           (["table5_latent", "--n-jobs", "0"], "--n-jobs must be >= 1")):
@@ -119,7 +128,15 @@ def test_unknown_experiment_and_bad_flags_are_refused(capsys):
         assert message in capsys.readouterr().err
 
 
-def test_a_killed_runner_resumes_without_redoing_finished_cells_then_reports(tmp_path, capsys):
+def docs_state() -> tuple[str, int, list[str]]:
+    """The checkout's results page (its ``git status`` and modification time) and the tiny experiment's figures in
+    docs/figures (none: the files other work adds there meanwhile are not this test's)."""
+    page = ROOT / "docs" / "results.md"
+    status = subprocess.run(["git", "status", "--porcelain", "--", str(page)], cwd=ROOT, capture_output=True, text=True)
+    return status.stdout, page.stat().st_mtime_ns, sorted(p.name for p in (ROOT / "docs" / "figures").glob("tiny_*"))
+
+
+def test_a_killed_runner_resumes_without_redoing_finished_cells_then_reports(tmp_path, capsys, monkeypatch):
     spec = write_spec(tmp_path)
     runs, store_path = tmp_path / "runs", tmp_path / "runs" / "results.sqlite"
     command = [sys.executable, str(ROOT / "zoo" / "experiment.py"), str(spec), "-f", str(runs), "--n-jobs", "1",
@@ -138,9 +155,18 @@ def test_a_killed_runner_resumes_without_redoing_finished_cells_then_reports(tmp
     assert 1 <= len(before) < 4, "the runner was to be killed mid-way"
     page = tmp_path / "results.md"
     page.write_text("# Results\n\nHand-written text stays.\n")
-    assert experiment_main([str(spec), "-f", str(runs), "--n-jobs", "2", "--page", str(page)]) == 0
+    # Run from the checkout: the tracked results page and figures stay as they are (only the results folder changes).
+    monkeypatch.chdir(ROOT)
+    docs = docs_state()
+    assert not docs[2]
+    assert experiment_main([str(spec), "-f", str(runs), "--n-jobs", "2"]) == 0
     out = capsys.readouterr().out
     assert f"4 cells, {len(before)} finished, {4 - len(before)} to run" in out
+    assert docs_state() == docs and page.read_text() == "# Results\n\nHand-written text stays.\n"
+    report = (runs / "tiny" / "quick" / "results.md").read_text()
+    assert report.startswith("### Table 0: A tiny experiment") and f"Made with sb3-emmarl {__version__}" in report
+    assert (runs / "tiny" / "quick" / "figures" / "tiny_bars_team_reward.png").stat().st_size > 0
+    assert experiment_main([str(spec), "-f", str(runs), "--report-only", "--update-docs", "--page", str(page)]) == 0
     rows = store.rows("tiny", "quick")
     assert len(rows) == 4 and all(r["finished_at"] == before[(r["algorithm"], r["seed"])] for r in rows
                                   if (r["algorithm"], r["seed"]) in before)
@@ -148,6 +174,55 @@ def test_a_killed_runner_resumes_without_redoing_finished_cells_then_reports(tmp
     text = page.read_text()
     assert text.startswith("# Results\n\nHand-written text stays.\n") and "### Table 0: A tiny experiment" in text
     assert "85.5 +- 2.5" in text and (tmp_path / "figures" / "tiny_bars_team_reward.png").stat().st_size > 0
+    assert f"Made with sb3-emmarl {__version__}, git commit" in text
+
+
+def test_the_report_goes_under_the_results_folder_and_the_docs_change_only_with_update_docs(tmp_path, monkeypatch,
+                                                                                          capsys):
+    spec = write_spec(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    page, figures = Path("docs/results.md"), Path("docs/figures")
+    page.parent.mkdir()
+    page.write_text("# Results\n")
+    store = ResultStore("runs/results.sqlite")
+    for seed in (0, 1):
+        store.record("tiny", "quick", "ppo", "clean", seed, {"team_reward": 1.0 + seed}, [], "r", "hw")
+    assert experiment_main([str(spec), "-f", "runs", "--report-only"]) == 0
+    assert page.read_text() == "# Results\n" and not figures.exists()
+    assert "wrote runs/tiny/quick/results.md" in capsys.readouterr().out
+    assert "| clean | ppo | 2 | 1.500 +- 0.500 |" in Path("runs/tiny/quick/results.md").read_text()
+    assert experiment_main([str(spec), "-f", "runs", "--report-only", "--update-docs"]) == 0
+    text = page.read_text()
+    assert "<!-- experiment:tiny:begin -->" in text and "| clean | ppo | 2 | 1.500 +- 0.500 |" in text
+    assert f"Made with sb3-emmarl {__version__}" in text and (figures / "tiny_bars_team_reward.png").is_file()
+    with pytest.raises(SystemExit):
+        experiment_main([str(spec), "-f", "runs", "--report-only", "--page", "elsewhere.md"])
+    assert "give --update-docs with them" in capsys.readouterr().err
+
+
+#: The tiny experiment's A2C cell of seed 0 (2 UAVs on 20 x 20, 64 agent-steps; A2C's team reward moves with its seed
+#: at this budget, PPO's does not yet), as its table row shows it, and the
+#: SHA-256 of its evaluation episodes' records: pinned (sb3-emmarl 0.20.0, torch 2.13.0 CPU, one thread). A change
+#: that means to change training or evaluation updates them and says so in the changelog.
+TINY_ROW = "| clean | a2c | 1 | 2.381 +- 0.000 | - | - | 0.500 +- 0.000 | - |"
+TINY_EPISODES = "0f8b19e9521d592a"
+
+
+def test_a_tiny_cell_regenerates_its_stored_digits(tmp_path):
+    import hashlib
+    import json
+
+    from sb3_emmarl.experiments.report import markdown_table
+    from sb3_emmarl.experiments.runner import run_cell
+
+    data = copy.deepcopy(TINY)
+    data["metrics"] = ["team_reward", "detection_rate"]
+    spec = parse_spec(data, "tiny.yml")
+    cell = run_cell(spec, "quick", "a2c", "clean", 0, tmp_path)
+    row = {"algorithm": "a2c", "condition": "clean", "seed": 0, **cell}
+    assert markdown_table(spec, [row]).splitlines()[2] == TINY_ROW
+    digest = hashlib.sha256(json.dumps(cell["episodes"], sort_keys=True).encode()).hexdigest()[:16]
+    assert digest == TINY_EPISODES
 
 
 def test_the_ray_backend_fills_the_store_as_the_local_backend_does(tmp_path):
