@@ -71,12 +71,20 @@ class Run:
     :param folder: the zoo run folder (``<log-folder>/<algo>/<env>_<n>``), or its tensorboard folder
     :param agents_per_copy: the vector entries of one environment copy (its UAVs; 1 on the centralised view): the
         monitor rows of one team episode
+    :param team_size: the team's UAVs (``n_uavs``)
     """
 
     algo: str
     env_id: str
     folder: Path
     agents_per_copy: int
+    team_size: int
+
+    @property
+    def uav_steps_per_timestep(self) -> int:
+        """Agent-steps (one per UAV per step) in one of SB3's timesteps: 1 on the parameter-sharing view (a timestep
+        is a vector entry's step), the team's UAVs on the centralised one (a timestep moves the whole team)."""
+        return self.team_size // self.agents_per_copy
 
 
 def _run_number(folder: Path, prefix: str) -> int | None:
@@ -85,12 +93,14 @@ def _run_number(folder: Path, prefix: str) -> int | None:
     return int(match.group(1)) if match and folder.is_dir() else None
 
 
-def agents_per_copy(algo: str, env_id: str, env_kwargs: Mapping[str, Any]) -> int:
-    """The vector entries of one copy of ``env_id`` under ``algo``: the team's UAVs (``n_uavs`` of the environment's
-    configuration) on the parameter-sharing view, 1 on the centralised one.
+def make_run(algo: str, env_id: str, folder: Path, env_kwargs: Mapping[str, Any]) -> Run:
+    """A run of ``algo`` on ``env_id``: its team's UAVs (``n_uavs`` of the environment's configuration, built from
+    ``env_kwargs`` without building the environment), each a vector entry on the parameter-sharing view, the team one
+    entry on the centralised one.
 
     :param algo: the zoo algorithm
     :param env_id: the environment id
+    :param folder: the run's folder
     :param env_kwargs: the environment's arguments the run was trained with
     """
     import importlib
@@ -98,10 +108,9 @@ def agents_per_copy(algo: str, env_id: str, env_kwargs: Mapping[str, Any]) -> in
     from sb3_emmarl.common.environments import ENV_CONFIGS
     from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS
 
-    if algo in CENTRALIZED_ALGOS:
-        return 1
     module, name = ENV_CONFIGS[env_id].split(":")
-    return int(getattr(importlib.import_module(module), name).from_kwargs(**env_kwargs).n_uavs)
+    team_size = int(getattr(importlib.import_module(module), name).from_kwargs(**env_kwargs).n_uavs)
+    return Run(algo, env_id, folder, 1 if algo in CENTRALIZED_ALGOS else team_size, team_size)
 
 
 def _run_env_kwargs(folder: Path, env_id: str) -> dict[str, Any]:
@@ -135,8 +144,7 @@ def zoo_runs(log_folders: Sequence[str | Path], algos: Sequence[str] | None = No
                 algo_folder = Path(log_folder) / algo
                 found = sorted((n, f) for f in (algo_folder.iterdir() if algo_folder.is_dir() else [])
                                if (n := _run_number(f, env)) is not None)
-                runs += [Run(algo, env, folder, agents_per_copy(algo, env, _run_env_kwargs(folder, env)))
-                         for _, folder in found]
+                runs += [make_run(algo, env, folder, _run_env_kwargs(folder, env)) for _, folder in found]
     return runs
 
 
@@ -150,17 +158,26 @@ def tensorboard_name(algo: str) -> str:
     return str(inspect.signature(ZOO_ALGOS[algo].learn).parameters["tb_log_name"].default)
 
 
-def tensorboard_runs(tensorboard_log: str | Path, algos: Sequence[str], env_id: str) -> list[Run]:
-    """The tensorboard runs the zoo wrote with ``train -tb <tensorboard_log>``: ``<tensorboard_log>/<env>/<name>_<n>``,
-    ``name`` the algorithm's :func:`tensorboard_name`.
+def tensorboard_runs(tensorboard_log: str | Path, zoo: Sequence[Run]) -> list[Run]:
+    """The tensorboard runs the zoo wrote with ``train -tb <tensorboard_log>`` beside the zoo runs ``zoo``:
+    ``<tensorboard_log>/<env>/<name>_<n>``, ``name`` the algorithm's :func:`tensorboard_name`. A tensorboard folder does
+    not say its team's size: each algorithm's runs take its zoo runs' (which must agree on the centralised view, where
+    it converts SB3's timesteps to agent-steps).
 
     :param tensorboard_log: the folder given to ``train -tb``
-    :param algos: the algorithms
-    :param env_id: the environment
-    :raise ValueError: when two of ``algos`` write runs of one name (PPO's variants), which cannot be told apart
+    :param zoo: the zoo runs (one environment's) whose algorithms to look for
+    :raise ValueError: when two of the algorithms write runs of one name (PPO's variants), which cannot be told apart,
+        or a centralised algorithm's zoo runs have teams of several sizes
     """
+    env_id = zoo[0].env_id
+    like: dict[str, Run] = {}
+    for run in zoo:
+        known = like.setdefault(run.algo, run)
+        if known.uav_steps_per_timestep != run.uav_steps_per_timestep:
+            raise ValueError(f"{run.algo}'s runs have teams of {known.team_size} and {run.team_size} UAVs, and its "
+                             "tensorboard runs do not say which is which: plot its scalars from its run folders")
     names: dict[str, str] = {}
-    for algo in algos:
+    for algo in like:
         name = tensorboard_name(algo)
         if name in names:
             raise ValueError(f"{names[name]} and {algo} both write their tensorboard runs as {name}_<n>, which cannot "
@@ -171,12 +188,13 @@ def tensorboard_runs(tensorboard_log: str | Path, algos: Sequence[str], env_id: 
     for name, algo in names.items():
         found = sorted((n, f) for f in (folder.iterdir() if folder.is_dir() else [])
                        if (n := _run_number(f, name)) is not None)
-        runs += [Run(algo, env_id, run_folder, 1) for _, run_folder in found]
+        runs += [Run(algo, env_id, run_folder, like[algo].agents_per_copy, like[algo].team_size)
+                 for _, run_folder in found]
     return runs
 
 
 # ---------------------------------------------------------------------------------------------- reading
-def team_episodes(folder: str | Path, agents_per_copy: int) -> pd.DataFrame:
+def team_episodes(folder: str | Path, agents_per_copy: int, team_size: int | None = None) -> pd.DataFrame:
     """A run's team episodes from its monitor files (SB3's ``load_results``: ``*monitor.csv``, in time order).
 
     A parameter-sharing run's monitor file holds one row per UAV episode; the ``agents_per_copy`` rows of a copy's
@@ -184,6 +202,7 @@ def team_episodes(folder: str | Path, agents_per_copy: int) -> pd.DataFrame:
 
     :param folder: the run folder
     :param agents_per_copy: the rows of one team episode (1: each row is one)
+    :param team_size: the team's UAVs (default ``agents_per_copy``; on the centralised view one row is a whole team's)
     :return: one row per team episode: ``r`` the team reward (the mean of its UAVs' returns: each UAV's return is the
         team reward unless the environment shapes rewards per UAV), ``l`` its agent-steps (UAVs x steps, so that SB3's
         ``ts2xy`` counts agent-steps), ``steps`` its length in steps, ``t`` the wall time in seconds at its end
@@ -200,7 +219,8 @@ def team_episodes(folder: str | Path, agents_per_copy: int) -> pd.DataFrame:
     if (lengths != lengths[:, :1]).any():
         raise ValueError(f"{folder}: monitor rows of one team episode of {agents_per_copy} UAVs differ in length; "
                          "is this a parameter-sharing run?")
-    return pd.DataFrame({"r": rewards.mean(axis=1), "l": lengths.sum(axis=1), "steps": lengths[:, 0],
+    return pd.DataFrame({"r": rewards.mean(axis=1), "l": lengths[:, 0] * (team_size or agents_per_copy),
+                         "steps": lengths[:, 0],
                          "t": times.max(axis=1)})
 
 
@@ -248,7 +268,7 @@ def monitor_curve(run: Run, key: str, x_axis: str, window: int) -> tuple[np.ndar
     """
     from stable_baselines3.common.results_plotter import X_TIMESTEPS, X_WALLTIME, ts2xy, window_func
 
-    episodes = team_episodes(run.folder, run.agents_per_copy)
+    episodes = team_episodes(run.folder, run.agents_per_copy, run.team_size)
     if episodes.empty:
         return None
     if len(episodes) < window:
@@ -557,10 +577,10 @@ def run_curves(args: argparse.Namespace) -> tuple[dict[str, list[tuple[np.ndarra
         window = args.episode_window
         return curves, f"{MONITOR_KEYS[args.key]}, mean of {window} team episode{'s' * (window > 1)}", env_id
     if args.tensorboard_log:
-        algos = list(dict.fromkeys(run.algo for run in runs))
-        runs = tensorboard_runs(args.tensorboard_log, algos, env_id)
+        zoo = runs
+        runs = tensorboard_runs(args.tensorboard_log, zoo)
         if not runs:
-            names = ", ".join(f"{tensorboard_name(algo)}_<n>" for algo in algos)
+            names = ", ".join(f"{tensorboard_name(algo)}_<n>" for algo in dict.fromkeys(run.algo for run in zoo))
             raise ValueError(f"no tensorboard runs ({names}) under {Path(args.tensorboard_log) / env_id}")
     tags: set[str] = set()
     for run in runs:
@@ -568,7 +588,8 @@ def run_curves(args: argparse.Namespace) -> tuple[dict[str, list[tuple[np.ndarra
         tags.update(scalars)
         if args.key in scalars:
             steps, hours, values = scalars[args.key]
-            curves.setdefault(run.algo, []).append((steps if args.x_axis == "steps" else hours, values))
+            x = steps * run.uav_steps_per_timestep if args.x_axis == "steps" else hours
+            curves.setdefault(run.algo, []).append((x, values))
     if not curves:
         known = f"or a tensorboard scalar of these runs: {', '.join(sorted(tags))}" if tags else (
             "and these runs have no tensorboard event files (train with -tb, and give its folder here with -tb)")

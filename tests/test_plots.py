@@ -122,7 +122,23 @@ def test_tensorboard_scalars_under_runs_and_from_tb_folder(logs: Path, tmp_path:
     figure = plots.build_figure(plots.plot_parser().parse_args(
         ["-f", str(logs), "-k", "rollout/ep_rew_mean", "-tb", str(tmp_path / "tb")]))
     assert line_data(figure)[1][[0, -1]].tolist() == [4.0, 6.0]
-    assert [r.folder.name for r in plots.tensorboard_runs(tmp_path / "tb", ["ppo"], ENV)] == ["PPO_1"]
+    assert [r.folder.name for r in plots.tensorboard_runs(tmp_path / "tb", plots.zoo_runs([logs]))] == ["PPO_1"]
+
+
+def test_centralised_runs_count_agent_steps(tmp_path: Path):
+    """A centralised run (cppo) writes one monitor row per team episode and counts SB3 timesteps in team steps: both
+    become agent-steps (x the team's UAVs), as on the parameter-sharing view."""
+    logs = tmp_path / "logs"
+    write_monitor(logs / "cppo" / f"{ENV}_1", [1, 2, 3], n_uavs=1)  # one row per team episode
+    (logs / "cppo" / f"{ENV}_1" / ENV / "config.yml").write_text("env_kwargs:\n  n_uavs: 3\n")
+    (run,) = plots.zoo_runs([logs])
+    assert (run.agents_per_copy, run.team_size, run.uav_steps_per_timestep) == (1, 3, 3)
+    figure = plots.build_figure(plots.plot_parser().parse_args(["-f", str(logs), "-w", "1"]))
+    assert line_data(figure)[0][[0, -1]].tolist() == [30.0, 90.0]  # 3 UAVs x 10 steps per team episode
+    write_scalars(tmp_path / "tb" / ENV / "PPO_1", "reserve/team_reward", {100: 1.0, 200: 2.0})
+    figure = plots.build_figure(plots.plot_parser().parse_args(
+        ["-f", str(logs), "-k", "reserve/team_reward", "-tb", str(tmp_path / "tb")]))
+    assert line_data(figure)[0][[0, -1]].tolist() == [300.0, 600.0]
 
 
 def test_seed_bars_keep_the_other_seeds_readable():
