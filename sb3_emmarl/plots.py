@@ -452,7 +452,7 @@ def seed_bars(ax: Axes, values_by_arm: Mapping[str, Sequence[float]], *, ylabel:
     :param min_share: see :func:`readable_limits`
     :param seed: seed of the dots' jitter (the same figure at every redraw)
     :return: the medians, quartiles, clipped seeds and y range drawn
-    :raise ValueError: for no arm, an arm without values, or a value that is not finite
+    :raise ValueError: for no arm, an arm without values, a value that is not finite, or an arm without a position
     """
     if not values_by_arm:
         raise ValueError("seed_bars needs at least one arm")
@@ -461,6 +461,8 @@ def seed_bars(ax: Axes, values_by_arm: Mapping[str, Sequence[float]], *, ylabel:
         if not array.size or not np.isfinite(array).all():
             raise ValueError(f"arm {arm!r}: seed_bars needs at least one value, all finite; got {array.tolist()}")
     xs = dict(positions) if positions is not None else {arm: float(i) for i, arm in enumerate(arrays)}
+    if missing := [arm for arm in arrays if arm not in xs]:
+        raise ValueError(f"positions has no x for the arm(s) {missing}; it has {list(xs)}")
     medians = {arm: float(np.median(a)) for arm, a in arrays.items()}
     quartiles = {arm: (float(np.percentile(a, 25)), float(np.percentile(a, 75))) for arm, a in arrays.items()}
     keep = [*medians.values(), *([baseline] if baseline is not None else [])]

@@ -154,6 +154,10 @@ def test_seed_bars_keep_the_other_seeds_readable():
     assert [round(p.get_height(), 6) for p in ax.patches] == [-22.0, 6.0]
     assert [text.get_text() for text in ax.texts] == ["-1300"]  # the outlier's value, at its arrow
     assert drawn.ylim == (low, high)
+    with pytest.raises(ValueError, match=r"positions has no x for the arm\(s\) \['ppo'\]"):
+        plots.seed_bars(ax, {"a2c": [1.0], "ppo": [2.0]}, positions={"a2c": 0.0})
+    with pytest.raises(ValueError, match="arm 'a2c': seed_bars needs at least one value, all finite"):
+        plots.seed_bars(ax, {"a2c": [1.0, float("nan")]})
 
 
 def test_readable_limits():
