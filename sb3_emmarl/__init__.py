@@ -2,6 +2,7 @@
 
 from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.evaluation import evaluate_policy
+from sb3_emmarl.common.latent.callback import EMCallback
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
 from sb3_emmarl.mappo import MAPPO
@@ -12,5 +13,5 @@ from sb3_emmarl.vdn import VDN
 from sb3_emmarl.vdn_em import EMVDN
 from sb3_emmarl.version import __version__
 
-__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "QMIX", "VDN", "EvalCallback", "MessagePPO", "OraclePPO", "__version__",
-           "evaluate_policy"]
+__all__ = ["EMDDPG", "EMPPO", "EMVDN", "MAPPO", "QMIX", "VDN", "EMCallback", "EvalCallback", "MessagePPO", "OraclePPO",
+           "__version__", "evaluate_policy"]

@@ -17,6 +17,7 @@ carry the belief, as EM-PPO's M-step does.
 from __future__ import annotations
 
 from dataclasses import fields
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -26,6 +27,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.checkpoints import write_atomic
 from sb3_emmarl.common.latent.algorithm import (
     E_STEP_DEFAULTS,
     augmented_features,
@@ -90,6 +92,12 @@ class EMCallback(BaseCallback):
                  belief_input: str = "probabilities", e_step_kwargs: dict[str, Any] | None = None,
                  freeze_e_step: bool = False, seed: int = 0, verbose: int = 0) -> None:
         super().__init__(verbose)
+        #: the constructor's arguments (what :meth:`save` keeps to build the callback again)
+        self.arguments = {"n_components": n_components, "e_step_every": e_step_every,
+                          "decoder_hidden": tuple(decoder_hidden), "likelihood_temperature": likelihood_temperature,
+                          "fusion": fusion, "estimator": estimator, "team_pooling": team_pooling,
+                          "reading_counts": reading_counts, "count_factors": count_factors, "belief_input": belief_input,
+                          "e_step_kwargs": e_step_kwargs, "freeze_e_step": freeze_e_step, "seed": seed}
         self.config = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
                                    likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
                                    team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
@@ -103,6 +111,7 @@ class EMCallback(BaseCallback):
         self._episode_counters = np.zeros(0, dtype=np.int64)
         self._replay_pos, self._last_dones = 0, np.zeros(0, dtype=bool)
         self._last_e_step = 0
+        self._saved: dict[str, Any] | None = None  # a loaded callback's state, until wrap_env builds its model
 
     # ------------------------------------------------------------------ what the user builds the model with
     @property
@@ -137,7 +146,7 @@ class EMCallback(BaseCallback):
                 "features_extractor_kwargs": {"head_dim": self.layout.obs_dim, "belief_input": self.config.belief_input}}
 
     def _build(self, wrapper: BeliefWrapper) -> None:
-        """The latent model and the E-step, sized by ``wrapper``'s environment."""
+        """The latent model and the E-step, sized by ``wrapper``'s environment (with a loaded callback's state)."""
         config = self.config
         counter = wrapper.counter if config.reading_counts else None
         layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, config.n_components,
@@ -146,9 +155,46 @@ class EMCallback(BaseCallback):
         with th.random.fork_rng(devices=[]):  # the model's initial weights from the callback's seed alone
             th.manual_seed(self.seed)
             model = LatentModel(layout)
-        self.e_step = make_e_step(model, config.estimator, config.likelihood_temperature, config.count_factors, counter,
-                                  self.seed, {**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
-        self.latent_model, self._wrapper = model, wrapper
+        e_step = make_e_step(model, config.estimator, config.likelihood_temperature, config.count_factors, counter,
+                             self.seed, {**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
+        saved, self._saved = self._saved, None
+        if saved is not None:
+            if saved["layout"] != layout.to_dict():
+                raise ValueError(f"the environment gives the latent layout {layout.to_dict()}, the saved callback was "
+                                 f"made for {saved['layout']}: wrap environments of the task it was trained on")
+            model.load_state_dict(saved["latent_model"])
+            e_step.load_state_dict(saved["e_step"])
+            self._episode_counters = saved["episode_counters"].numpy().astype(np.int64)
+            transitions, counts = saved["pending"]
+            if transitions is not None:
+                self._pending = [(Transitions(*transitions), None if counts is None else EpisodeCounts(*counts))]
+        self.latent_model, self.e_step, self._wrapper = model, e_step, wrapper
+
+    # ------------------------------------------------------------------ save and load
+    def save(self, path: str | Path) -> None:
+        """Write the callback (its settings, the latent model's layout and weights, the E-step's state, the episode
+        counters and the transitions not yet fitted) to ``path`` with ``torch.save``, atomically: :meth:`load` gives a
+        callback that wraps environments with the same belief and trains on as if it had not stopped. Save it beside
+        the SB3 model's zip."""
+        e_step = self.e_step
+        if self.latent_model is None or e_step is None:
+            raise ValueError("EMCallback has no latent model yet: call callback.wrap_env(env) first")
+        state = {"arguments": self.arguments, "layout": self.layout.to_dict(),
+                 "latent_model": self.latent_model.state_dict(), "e_step": e_step.state_dict(),
+                 "episode_counters": th.as_tensor(self._episode_counters),
+                 "pending": [None if part is None else [getattr(part, field.name) for field in fields(part)]
+                             for part in self._joined_pending()]}
+        write_atomic(path, lambda file: th.save(state, file))
+
+    @classmethod
+    def load(cls, path: str | Path, verbose: int = 0) -> EMCallback:
+        """A callback written by :meth:`save` (read with ``torch.load(weights_only=True)``: tensors and plain values
+        only, nothing that runs code). Its latent model is built again by the first :meth:`wrap_env`, from the
+        environment (which must give the saved sizes), and then takes the saved weights and E-step state."""
+        state = th.load(Path(path), map_location="cpu", weights_only=True)
+        callback = cls(**state["arguments"], verbose=verbose)
+        callback._saved = state
+        return callback
 
     # ------------------------------------------------------------------ SB3's callback hooks
     def _init_callback(self) -> None:
@@ -187,14 +233,20 @@ class EMCallback(BaseCallback):
         if self.model.num_timesteps - self._last_e_step < self.e_step_every or not self._pending:
             return
         e_step = self.e_step
-        assert e_step is not None  # (built with the latent model)
-        counts = [part[1] for part in self._pending]
-        e_step.add(_concatenate([part[0] for part in self._pending]),
-                   None if any(part is None for part in counts) else _concatenate([c for c in counts if c is not None]))
+        transitions, counts = self._joined_pending()
+        assert e_step is not None and transitions is not None  # (built with the latent model; pending data)
+        e_step.add(transitions, counts)
         e_step_and_log(e_step, self.logger, train=not self.config.freeze_e_step)
         self._pending, self._last_e_step = [], self.model.num_timesteps
 
     # ------------------------------------------------------------------ the E-step's data
+    def _joined_pending(self) -> tuple[Transitions | None, EpisodeCounts | None]:
+        """The transitions and reading counts handed over since the last E-step, each as one part (None: none)."""
+        transitions = [part[0] for part in self._pending]
+        counts = [part[1] for part in self._pending if part[1] is not None]
+        return (_concatenate(transitions) if transitions else None,
+                _concatenate(counts) if counts and len(counts) == len(transitions) else None)
+
     def _features(self, observations: np.ndarray) -> np.ndarray:
         assert self._wrapper is not None  # (built with the latent model)
         return augmented_features(self._wrapper.feature_fn, observations, self.layout.obs_dim)
