@@ -25,14 +25,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import ListedColormap
-from matplotlib.figure import Figure
 
 from sb3_emmarl.common.checkpoints import write_text
+from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec
 from sb3_emmarl.experiments.store import UNKNOWN
+
+with requires("matplotlib", "plots", "the experiments' figures"):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import ListedColormap
+    from matplotlib.figure import Figure
 
 #: Shown in a table where there is no value.
 MISSING = "-"

@@ -18,11 +18,13 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import yaml
 
+from sb3_emmarl.common.arguments import KeyValues, OneLineParser
+from sb3_emmarl.common.arguments import parse_key_values as parse_key_values
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     check_model_file,
@@ -35,7 +37,7 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
-from sb3_emmarl.common.safe_config import parse_value, wrapper_from_config
+from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
@@ -59,23 +61,6 @@ def peak_rss_mib() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
-    """rl-zoo's ``key:value`` pairs; values are Python literals read as data by
-    :func:`~sb3_emmarl.common.safe_config.parse_value` (quote strings: ``region:"'forest'"``), never evaluated.
-
-    :param items: the ``key:value`` strings
-    :param flag: the flag's name, for error messages
-    :raise ValueError: naming the pair that does not parse
-    """
-    result: dict[str, Any] = {}
-    for item in items or []:
-        key, sep, value = item.partition(":")
-        if not sep or not key:
-            raise ValueError(f"{flag} expects key:value pairs, got {item[:80]!r}")
-        result[key] = parse_value(value, f"{flag} {key}")
-    return result
-
-
 def latest_run(log_folder: str | Path, algo: str, env_id: str = ENV_ID) -> Path:
     """The folder of the newest run of ``algo`` on ``env_id`` in the zoo's ``log_folder`` (rl-zoo's
     ``<log>/<algo>/<env>_<n>``, highest ``n``); ``<env>_0``, which does not exist, when there is none."""
@@ -89,24 +74,6 @@ def run_env_id(run: str | Path) -> str:
     """The environment id of a zoo run folder (``<env>_<n>``; the reserve's for a folder not named so)."""
     name = Path(run).name.rsplit("_", 1)[0]
     return name if name in ENV_MODULES else ENV_ID
-
-
-class KeyValues(argparse.Action):
-    """argparse action storing ``key:value`` pairs as a dict (see :func:`parse_key_values`)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        try:
-            setattr(namespace, self.dest, parse_key_values(values, option_string or self.dest))
-        except ValueError as error:
-            parser.error(str(error))
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors are one line (``<prog>: error: <message> (--help for usage)``, exit code 2),
-    without the usage block."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (--help for usage)\n")
 
 
 def train_parser() -> argparse.ArgumentParser:
