@@ -1,12 +1,18 @@
 """Runners that share a store: cells claimed with a lease before they start, taken over when their runner is gone,
-each cell finished once; a runner's cells die with it (SIGKILL, SIGTERM); stored cells name their version."""
+each cell finished once; a runner's cells die with it (SIGKILL, SIGTERM); stored cells name their version; the Ray
+backend on a real two-node cluster."""
 
+import contextlib
 import os
 import re
+import secrets
+import shutil
 import signal
+import socket
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -15,6 +21,7 @@ import pytest
 
 from sb3_emmarl.experiments import ResultStore
 from sb3_emmarl.experiments.cli import experiment_main
+from sb3_emmarl.experiments.spec import RUN_METRICS
 from sb3_emmarl.experiments.store import Claim, RunnerId, code_version
 from sb3_emmarl.version import __version__
 
@@ -227,3 +234,93 @@ def test_a_stopped_runner_kills_its_cells_and_releases_their_claims(tmp_path):
     assert not _alive(cell)
     assert "stopped by SIGTERM" in (tmp_path / "runner.log").read_text()
     assert claims(ResultStore(runs / "results.sqlite")) == []
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture
+def ray_cluster(tmp_path, monkeypatch):
+    """A real Ray cluster of two nodes on this machine: a head and a worker node started with ``ray start --address``,
+    each from its own working directory with its own temporary folder and one CPU; stopped (their process groups
+    killed) at the end. Yields the head's address."""
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        pytest.fail("the Ray cluster test needs Ray: pip install 'sb3-emmarl[ray]' (make test installs it)")
+    port = _free_port()
+    address = f"127.0.0.1:{port}"
+    temp = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths must fit in 107 characters
+    # A token of the cluster's own (not ~/.ray/auth_token, which other Ray instances on this machine may rewrite), for
+    # every process of the cluster, the status queries and the driver.
+    monkeypatch.setenv("RAY_AUTH_MODE", "token")
+    monkeypatch.setenv("RAY_AUTH_TOKEN", secrets.token_hex(32))
+    nodes: list[subprocess.Popen] = []
+
+    def start(name: str, *flags: str) -> None:
+        folder = tmp_path / name
+        folder.mkdir()
+        command = ["ray", "start", "--block", "--num-cpus", "1", "--object-store-memory", str(80 * 2**20),
+                   "--node-ip-address", "127.0.0.1", "--disable-usage-stats", "--temp-dir", str(temp / name),
+                   "--dashboard-agent-listen-port", str(_free_port()), "--metrics-export-port", str(_free_port()),
+                   *flags]
+        with open(tmp_path / f"{name}.log", "w") as log:
+            nodes.append(subprocess.Popen(command, cwd=folder, stdout=log, stderr=subprocess.STDOUT,
+                                          start_new_session=True))
+
+    def active_nodes() -> int:
+        status = subprocess.run(["ray", "status", "--address", address], capture_output=True, text=True)
+        return len(re.findall(r"^\s*1 node_", status.stdout.split("Pending:")[0], flags=re.MULTILINE))
+
+    try:
+        start("head", "--head", "--port", str(port), "--include-dashboard", "false",
+              "--ray-client-server-port", str(_free_port()))
+        _wait_for(lambda: active_nodes() == 1, 120, "the head node")
+        start("worker", "--address", address)
+        _wait_for(lambda: active_nodes() == 2, 120, "the worker node")
+        yield address
+    finally:
+        for node in reversed(nodes):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(node.pid, signal.SIGTERM)
+        deadline = time.monotonic() + 5
+        for node in reversed(nodes):
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                node.wait(timeout=max(0.1, deadline - time.monotonic()))
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(node.pid, signal.SIGKILL)  # whatever of the node's processes is left
+            node.wait()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_the_ray_backend_runs_on_a_two_node_cluster_and_gathers_the_run_folders(tmp_path, ray_cluster):
+    driver = tmp_path / "driver"
+    driver.mkdir()
+    spec = write_spec(driver, ppo_only([0, 1]))
+    # A relative results folder: the driver makes it absolute, so the workers (in other folders) write there.
+    done = subprocess.run([sys.executable, str(ROOT / "zoo" / "experiment.py"), spec.name, "-f", "runs", "--backend",
+                           "ray", "--address", ray_cluster, "--gather", "--no-report"], cwd=driver, capture_output=True,
+                          text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stdout + done.stderr
+    runs = driver / "runs"
+    store = ResultStore(runs / "results.sqlite")
+    assert store.finished("tiny", "quick") == {("ppo", "clean", 0), ("ppo", "clean", 1)} and claims(store) == []
+    # One cell ran on each node (one CPU each); the worker node's run folder came back to the driver.
+    assert len(re.findall(r"run folder gathered from node \w+", done.stdout)) == 1, done.stdout
+    for row in store.rows("tiny", "quick"):
+        assert Path(row["run_dir"]).is_relative_to(runs) and row["version"] == __version__
+        assert (Path(row["run_dir"]) / "stage_0" / "ppo" / "WildlifeReserve-v0_1" / "WildlifeReserve-v0.zip").is_file()
+    for node in ("head", "worker"):
+        assert sorted(p.name for p in (tmp_path / node).iterdir()) == [], f"{node} wrote into its working directory"
+    # The same store contents as the local backend's for the same seeds (timings aside).
+    assert experiment_main([str(spec), "-f", str(tmp_path / "local"), "--n-jobs", "2", "--no-report"]) == 0
+
+    def content(folder: Path) -> list[tuple]:
+        timing = set(RUN_METRICS) - {"n_timesteps"}
+        return [(r["algorithm"], r["condition"], r["seed"], {k: v for k, v in r["metrics"].items() if k not in timing},
+                 r["episodes"]) for r in ResultStore(folder / "results.sqlite").rows("tiny", "quick")]
+
+    assert len(content(runs)) == 2 and content(runs) == content(tmp_path / "local")

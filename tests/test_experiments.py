@@ -225,24 +225,6 @@ def test_a_tiny_cell_regenerates_its_stored_digits(tmp_path):
     assert digest == TINY_EPISODES
 
 
-def test_the_ray_backend_fills_the_store_as_the_local_backend_does(tmp_path):
-    pytest.importorskip("ray")
-    data = mutate("algorithms", {"ppo": TINY["algorithms"]["ppo"]})
-    data["budgets"]["quick"]["seeds"] = [3, 4]
-    spec = write_spec(tmp_path, data)
-    for backend in ("local", "ray"):
-        assert experiment_main([str(spec), "-f", str(tmp_path / backend), "--backend", backend, "--n-jobs", "2",
-                                "--no-report"]) == 0
-
-    def content(backend):
-        rows = ResultStore(tmp_path / backend / "results.sqlite").rows("tiny", "quick")
-        timing = set(RUN_METRICS) - {"n_timesteps"}
-        return [(r["algorithm"], r["condition"], r["seed"], {k: v for k, v in r["metrics"].items() if k not in timing},
-                 r["episodes"]) for r in rows]
-
-    assert len(content("local")) == 2 and content("local") == content("ray")
-
-
 def test_the_runner_compiles_the_kernels_for_every_reserve_of_a_condition_before_its_cells(monkeypatch):
     from sb3_emmarl.experiments.runner import compile_for_condition
     from wildlife_reserve.reserve import reserve as reserve_module

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from sb3_emmarl.common.environments import ENV_ID
+from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.safe_config import load_yaml_text
 from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec, parse_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore, RunnerId, code_version
@@ -216,7 +217,7 @@ def run_cell_process(spec_name: str, spec_text: str | None, budget: str, algorit
     :param root: the (absolute) results root
     :param version: the driver's package version: refused when this process's differs (None: not checked)
     :param gather_from: when set, the id of the driver's Ray node: a cell run on another node returns its folder as
-        ``result["folder_archive"]`` (a gzipped tar) for the driver to unpack
+        ``result["folder_archive"]`` (a gzipped tar) for the driver to unpack, and its node's id as ``result["node"]``
     :return: the cell's result (:func:`run_cell`) with the ``hardware`` it ran on
     :raise RuntimeError: when the cell fails or the versions differ
     """
@@ -252,8 +253,9 @@ def run_cell_process(spec_name: str, spec_text: str | None, budget: str, algorit
     if gather_from is not None:
         import ray
 
-        if ray.get_runtime_context().get_node_id() != gather_from:
-            result["folder_archive"] = _pack(Path(result["run_dir"]))
+        node = ray.get_runtime_context().get_node_id()
+        if node != gather_from:
+            result["folder_archive"], result["node"] = _pack(Path(result["run_dir"])), node
     return result
 
 
@@ -398,7 +400,9 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
                             continue
                         ran += 1
                         log(f"  finished {algorithm} / {condition} / seed {seed}: "
-                            + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in spec.metrics))
+                            + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in spec.metrics)
+                            + (f" (run folder gathered from node {result['gathered_from'][:12]})"
+                               if "gathered_from" in result else ""))
         finally:
             heartbeat.stopped.set()
             kill_cells()
@@ -424,10 +428,8 @@ def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool
             kill_cells()
             pool.shutdown(wait=True, cancel_futures=True)
         return
-    try:
+    with requires("ray", "ray", "the ray backend"):
         import ray
-    except ImportError:
-        raise ValueError("the ray backend needs Ray: pip install 'sb3-emmarl[ray]'") from None
     started = not ray.is_initialized()
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
@@ -451,9 +453,10 @@ def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool
                 result = ray.get(ref)
             except ray.exceptions.RayTaskError as error:
                 raise RuntimeError(str(error.cause)) from None
-            archive = result.pop("folder_archive", None)
+            archive, node = result.pop("folder_archive", None), result.pop("node", None)
             if archive is not None:
                 unpack(archive, Path(result["run_dir"]))
+                result["gathered_from"] = node
             return result
 
         yield slots, submit, wait_ray, collect
