@@ -105,8 +105,9 @@ def test_flight_updates_in_place_and_a_grounded_uav_neither_moves_talks_nor_hove
     cells, window = np.zeros((2, 2), dtype=np.int64), np.zeros((2, 3, 3), dtype=np.int64)
     move, comm = np.array([[0.0, 1.0], [1.0, 0.0]]), np.array([1, 1])
     offsets = np.arange(9, dtype=np.int64).reshape(3, 3)
-    energy, everyone = kernels.fly(pos, velocity, battery, grounded, cells, window, move, comm, 2.0,
-                                   np.array([9.99, 9.99]), 0.5, 0.25, np.array([0.0, 0.1, 0.05]), 12, offsets)
+    flight = kernels.Flight(pos, velocity, battery, grounded, cells, window, 2.0, np.array([9.99, 9.99]), 0.5, 0.25,
+                            np.array([0.0, 0.1, 0.05]), 12, offsets)
+    energy, everyone = kernels.fly(flight, move, comm)
     np.testing.assert_array_equal(pos, [[2.5, 4.5], [5.5, 5.5]])
     np.testing.assert_array_equal(velocity, [[0.0, 1.0], [0.0, 0.0]])
     assert comm.tolist() == [1, COMM_NONE] and move[1].tolist() == [0.0, 0.0]
@@ -127,10 +128,10 @@ def test_flight_and_collisions_in_one_call_count_the_uavs_airborne_before_the_fl
     constants = (2.0, np.array([9.99, 9.99]), 0.0005, 0.002, np.array([0.0, 0.003, 0.0015]), 12,
                  np.arange(9, dtype=np.int64).reshape(3, 3))
     together = team()
-    energy, everyone, own, pairs = kernels.fly_and_collide(*together, *constants)
+    energy, everyone, own, pairs = kernels.fly_and_collide(kernels.Flight(*together[:6], *constants), *together[6:])
     apart = team()
     airborne = ~apart[3]
-    expected_energy, expected_everyone = kernels.fly(*apart, *constants)
+    expected_energy, expected_everyone = kernels.fly(kernels.Flight(*apart[:6], *constants), *apart[6:])
     expected_own, expected_pairs = kernels.collisions(apart[4], airborne)
     np.testing.assert_array_equal(energy, expected_energy)
     assert bool(everyone) == bool(expected_everyone)

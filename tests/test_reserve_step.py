@@ -93,11 +93,12 @@ def test_step_rewards_add_the_weighted_terms_and_shape_each_uavs_share():
     energy = np.array([0.01, 0.02, 0.0])
     seen = np.array([[True, False], [False, False], [True, True]])
     own_new, own_collisions = np.array([4, 0, 2]), np.array([0, 1, 1])
-    rewards, team, spent = kernels.step_rewards(weights, 0.0, 2, 6, 3, 1, 1, energy, seen, own_new, own_collisions)
+    tally = kernels.Tally(detected=2, new_cells=6, signs_found=3, poaching_events=1, collisions=1)
+    rewards, team, spent = kernels.step_rewards(kernels.Rewards(weights, 0.0), tally, energy, seen, own_new, own_collisions)
     assert spent == pytest.approx(0.03)
     assert team == pytest.approx(10 * 2 + 0.05 * 6 + 0.1 * 3 - 20 * 1 - 1 * 1 - 0.03)
     np.testing.assert_array_equal(rewards, [team] * 3)
-    shaped, team_again, _ = kernels.step_rewards(weights, 0.25, 2, 6, 3, 1, 1, energy, seen, own_new,
+    shaped, team_again, _ = kernels.step_rewards(kernels.Rewards(weights, 0.25), tally, energy, seen, own_new,
                                                  own_collisions)
     own = 10 * seen.sum(axis=1) + 0.05 * own_new - own_collisions - energy
     assert team_again == team

@@ -11,6 +11,8 @@ for a few seconds, later ones load the cache.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -27,6 +29,9 @@ from wildlife_reserve.reserve.constants import (
     N_MOVES,
     NEVER,
     POACHER_ACTIVE,
+    POACHER_CAUGHT,
+    POACHER_GONE,
+    POACHER_WAITING,
 )
 from wildlife_reserve.reserve.stream import standard_normal, uniform
 
@@ -34,6 +39,275 @@ from wildlife_reserve.reserve.stream import standard_normal, uniform
 class ActionError(ValueError):
     """A discrete action out of range, raised by :func:`advance_world` before it changes anything (the reserve
     re-raises it as a ``ValueError`` naming the actions)."""
+
+
+class Step(NamedTuple):
+    """What changes at every step: the addresses of the step's random stream (``stream.handle``), the step ``t`` (after
+    its increment), the actions (``choices``: ``(n,)`` discrete ones to decode into ``move`` ``(n, 2)`` and ``comm``
+    ``(n,)``, or none and those two already decoded), the observations to write ``obs`` ``(n, obs_dim)``, the sign
+    records in use ``sign_count`` and the team's record of poacher readings ``events`` (rows ``(time, uav, block)``)."""
+
+    addresses: np.ndarray
+    t: int
+    choices: np.ndarray
+    move: np.ndarray
+    comm: np.ndarray
+    obs: np.ndarray
+    sign_count: int
+    events: np.ndarray
+
+
+class Flight(NamedTuple):
+    """The UAVs as their flight moves them (updated in place): positions ``pos`` and ``velocity`` ``(n, 2)``,
+    ``battery`` and ``grounded`` ``(n,)``, their ``cells`` ``(n, 2)`` and the padded flat cells of their windows
+    ``window`` ``(n, w, w)``; and the flight's constants: ``speed``, the positions' ``upper`` bounds ``(2,)``, the energy
+    of hovering, of moving one unit and of each communication choice ``comm_costs`` (none, broadcast, query), the padded
+    grids' width and the flat offsets of a window's cells ``window_offsets`` ``(w, w)``."""
+
+    pos: np.ndarray
+    velocity: np.ndarray
+    battery: np.ndarray
+    grounded: np.ndarray
+    cells: np.ndarray
+    window: np.ndarray
+    speed: float
+    upper: np.ndarray
+    hover: float
+    move_cost: float
+    comm_costs: np.ndarray
+    padded_width: int
+    window_offsets: np.ndarray
+
+
+class Leopards(NamedTuple):
+    """The leopards: cells ``pos`` ``(L, 2)``, which moved this step ``moved``, their dens ``home`` ``(L, 2)``, which are
+    ``alive`` (updated in place), how far from the den they roam (``home_range``, Chebyshev) and their chance to move
+    each step."""
+
+    pos: np.ndarray
+    moved: np.ndarray
+    home: np.ndarray
+    alive: np.ndarray
+    home_range: float
+    move_prob: float
+
+
+class Poachers(NamedTuple):
+    """The poachers: cells ``pos`` ``(P, 2)``, which moved this step ``moved``, their ``status`` (``POACHER_*``),
+    poaching ``timer``, ``planned`` target dens ``(P, 2)`` and ``entry_time`` (updated in place); how far they see a
+    leopard (``sight``) and notice a UAV (``notice_radius``), the strategy's chances to move, wander and evade and
+    whether they hide in cover, the chance that a move leaves a track and the steps of poaching that kill a leopard."""
+
+    pos: np.ndarray
+    moved: np.ndarray
+    status: np.ndarray
+    timer: np.ndarray
+    planned: np.ndarray
+    entry_time: np.ndarray
+    sight: float
+    notice_radius: float
+    move_prob: float
+    wander_prob: float
+    evasion_prob: float
+    hide_in_cover: bool
+    track_prob: float
+    poaching_time: int
+
+
+class Jammer(NamedTuple):
+    """The jammer of the adversarial condition: its position ``pos`` ``(2,)`` (moved in place), which UAVs it silences
+    ``jammed`` ``(n,)`` (written), whether the episode has one (``present``) and its ``radius``."""
+
+    pos: np.ndarray
+    jammed: np.ndarray
+    present: bool
+    radius: float
+
+
+class Ground(NamedTuple):
+    """The ground actors (:class:`Leopards`, :class:`Poachers`, the :class:`Jammer`), the cells that give ``cover``
+    ``(height, width)`` and the unit ``steps`` ``(5, 2)`` (stay, up, down, left, right)."""
+
+    leopards: Leopards
+    poachers: Poachers
+    jammer: Jammer
+    cover: np.ndarray
+    steps: np.ndarray
+
+
+class SignRecords(NamedTuple):
+    """The signs' records (``signs.Signs.record``; updated in place, with room for a step's new signs): the flat padded
+    ``grid`` of record indices (-1: none), its ``pad`` and ``width``, the ``block_of`` each cell ``(height, width)``,
+    the ``lifetime`` of each kind; each record's cell ``pos`` ``(S, 2)``, ``born``, ``expires``, ``kind``, ``block`` and
+    whether the team ``found`` it (``(S,)``); which kinds are ``real`` signs of poachers, and the kinds a step makes
+    (tracks, carcasses, false readings)."""
+
+    grid: np.ndarray
+    pad: int
+    width: int
+    block_of: np.ndarray
+    lifetime: np.ndarray
+    pos: np.ndarray
+    born: np.ndarray
+    expires: np.ndarray
+    kind: np.ndarray
+    block: np.ndarray
+    found: np.ndarray
+    real: np.ndarray
+    track_kind: int
+    carcass_kind: int
+    false_kind: int
+
+
+class Sensing(NamedTuple):
+    """What the sensors read: the ``detection`` table ``[distance, terrain, moved]``, the ``terrain`` ``(height,
+    width)``, the nominal ``radius``, the ``false_alarm`` chance per UAV-step, the window offsets within the weather's
+    reach ``reach_offsets`` ``(k, 2)``, the ``decoys`` ``(D, 2)`` and their ``decoy`` table ``[distance]``, the ``sign``
+    table ``(w * w, terrain types)``, the flat padded ``terrain_pad``, the standard deviation of the noise on the signal
+    channels ``signal_noise`` (``sensing.SIGNAL_NOISE_STD * sensor_noise``) and the readings ``signals`` ``(n, 3, w, w)``
+    (written)."""
+
+    detection: np.ndarray
+    terrain: np.ndarray
+    radius: int
+    false_alarm: float
+    reach_offsets: np.ndarray
+    decoys: np.ndarray
+    decoy: np.ndarray
+    sign: np.ndarray
+    terrain_pad: np.ndarray
+    signal_noise: float
+    signals: np.ndarray
+
+
+class Team(NamedTuple):
+    """The team's knowledge (``knowledge.TeamKnowledge.record``; updated in place): ``knowledge`` ``(n, n)``, the
+    cells' visit ``stamps`` ``(cells, 2, n)``, the blocks' ``block_last`` and ``block_first`` ``(n, blocks)``, which sign
+    records each UAV knows of ``known`` ``(n, capacity)`` and their ``counts`` by block, the distances ``dist``, the
+    ``beacons`` heard and the messages delivered ``comm_links`` ``(n, n)``; the staleness scale ``time_scale``
+    (``1 / max_cycles``), ``comm_radius``, ``comm_loss``, the readings' ``horizon`` and the belief's ``belief_decay``."""
+
+    knowledge: np.ndarray
+    stamps: np.ndarray
+    block_last: np.ndarray
+    block_first: np.ndarray
+    known: np.ndarray
+    counts: np.ndarray
+    dist: np.ndarray
+    beacons: np.ndarray
+    comm_links: np.ndarray
+    time_scale: np.float32
+    comm_radius: float
+    comm_loss: float
+    horizon: float
+    belief_decay: float
+
+
+class Coverage(NamedTuple):
+    """What the UAVs' looks mark: the flat padded ``high_risk`` cells (those the coverage term pays for), those the
+    team has seen ``visited`` (updated in place), and the staleness each UAV knew before this step's look, of its window
+    cells ``stale_cells`` ``(n, w * w)`` and of the blocks ``stale_blocks`` ``(n, blocks)`` (written)."""
+
+    high_risk: np.ndarray
+    visited: np.ndarray
+    stale_cells: np.ndarray
+    stale_blocks: np.ndarray
+
+
+class Observe(NamedTuple):
+    """What the observations show besides the flight and the team: the flat padded ``occlusion`` and ``risk``, the
+    window staleness ``staleness`` ``(n, w, w)``, the readings ``signals`` ``(n, 3, w, w)``, the block staleness
+    ``block_staleness`` ``(n, blocks)``, the sensor ``radius``, ``inv_scale`` ``(2,)`` (``1 / (side - 1)``), the
+    neighbours' ``neighbour_scale`` (``1 / R_c``) and how many are shown, the sign map's values by count, where the own,
+    neighbour and map parts start in a row, and ``max_cycles`` (the progress)."""
+
+    occlusion: np.ndarray
+    risk: np.ndarray
+    staleness: np.ndarray
+    signals: np.ndarray
+    block_staleness: np.ndarray
+    radius: int
+    inv_scale: np.ndarray
+    neighbour_scale: float
+    max_neighbours: int
+    sign_values: np.ndarray
+    own: int
+    neighbours: int
+    maps: int
+    max_cycles: int
+
+
+class Rewards(NamedTuple):
+    """The reward's ``weights`` (detection, coverage, sign, poaching, collision, energy) and its ``shaping``."""
+
+    weights: tuple
+    shaping: float
+
+
+class Tally(NamedTuple):
+    """What a step counts for the team's reward: poachers detected, new high-risk cells seen, real signs found, poaching
+    events and collisions (pairs)."""
+
+    detected: int
+    new_cells: int
+    signs_found: int
+    poaching_events: int
+    collisions: int
+
+
+class Candidates(NamedTuple):
+    """Sign sightings a step may make (:func:`sign_candidates`): the UAV, the window cell (flat), the sign record and
+    the chance, each ``(k,)``."""
+
+    uav: np.ndarray
+    cell: np.ndarray
+    sign: np.ndarray
+    p: np.ndarray
+
+
+class Spots(NamedTuple):
+    """Spurious readings (:func:`false_reading_cells`, :func:`decoy_reading_cells`): the reading UAVs ``(k,)``, the
+    offsets from them ``(k, 2)`` and the cells ``(k, 2)``."""
+
+    uav: np.ndarray
+    offsets: np.ndarray
+    cells: np.ndarray
+
+
+class Looks(NamedTuple):
+    """A step's looks: the step ``t`` (float32), the padded flat cells of each UAV's window ``window`` ``(n, w * w)``,
+    the block under each UAV ``cell_blocks`` ``(n,)`` and which UAVs are ``airborne``."""
+
+    t: np.float32
+    window: np.ndarray
+    cell_blocks: np.ndarray
+    airborne: np.ndarray
+
+
+class Talk(NamedTuple):
+    """A step's talk: the UAVs' positions ``pos`` ``(n, 2)``, which can talk ``ok`` (airborne, unjammed), their
+    communication choices ``comm`` (0 none, 1 broadcast, 2 query) and the uniform draws of the beacons and of the
+    messages ``(n, n)`` each."""
+
+    pos: np.ndarray
+    ok: np.ndarray
+    comm: np.ndarray
+    beacon_draws: np.ndarray
+    message_draws: np.ndarray
+
+
+class World(NamedTuple):
+    """Everything a step reads and updates but the :class:`Step` itself, by phase (``ReserveParallelEnv._world``
+    builds it; it crosses into :func:`advance_world` as plain tuples, named again inside)."""
+
+    flight: Flight
+    ground: Ground
+    signs: SignRecords
+    sensing: Sensing
+    team: Team
+    coverage: Coverage
+    observe: Observe
+    rewards: Rewards
 
 
 @njit(cache=True, inline="always")
@@ -158,17 +432,18 @@ def _toward_step(pos: np.ndarray, target: np.ndarray, pick: float) -> tuple[np.i
 
 
 @njit(cache=True)
-def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_cells: np.ndarray, notice_radius: float,
-                  move_prob: float, wander_prob: float, evasion_prob: float, hide_in_cover: bool, cover: np.ndarray,
-                  steps: np.ndarray, draw: np.ndarray, wander_draw: np.ndarray, pick: np.ndarray,
-                  evade_draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+def move_poachers(poachers: Poachers, mobile: np.ndarray, target: np.ndarray, uav_cells: np.ndarray, cover: np.ndarray,
+                  steps: np.ndarray, draws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Move the poachers one step: toward their target with ``move_prob``, a random step with ``wander_prob``, else
     wait; one that notices a UAV within ``notice_radius`` (Chebyshev) evades it with ``evasion_prob`` (hides when
     ``hide_in_cover`` and on cover, else flees); those not ``mobile`` stay.
 
-    :param draw, wander_draw, pick, evade_draw: ``(P,)`` uniform draws each
+    :param draws: ``(4, P)`` uniform draws: whether to move, the wandering step, the axis toward the target, evasion
     :return: new cells ``(P, 2)`` and who moved ``(P,)``
     """
+    pos = poachers.pos
+    draw, wander_draw, pick, evade_draw = draws[0], draws[1], draws[2], draws[3]
+    move_prob, wander_prob = poachers.move_prob, poachers.wander_prob
     n = len(pos)
     new = pos.copy()
     moved = np.zeros(n, dtype=np.bool_)
@@ -187,8 +462,8 @@ def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_c
                 d = max(abs(pos[i, 0] - uav_cells[u, 0]), abs(pos[i, 1] - uav_cells[u, 1]))
                 if best < 0 or d < best:
                     nearest, best = u, d
-            if best <= notice_radius and evade_draw[i] < evasion_prob:
-                if hide_in_cover and cover[pos[i, 0], pos[i, 1]]:
+            if best <= poachers.notice_radius and evade_draw[i] < poachers.evasion_prob:
+                if poachers.hide_in_cover and cover[pos[i, 0], pos[i, 1]]:
                     d_row, d_col = np.int64(0), np.int64(0)
                 else:
                     f_row, f_col = _sign(pos[i, 0] - uav_cells[nearest, 0]), _sign(pos[i, 1] - uav_cells[nearest, 1])
@@ -204,21 +479,22 @@ def move_poachers(pos: np.ndarray, mobile: np.ndarray, target: np.ndarray, uav_c
 
 
 @njit(cache=True)
-def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: int, width: int, move_prob: float,
-                  steps: np.ndarray, move_draw: np.ndarray, step_draw: np.ndarray,
-                  pick: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def move_leopards(leopards: Leopards, height: int, width: int, steps: np.ndarray,
+                  draws: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """Move the leopards one step: with ``move_prob``, a random step, or toward the den beyond ``home_range``
-    (Chebyshev) of it.
+    (Chebyshev) of it; returns their new cells.
 
-    :param move_draw, step_draw, pick: ``(L,)`` uniform draws each
+    :param draws: ``(3, L)`` uniform draws: whether to move, the random step, the axis toward the den
     """
+    pos, home = leopards.pos, leopards.home
+    move_draw, step_draw, pick = draws[0], draws[1], draws[2]
     new = pos.copy()
     for i in range(len(pos)):
         step = steps[1 + np.int64(step_draw[i] * 4)]
         d_row, d_col = step[0], step[1]
-        if max(abs(pos[i, 0] - home[i, 0]), abs(pos[i, 1] - home[i, 1])) > home_range:
+        if max(abs(pos[i, 0] - home[i, 0]), abs(pos[i, 1] - home[i, 1])) > leopards.home_range:
             d_row, d_col = _toward_step(pos[i], home[i], pick[i])
-        if not move_draw[i] < move_prob:
+        if not move_draw[i] < leopards.move_prob:
             d_row, d_col = np.int64(0), np.int64(0)
         new[i, 0] = min(max(pos[i, 0] + d_row, 0), height - 1)
         new[i, 1] = min(max(pos[i, 1] + d_col, 0), width - 1)
@@ -226,40 +502,36 @@ def move_leopards(pos: np.ndarray, home: np.ndarray, home_range: float, height: 
 
 
 @njit(cache=True)
-def move_ground_actors(draws: np.ndarray, leopards: np.ndarray, leopard_moved: np.ndarray, home: np.ndarray,
-                       home_range: float, leopard_move_prob: float, poachers: np.ndarray, poacher_moved: np.ndarray,
-                       active: np.ndarray, timer: np.ndarray, alive: np.ndarray, planned: np.ndarray, sight: float,
-                       uav_cells: np.ndarray, notice_radius: float, move_prob: float, wander_prob: float,
-                       evasion_prob: float, hide_in_cover: bool, cover: np.ndarray, steps: np.ndarray,
-                       track_prob: float) -> np.ndarray:  # pragma: no cover - compiled
+def move_ground_actors(draws: np.ndarray, ground: Ground, active: np.ndarray,
+                       uav_cells: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """One step of the leopards and, if any poacher is active, of the poachers, in one call: :func:`move_leopards`,
-    :func:`poacher_targets`, :func:`move_poachers` and the track draw, in that order. The cells ``leopards`` and
-    ``poachers`` and which of them moved (``leopard_moved``, ``poacher_moved``) are updated in place.
+    :func:`poacher_targets`, :func:`move_poachers` and the track draw, in that order. The cells of the leopards and the
+    poachers and which of them moved are updated in place.
 
     :param draws: the uniform draws those calls make, in their order: ``3 L`` for the leopards, then ``5 P`` (four
         rows for the poachers' moves, one for their tracks) when any poacher is active (one numpy call draws the
         same stream as their several)
-    :param active: ``(P,)`` poachers in play; ``timer``: ``(P,)`` their poaching timers (poaching ones do not move)
+    :param active: ``(P,)`` poachers in play (poaching ones, with a running timer, do not move)
+    :param uav_cells: the airborne UAVs' cells ``(k, 2)`` (what the poachers notice)
     :return: the cells of the tracks the poachers left ``(k, 2)``
     """
-    height, width = cover.shape
-    n_leopards, n = len(leopards), len(poachers)
+    leopards, poachers = ground.leopards, ground.poachers
+    height, width = ground.cover.shape
+    n_leopards, n = len(leopards.pos), len(poachers.pos)
     walk = draws[:3 * n_leopards].reshape(3, n_leopards)
-    new_leopards = move_leopards(leopards, home, home_range, height, width, leopard_move_prob, steps, walk[0], walk[1],
-                                 walk[2])
-    leopard_moved[:] = (new_leopards[:, 0] != leopards[:, 0]) | (new_leopards[:, 1] != leopards[:, 1])
-    leopards[:] = new_leopards
+    new_leopards = move_leopards(leopards, height, width, ground.steps, walk)
+    leopards.moved[:] = (new_leopards[:, 0] != leopards.pos[:, 0]) | (new_leopards[:, 1] != leopards.pos[:, 1])
+    leopards.pos[:] = new_leopards
     if len(draws) == 3 * n_leopards:  # no poacher active
-        poacher_moved[:] = False
+        poachers.moved[:] = False
         return np.zeros((0, 2), dtype=np.int64)
-    target = poacher_targets(poachers, new_leopards, alive, planned, sight)
+    target = poacher_targets(poachers.pos, new_leopards, leopards.alive, poachers.planned, poachers.sight)
     moves = draws[3 * n_leopards:].reshape(5, n)
-    new_poachers, moved = move_poachers(poachers, active & (timer == 0), target, uav_cells, notice_radius, move_prob,
-                                        wander_prob, evasion_prob, hide_in_cover, cover, steps, moves[0], moves[1],
-                                        moves[2], moves[3])
-    poachers[:] = new_poachers
-    poacher_moved[:] = moved
-    return new_poachers[moved & (moves[4] < track_prob)]
+    new_poachers, moved = move_poachers(poachers, active & (poachers.timer == 0), target, uav_cells, ground.cover,
+                                        ground.steps, moves[:4])
+    poachers.pos[:] = new_poachers
+    poachers.moved[:] = moved
+    return new_poachers[moved & (moves[4] < poachers.track_prob)]
 
 
 @njit(cache=True)
@@ -336,8 +608,7 @@ def sign_candidates(grid: np.ndarray, born: np.ndarray, expires: np.ndarray, win
 
 
 @njit(cache=True)
-def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.ndarray, visited: np.ndarray,
-         stamps: np.ndarray, block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray,
+def look(team: Team, coverage: Coverage, uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray,
          t: np.float32) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """The airborne ``uavs`` look at padded flat cells ``seen`` ``(k, c)`` from above ``blocks`` ``(k,)``: stamp each
     one's own visit history of cells and blocks (``stamps[cell, 0, u] = t``, ``stamps[cell, 1, u] = min(first, t)``:
@@ -347,6 +618,8 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
     :return: high-risk cells each UAV sees that nobody had seen before this step ``(k,)`` (cells two UAVs see at
         once count for both), and the number of high-risk cells the team sees for the first time
     """
+    high_risk, visited, stamps = coverage.high_risk, coverage.visited, team.stamps
+    block_last, block_first = team.block_last, team.block_first
     k, c = seen.shape
     fresh = np.zeros(k, dtype=np.int64)
     for a in range(k):
@@ -369,7 +642,7 @@ def look(uavs: np.ndarray, seen: np.ndarray, blocks: np.ndarray, high_risk: np.n
         block_last[u, blocks[a]] = t
         if t < block_first[u, blocks[a]]:
             block_first[u, blocks[a]] = t
-        knowledge[u, u] = t
+        team.knowledge[u, u] = t
     return fresh, new
 
 
@@ -417,73 +690,62 @@ def deliver(links: np.ndarray, comm: np.ndarray, dist: np.ndarray, draws: np.nda
 
 
 @njit(cache=True)
-def look_and_talk(t: np.float32, scale: np.float32, window: np.ndarray, cell_blocks: np.ndarray,
-                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, stamps: np.ndarray,
-                  block_last: np.ndarray, block_first: np.ndarray, knowledge: np.ndarray, pos: np.ndarray, ok: np.ndarray,
-                  radius: float, comm: np.ndarray, beacon_draws: np.ndarray, message_draws: np.ndarray, loss: float,
-                  known: np.ndarray, counts: np.ndarray, sign_blocks: np.ndarray, stale_cells: np.ndarray,
-                  stale_blocks: np.ndarray, dist: np.ndarray, beacons: np.ndarray,
-                  delivered: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+def look_and_talk(team: Team, coverage: Coverage, looks: Looks, talk: Talk,
+                  sign_blocks: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """One step of the team's knowledge in one call (each part is the kernel named, in this order): the staleness
     of every window cell and block as each UAV knew it before this step (``known_ages``, ``known_block_ages``, into
-    ``stale_cells`` ``(n, c)`` and ``stale_blocks`` ``(n, blocks)``), the airborne UAVs' look (``look``), the links in
-    range and their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= loss``, into
-    ``beacons``), the messages delivered (``deliver``, into ``delivered``) and what they carry (``merge_messages``;
-    the signs learned go through ``learn_signs``, by ``sign_blocks``). Everything is updated
-    in place: the stamps, ``visited``, ``knowledge``, ``known``, ``counts`` and the outputs named.
+    the coverage's ``stale_cells`` and ``stale_blocks``), the airborne UAVs' look (``look``), the links in range and
+    their distances (``links_in_range``, into ``dist``), the beacons heard (``beacon_draws >= comm_loss``, into
+    ``beacons``), the messages delivered (``deliver``, into ``comm_links``) and what they carry (``merge_messages``;
+    the signs learned go through ``learn_signs``, by ``sign_blocks``, the block of each sign record in use).
+    Everything is updated in place: the stamps, ``visited``, ``knowledge``, ``known``, ``counts`` and the outputs
+    named.
 
-    :param window: ``(n, c)`` padded flat cells of each UAV's window
-    :param cell_blocks: ``(n,)`` the block under each UAV
-    :param ok: ``(n,)`` UAVs that can talk (airborne, unjammed)
     :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
     """
+    t, window, cell_blocks = looks.t, looks.window, looks.cell_blocks
+    known = team.known[:, :len(sign_blocks)]
     newest = t - np.float32(1.0)  # the stamps are of looks before this step's
-    stale_cells[:] = known_ages(stamps, knowledge, window, t, scale, newest)
-    stale_blocks[:] = known_block_ages(block_last, block_first, knowledge, t, scale)
-    uavs = np.flatnonzero(airborne)
+    coverage.stale_cells[:] = known_ages(team.stamps, team.knowledge, window, t, team.time_scale, newest)
+    coverage.stale_blocks[:] = known_block_ages(team.block_last, team.block_first, team.knowledge, t, team.time_scale)
+    uavs = np.flatnonzero(looks.airborne)
     fresh = np.zeros(len(window), dtype=np.int64)
-    fresh[uavs], new = look(uavs, window[uavs], cell_blocks[uavs], high_risk, visited, stamps, block_last,
-                            block_first, knowledge, t)
-    distances, links = links_in_range(pos, ok, radius)
-    dist[:] = distances
-    beacons[:] = links & (beacon_draws >= loss)
-    delivered[:] = deliver(links, comm, distances, message_draws, loss)
-    merged, learned = merge_messages(delivered, knowledge, known)
-    knowledge[:] = merged
+    fresh[uavs], new = look(team, coverage, uavs, window[uavs], cell_blocks[uavs], t)
+    distances, links = links_in_range(talk.pos, talk.ok, team.comm_radius)
+    team.dist[:] = distances
+    team.beacons[:] = links & (talk.beacon_draws >= team.comm_loss)
+    team.comm_links[:] = deliver(links, talk.comm, distances, talk.message_draws, team.comm_loss)
+    merged, learned = merge_messages(team.comm_links, team.knowledge, known)
+    team.knowledge[:] = merged
     who, sign = np.nonzero(learned)
-    learn_signs(known, counts, who, sign, sign_blocks[sign])
+    learn_signs(known, team.counts, who, sign, sign_blocks[sign])
     return fresh, new
 
 
 @njit(cache=True)
-def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, window: np.ndarray,
-                      staleness: np.ndarray, signals: np.ndarray, cells: np.ndarray, grounded: np.ndarray, radius: int,
-                      pos: np.ndarray, inv_scale: np.ndarray, velocity: np.ndarray, battery: np.ndarray,
-                      progress: float, heard: np.ndarray, dist: np.ndarray, neighbour_scale: float, max_neighbours: int,
-                      block_staleness: np.ndarray, events: np.ndarray, knowledge: np.ndarray, belief_decay: float,
-                      t: float, sign_counts: np.ndarray, sign_values: np.ndarray, own: int, neighbours: int,
-                      maps: int) -> None:  # pragma: no cover - compiled
+def fill_observations(obs: np.ndarray, view: Observe, flight: Flight, team: Team, events: np.ndarray, t: float,
+                      progress: float) -> None:  # pragma: no cover - compiled
     """Every UAV's flat observation ``obs`` ``(n, obs_dim)``, in the order of ``observation_layout``:
 
     - ``window`` ``(7, w, w)``: occlusion, risk, staleness, the poacher, leopard and sign readings ``signals``
       ``(n, 3, w, w)`` in channels 3, 4 and 6, and the other airborne UAVs inside the window in channel 5; a grounded
       UAV's channels 3-6 are 0;
-    - ``own`` (6): position scaled to [0, 1] (capped at 1), velocity, battery, episode progress;
-    - ``neighbours`` ``(max_neighbours, 3)``: the UAVs it heard (``heard[s, r]``), nearest first (the lower index among
-      equals), as ``(clip((pos_s - pos_r) * neighbour_scale, -1, 1), 1)``; unused slots are 0;
-    - the coarse maps ``(n, blocks)``: ``block_staleness``; the poacher-activity belief from the readings ``events``
-      each UAV knows of (:func:`beliefs`; 0 without readings); the signs each UAV knows of, ``sign_values[count]``
-      (the last entry for larger counts).
-
-    :param occlusion: flat padded visual occlusion; ``risk`` likewise
-    :param window: ``(n, w, w)`` padded flat cells of each UAV's window; ``staleness`` ``(n, w, w)``
-    :param own: where the own features start in a row; ``neighbours`` and ``maps`` likewise (the window starts at 0)
+    - ``own`` (6): position scaled to [0, 1] (capped at 1), velocity, battery, episode ``progress``;
+    - ``neighbours`` ``(max_neighbours, 3)``: the UAVs it heard (the team's ``beacons[s, r]``), nearest first (the
+      lower index among equals), as ``(clip((pos_s - pos_r) * neighbour_scale, -1, 1), 1)``; unused slots are 0;
+    - the coarse maps ``(n, blocks)``: ``block_staleness``; the poacher-activity belief at step ``t`` from the readings
+      ``events`` each UAV knows of (:func:`beliefs`; 0 without readings); the signs each UAV knows of,
+      ``sign_values[count]`` (the last entry for larger counts).
     """
+    occlusion, risk, staleness, signals = view.occlusion, view.risk, view.staleness, view.signals
+    window, cells, grounded, pos = flight.window, flight.cells, flight.grounded, flight.pos
+    radius, inv_scale, own, neighbours, maps = view.radius, view.inv_scale, view.own, view.neighbours, view.maps
+    heard, dist, sign_counts, sign_values = team.beacons, team.dist, team.counts, view.sign_values
     n = len(obs)
     w = 2 * radius + 1
     c = w * w
-    blocks = block_staleness.shape[1]
-    belief = beliefs(events, knowledge, blocks, belief_decay, t) if len(events) else np.zeros((n, blocks))
+    blocks = view.block_staleness.shape[1]
+    belief = beliefs(events, team.knowledge, blocks, team.belief_decay, t) if len(events) else np.zeros((n, blocks))
     last_value = len(sign_values) - 1
     order = np.empty(n, dtype=np.int64)
     for u in range(n):
@@ -506,8 +768,8 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
                     row[CH_UAV * c + (d_row + radius) * w + d_col + radius] = 1.0
         row[own] = min(pos[u, 0] * inv_scale[0], 1.0)
         row[own + 1] = min(pos[u, 1] * inv_scale[1], 1.0)
-        row[own + 2], row[own + 3] = velocity[u, 0], velocity[u, 1]
-        row[own + 4] = battery[u]
+        row[own + 2], row[own + 3] = flight.velocity[u, 0], flight.velocity[u, 1]
+        row[own + 4] = flight.battery[u]
         row[own + 5] = progress
         row[neighbours:maps] = 0.0
         m = 0
@@ -519,31 +781,30 @@ def fill_observations(obs: np.ndarray, occlusion: np.ndarray, risk: np.ndarray, 
                     j -= 1
                 order[j] = s
                 m += 1
-        for slot in range(min(m, max_neighbours)):
+        for slot in range(min(m, view.max_neighbours)):
             s = order[slot]
             for axis in range(2):
-                value = (pos[s, axis] - pos[u, axis]) * neighbour_scale
+                value = (pos[s, axis] - pos[u, axis]) * view.neighbour_scale
                 row[neighbours + 3 * slot + axis] = min(max(value, -1.0), 1.0)
             row[neighbours + 3 * slot + 2] = 1.0
         for i in range(blocks):
-            row[maps + i] = block_staleness[u, i]
+            row[maps + i] = view.block_staleness[u, i]
             row[maps + blocks + i] = belief[u, i]
             row[maps + 2 * blocks + i] = sign_values[min(int(sign_counts[u, i]), last_value)]
 
 
 @njit(cache=True)
-def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np.ndarray, cells: np.ndarray,
-        window: np.ndarray, move: np.ndarray, comm: np.ndarray, speed: float, upper: np.ndarray, hover: float,
-        move_cost: float, comm_costs: np.ndarray, padded_width: int,
-        window_offsets: np.ndarray) -> tuple[np.ndarray, bool]:  # pragma: no cover - compiled
-    """Move the UAVs (clamped to the map) and spend their energy, capped by what the battery holds; a grounded UAV
-    neither moves nor talks (``move`` and ``comm`` are zeroed for it) nor hovers. Updates in place the positions
-    ``pos``, the velocities (displacement / speed), the batteries, which UAVs are grounded (battery <= 1e-12), their
-    ``cells`` and their windows (:func:`place_windows`).
+def fly(flight: Flight, move: np.ndarray, comm: np.ndarray) -> tuple[np.ndarray, bool]:  # pragma: no cover - compiled
+    """Move the UAVs by ``move`` ``(n, 2)`` (clamped to the map) and spend their energy, capped by what the battery
+    holds, with communication choices ``comm`` ``(n,)``; a grounded UAV neither moves nor talks (``move`` and ``comm``
+    are zeroed for it) nor hovers. Updates in place the positions, the velocities (displacement / speed), the
+    batteries, which UAVs are grounded (battery <= 1e-12), their cells and their windows (:func:`place_windows`).
 
-    :param comm_costs: energy of each communication choice (none, broadcast, query)
     :return: the energy each UAV spent, and whether every UAV is now grounded
     """
+    pos, velocity, battery, grounded = flight.pos, flight.velocity, flight.battery, flight.grounded
+    speed, upper, hover, move_cost, comm_costs = flight.speed, flight.upper, flight.hover, flight.move_cost, \
+        flight.comm_costs
     n = len(pos)
     energy = np.empty(n)
     everyone = True
@@ -560,21 +821,18 @@ def fly(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np
         battery[u] = battery[u] - energy[u]
         grounded[u] = battery[u] <= 1e-12
         everyone = everyone and grounded[u]
-    place_windows(pos, cells, window, padded_width, window_offsets)
+    place_windows(pos, flight.cells, flight.window, flight.padded_width, flight.window_offsets)
     return energy, everyone
 
 
 @njit(cache=True)
-def fly_and_collide(pos: np.ndarray, velocity: np.ndarray, battery: np.ndarray, grounded: np.ndarray,
-                    cells: np.ndarray, window: np.ndarray, move: np.ndarray, comm: np.ndarray, speed: float,
-                    upper: np.ndarray, hover: float, move_cost: float, comm_costs: np.ndarray, padded_width: int,
-                    window_offsets: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray, int]:  # pragma: no cover
+def fly_and_collide(flight: Flight, move: np.ndarray,
+                    comm: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray, int]:  # pragma: no cover - compiled
     """:func:`fly`, then :func:`collisions` among the UAVs that were airborne before the flight, in one call:
     the energy spent, whether every UAV is grounded, ``(n,)`` other UAVs in each one's cell and the pairs."""
-    airborne = ~grounded
-    energy, everyone = fly(pos, velocity, battery, grounded, cells, window, move, comm, speed, upper, hover,
-                           move_cost, comm_costs, padded_width, window_offsets)
-    own, pairs = collisions(cells, airborne)
+    airborne = ~flight.grounded
+    energy, everyone = fly(flight, move, comm)
+    own, pairs = collisions(flight.cells, airborne)
     return energy, everyone, own, pairs
 
 
@@ -627,19 +885,16 @@ def poacher_targets(poachers: np.ndarray, leopards: np.ndarray, alive: np.ndarra
 
 
 @njit(cache=True)
-def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, pos: np.ndarray, born: np.ndarray,
-                kind: np.ndarray, lifetime: np.ndarray, t: float, start: int, record_pos: np.ndarray,
-                record_born: np.ndarray, record_expires: np.ndarray, record_kind: np.ndarray,
-                record_block: np.ndarray) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+def place_signs(signs: SignRecords, pos: np.ndarray, born: np.ndarray, kind: np.ndarray, t: float,
+                start: int) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
     """Signs made at cells ``pos`` at times ``born`` (the first of repeated cells counts), in ascending cell order: a
     cell whose sign is live keeps it, with the later expiry; any other gets a new record ``start, start + 1, ...``
-    (the record arrays must have room for all of them).
+    (the records must have room for all of them). The grid and the records of ``signs`` are updated in place.
 
-    :param grid: flat padded grid of record indices (-1: none), updated in place
-    :param block_of: ``(height, width)`` block of each cell
-    :param lifetime: lifetime of each kind of sign
     :return: for each input sign its new record or -1, and the records in use after them
     """
+    grid, pad, width, block_of, lifetime = signs.grid, signs.pad, signs.width, signs.block_of, signs.lifetime
+    record_pos, record_born, record_expires = signs.pos, signs.born, signs.expires
     k = len(pos)
     flat = np.empty(k, dtype=np.int64)
     for i in range(k):
@@ -660,8 +915,8 @@ def place_signs(grid: np.ndarray, pad: int, width: int, block_of: np.ndarray, po
             index[i] = m
             grid[flat[i]] = m
             record_pos[m, 0], record_pos[m, 1] = pos[i, 0], pos[i, 1]
-            record_born[m], record_expires[m], record_kind[m] = born[i], expires, kind[i]
-            record_block[m] = block_of[pos[i, 0], pos[i, 1]]
+            record_born[m], record_expires[m], signs.kind[m] = born[i], expires, kind[i]
+            signs.block[m] = block_of[pos[i, 0], pos[i, 1]]
             m += 1
     return index, m
 
@@ -678,14 +933,14 @@ def learn_signs(known: np.ndarray, counts: np.ndarray, uavs: np.ndarray, signs: 
 
 @njit(cache=True)
 def record_readings(hit: np.ndarray, poachers: np.ndarray, leopards: np.ndarray, cells: np.ndarray, radius: int,
-                    false_uav: np.ndarray, false_offsets: np.ndarray, false_cells: np.ndarray,
-                    signals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Mark this step's detections ``hit`` ``(n, P + L)`` (poachers, then leopards) and the false poacher readings in
-    ``signals`` (channels 0 and 1), and list the poacher readings.
+                    spots: Spots, signals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Mark this step's detections ``hit`` ``(n, P + L)`` (poachers, then leopards) and the false poacher readings
+    ``spots`` in ``signals`` (channels 0 and 1), and list the poacher readings.
 
     :return: who detected which poacher ``(n, P)``, and the poacher readings ``(k, 3)`` ``(uav, row, col)``: the true
         ones in (UAV, poacher) order, then the false ones
     """
+    false_uav, false_offsets, false_cells = spots.uav, spots.offsets, spots.cells
     n = len(cells)
     n_poachers = len(poachers)
     seen = np.zeros((n, n_poachers), dtype=np.bool_)
@@ -711,15 +966,16 @@ def record_readings(hit: np.ndarray, poachers: np.ndarray, leopards: np.ndarray,
 
 
 @njit(cache=True)
-def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarray, signals: np.ndarray,
-              known: np.ndarray, counts: np.ndarray, blocks: np.ndarray, kind: np.ndarray, real: np.ndarray,
-              found: np.ndarray) -> int:  # pragma: no cover - compiled
-    """The candidate sightings that ``hit``: mark the sign channel ``signals[uav, 2]`` at window cell ``cell``
-    (flat), the UAV learns of the sign (counted once per UAV in ``counts`` by block), and the team finds it
+def see_signs(hit: np.ndarray, candidates: Candidates, signals: np.ndarray, team: Team,
+              signs: SignRecords) -> int:  # pragma: no cover - compiled
+    """The ``candidates`` sightings that ``hit``: mark the sign channel ``signals[uav, 2]`` at the window cell (flat),
+    the UAV learns of the sign (counted once per UAV in the team's ``counts`` by block), and the team finds it
     (``found``) if its kind is ``real``.
 
     :return: how many real signs the team found for the first time
     """
+    uav, cell, sign = candidates.uav, candidates.cell, candidates.sign
+    known, counts, found = team.known, team.counts, signs.found
     w = signals.shape[-1]
     fresh = 0
     for a in range(len(hit)):
@@ -728,8 +984,8 @@ def see_signs(hit: np.ndarray, uav: np.ndarray, cell: np.ndarray, sign: np.ndarr
             signals[u, 2, cell[a] // w, cell[a] % w] = 1.0
             if not known[u, i]:
                 known[u, i] = True
-                counts[u, blocks[i]] += 1.0
-            if real[kind[i]] and not found[i]:
+                counts[u, signs.block[i]] += 1.0
+            if signs.real[signs.kind[i]] and not found[i]:
                 found[i] = True
                 fresh += 1
     return fresh
@@ -762,27 +1018,27 @@ def decoy_reading_cells(draws: np.ndarray, table: np.ndarray, decoys: np.ndarray
 
 
 @njit(cache=True)
-def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_moved: np.ndarray,
-          leopards: np.ndarray, alive: np.ndarray, leopard_moved: np.ndarray, cells: np.ndarray, airborne: np.ndarray,
-          table: np.ndarray, terrain: np.ndarray, radius: int, alarm_probability: float, reach_offsets: np.ndarray,
-          height: int, width: int, decoys: np.ndarray, decoy_table: np.ndarray, candidate_uav: np.ndarray,
-          candidate_cell: np.ndarray, candidate_sign: np.ndarray, candidate_p: np.ndarray, known: np.ndarray,
-          counts: np.ndarray, sign_blocks: np.ndarray, sign_kinds: np.ndarray, real: np.ndarray, found: np.ndarray,
-          signals: np.ndarray) -> tuple:  # pragma: no cover - compiled
+def sense(draws: np.ndarray, ground: Ground, cells: np.ndarray, airborne: np.ndarray, sensing: Sensing,
+          candidates: Candidates, team: Team, signs: SignRecords) -> tuple:  # pragma: no cover - compiled
     """One step of sensing in one call, from the step's uniform ``draws`` taken in this order: detection of every
-    poacher and leopard by every UAV ``(n, P + L)`` (``detection_probabilities``), spurious poacher readings
-    ``(2, n)`` (``false_reading_cells``), decoys ``(n, D)`` (``decoy_reading_cells``), the sign sightings ``(k,)``
-    (the ``candidate_*`` of ``sign_candidates``; ``see_signs``), false sign readings ``(2, n)``. Marks ``signals``
-    ``(n, 3, w, w)``; updates ``known``, ``counts`` and ``found`` in place.
+    active poacher and live leopard by every airborne UAV ``(n, P + L)`` (``detection_probabilities``), spurious
+    poacher readings ``(2, n)`` (``false_reading_cells``), decoys ``(n, D)`` (``decoy_reading_cells``), the sign
+    sightings ``(k,)`` (the ``candidates`` of ``sign_candidates``; ``see_signs``), false sign readings ``(2, n)``.
+    Marks ``signals`` ``(n, 3, w, w)``; updates the team's ``known`` and ``counts`` and the signs' ``found`` in place.
 
     :return: who detected which poacher ``(n, P)``, the poachers detected by anyone ``(P,)`` and how many, the poacher
         readings ``(k, 3)`` (``record_readings``), the number of false poacher readings (decoys included), the real
         signs the team found for the first time, and the false sign readings' UAVs ``(f,)`` and cells ``(f, 2)``
     """
+    poachers, leopards = ground.poachers.pos, ground.leopards.pos
+    signals, radius, decoys = sensing.signals, sensing.radius, sensing.decoys
+    alarm_probability, reach_offsets = sensing.false_alarm, sensing.reach_offsets
+    height, width = sensing.terrain.shape
     n, m = len(cells), len(poachers) + len(leopards)
-    p = detection_probabilities(np.concatenate((poachers, leopards)), cells, table, terrain,
-                                np.concatenate((poacher_moved, leopard_moved)).astype(np.int64),
-                                np.concatenate((active, alive)), airborne, radius)
+    p = detection_probabilities(np.concatenate((poachers, leopards)), cells, sensing.detection, sensing.terrain,
+                                np.concatenate((ground.poachers.moved, ground.leopards.moved)).astype(np.int64),
+                                np.concatenate((ground.poachers.status == POACHER_ACTIVE, ground.leopards.alive)),
+                                airborne, radius)
     hit = draws[:n * m].reshape((n, m)) < p
     start = n * m
     uav, offsets, where = false_reading_cells(draws[start:start + n], draws[start + n:start + 2 * n], alarm_probability,
@@ -790,16 +1046,15 @@ def sense(draws: np.ndarray, poachers: np.ndarray, active: np.ndarray, poacher_m
     start += 2 * n
     if len(decoys):
         d_uav, d_offsets, d_where = decoy_reading_cells(draws[start:start + n * len(decoys)].reshape((n, len(decoys))),
-                                                        decoy_table, decoys, cells, airborne, height, width)
+                                                        sensing.decoy, decoys, cells, airborne, height, width)
         start += n * len(decoys)
         uav, offsets, where = (np.concatenate((uav, d_uav)), np.concatenate((offsets, d_offsets)),
                                np.concatenate((where, d_where)))
-    seen, readings = record_readings(hit, poachers, leopards, cells, radius, uav, offsets, where, signals)
-    k = len(candidate_p)
-    sighted = draws[start:start + k] < candidate_p
+    seen, readings = record_readings(hit, poachers, leopards, cells, radius, Spots(uav, offsets, where), signals)
+    k = len(candidates.p)
+    sighted = draws[start:start + k] < candidates.p
     start += k
-    fresh = see_signs(sighted, candidate_uav, candidate_cell, candidate_sign, signals, known, counts, sign_blocks,
-                      sign_kinds, real, found)
+    fresh = see_signs(sighted, candidates, signals, team, signs)
     f_uav, f_offsets, f_where = false_reading_cells(draws[start:start + n], draws[start + n:start + 2 * n],
                                                     alarm_probability, airborne, reach_offsets, cells, height, width)
     for a in range(len(f_uav)):
@@ -891,20 +1146,19 @@ def noisy_signals(addresses: np.ndarray, signals: np.ndarray, scale: float) -> N
 
 
 @njit(cache=True)
-def add_signs_off_grid(pos: np.ndarray, t: float, kind: int, lifetime: np.ndarray, block_of: np.ndarray,
-                       start: int, record_pos: np.ndarray, record_born: np.ndarray, record_expires: np.ndarray,
-                       record_kind: np.ndarray, record_block: np.ndarray) -> np.ndarray:  # pragma: no cover
+def add_signs_off_grid(signs: SignRecords, pos: np.ndarray, t: float, kind: int,
+                       start: int) -> np.ndarray:  # pragma: no cover - compiled
     """``Signs.add(pos, t, kind, t, on_grid=False)``: records ``start, start + 1, ...`` (which must have room) for
     signs no other UAV can find (false readings), born at ``t``; returns their indices."""
     k = len(pos)
     ids = np.arange(start, start + k)
     for a in range(k):
         m = start + a
-        record_pos[m, 0], record_pos[m, 1] = pos[a, 0], pos[a, 1]
-        record_born[m] = t
-        record_expires[m] = t + lifetime[kind]
-        record_kind[m] = kind
-        record_block[m] = block_of[pos[a, 0], pos[a, 1]]
+        signs.pos[m, 0], signs.pos[m, 1] = pos[a, 0], pos[a, 1]
+        signs.born[m] = t
+        signs.expires[m] = t + signs.lifetime[kind]
+        signs.kind[m] = kind
+        signs.block[m] = signs.block_of[pos[a, 0], pos[a, 1]]
     return ids
 
 
@@ -937,41 +1191,38 @@ def pairwise_sum(values: np.ndarray) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def step_rewards(weights: tuple, shaping: float, n_detected: int, new_cells: int, signs_found: int,
-                 poaching_events: int, collisions: int, energy: np.ndarray, seen: np.ndarray, own_new: np.ndarray,
+def step_rewards(rewards: Rewards, tally: Tally, energy: np.ndarray, seen: np.ndarray, own_new: np.ndarray,
                  own_collisions: np.ndarray) -> tuple[np.ndarray, float, float]:  # pragma: no cover - compiled
     """Each UAV's reward ``(n,)``, the team reward and the energy spent ``energy.sum()``.
 
-    The team's is ``detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events -
-    collision * collisions - energy * spent`` (``weights`` in that order); with ``shaping > 0`` each UAV gets
-    ``(1 - shaping) * team + shaping * own``, ``own`` the same terms of its own (``seen`` ``(n, P)`` the poachers it
-    detected, ``own_new`` its first looks, ``own_collisions``, its ``energy``).
+    The team's is ``detection * detected + coverage * new_cells + sign * signs_found - poaching * poaching_events -
+    collision * collisions - energy * spent`` (the ``tally``; ``weights`` in that order); with ``shaping > 0`` each UAV
+    gets ``(1 - shaping) * team + shaping * own``, ``own`` the same terms of its own (``seen`` ``(n, P)`` the poachers
+    it detected, ``own_new`` its first looks, ``own_collisions``, its ``energy``).
     """
-    detection, coverage, sign, poaching, collision, energy_weight = weights
+    detection, coverage, sign, poaching, collision, energy_weight = rewards.weights
+    shaping = rewards.shaping
     spent = pairwise_sum(energy)
-    team = (detection * n_detected + coverage * new_cells + sign * signs_found - poaching * poaching_events
-            - collision * collisions - energy_weight * spent)
-    rewards = np.full(len(energy), team)
+    team = (detection * tally.detected + coverage * tally.new_cells + sign * tally.signs_found
+            - poaching * tally.poaching_events - collision * tally.collisions - energy_weight * spent)
+    out = np.full(len(energy), team)
     if shaping > 0:
         for u in range(len(energy)):
             own = (detection * seen[u].sum() + coverage * own_new[u] - collision * own_collisions[u]
                    - energy_weight * energy[u])
-            rewards[u] = (1.0 - shaping) * team + shaping * own
-    return rewards, team, spent
+            out[u] = (1.0 - shaping) * team + shaping * own
+    return out, team, spent
 
 
 @njit(cache=True)
-def place_new_signs(signs: tuple, count: int, pos: np.ndarray, now: float,
+def place_new_signs(signs: SignRecords, count: int, pos: np.ndarray, now: float,
                     kind: int) -> int:  # pragma: no cover - compiled
-    """:func:`place_signs` of signs of ``kind`` born ``now`` at cells ``pos`` into the records of ``signs`` (the tuple
-    :func:`advance_world` takes), ``count`` of them in use; returns the records in use after them."""
-    (grid, pad, padded_width, block_of, lifetime, _, record_pos, record_born, record_expires, record_kind,
-     record_block) = signs[:11]
+    """:func:`place_signs` of signs of ``kind`` born ``now`` at cells ``pos`` into ``signs``, ``count`` of its records
+    in use; returns the records in use after them."""
     k = len(pos)
     if k == 0:
         return count
-    return place_signs(grid, pad, padded_width, block_of, pos, np.full(k, now), np.full(k, kind), lifetime, now, count,
-                       record_pos, record_born, record_expires, record_kind, record_block)[1]
+    return place_signs(signs, pos, np.full(k, now), np.full(k, kind), now, count)[1]
 
 
 @njit(cache=True)
@@ -986,31 +1237,31 @@ def move_jammer(jammer: np.ndarray, poachers: np.ndarray, active: np.ndarray) ->
 
 
 @njit(cache=True)
-def jam(jammed: np.ndarray, airborne: np.ndarray, pos: np.ndarray, jammer: np.ndarray, radius: float,
-        jammer_on: bool) -> np.ndarray:  # pragma: no cover - compiled
-    """Which UAVs the jammer silences (``jammed``, in place: within ``radius`` of it while it is on) and which can
+def jam(jammer: Jammer, airborne: np.ndarray, pos: np.ndarray, jammer_on: bool) -> np.ndarray:  # pragma: no cover
+    """Which UAVs the jammer silences (its ``jammed``, in place: within its radius while it is on) and which can
     talk: the ``airborne`` ones not jammed."""
+    jammed = jammer.jammed
     ok = airborne.copy()
     for u in range(len(pos)):
         jammed[u] = False
         if jammer_on:
-            d_row, d_col = pos[u, 0] - jammer[0], pos[u, 1] - jammer[1]
-            jammed[u] = np.sqrt(d_row ** 2 + d_col ** 2) <= radius
+            d_row, d_col = pos[u, 0] - jammer.pos[0], pos[u, 1] - jammer.pos[1]
+            jammed[u] = np.sqrt(d_row ** 2 + d_col ** 2) <= jammer.radius
             ok[u] &= not jammed[u]
     return ok
 
 
 @njit(cache=True)
-def poach(near: np.ndarray, done: np.ndarray, status: np.ndarray, timer: np.ndarray, alive: np.ndarray,
-          gone_status: int) -> np.ndarray:  # pragma: no cover - compiled
+def poach(near: np.ndarray, done: np.ndarray, poachers: Poachers, alive: np.ndarray) -> np.ndarray:  # pragma: no cover
     """The poachers whose timer ran out (``done``) kill the leopard they are next to (the first in ``near``'s row;
-    one event per leopard) and leave (``status``, ``timer`` and ``alive`` in place); returns the leopards killed."""
+    one event per leopard) and leave (their status, timer and the leopards' ``alive`` in place); returns the leopards
+    killed."""
     killed = np.zeros(len(alive), dtype=np.bool_)
     for i in range(len(done)):
         if done[i]:
             killed[np.argmax(near[i])] = True
-            status[i] = gone_status
-            timer[i] = 0
+            poachers.status[i] = POACHER_GONE
+            poachers.timer[i] = 0
     victims = np.flatnonzero(killed)
     for j in victims:
         alive[j] = False
@@ -1034,19 +1285,45 @@ def record_readings_seen(events: np.ndarray, readings: np.ndarray, now: float, b
     return events
 
 
+def plain(record: tuple) -> tuple:
+    """``record`` (a record of this module, its fields records or not) as the plain tuples :func:`advance_world` takes
+    (:func:`named` names them again inside)."""
+    return tuple(plain(field) if hasattr(field, "_fields") else field for field in record)
+
+
 @njit(cache=True)
-def advance_world(addresses: np.ndarray, t: int, choices: np.ndarray, fly: tuple, ground: tuple, signs: tuple,
-                  sensing: tuple, team: tuple, observe: tuple, reward: tuple) -> tuple:  # pragma: no cover - compiled
-    """A step in one compiled call, with its random draws taken from the generator of ``addresses``
-    (``stream.handle``) in the order the phases make them:
+def named(step: tuple, world: tuple) -> tuple[Step, World]:  # pragma: no cover - compiled
+    """:func:`advance_world`'s plain tuples as the records they are (:class:`Step`, :class:`World`): numba types a plain
+    tuple argument in its C fast path and a named one in Python at every call, so the records cross as plain tuples
+    and are named here, at no cost."""
+    flight, ground, signs, sensing, team, coverage, observe, rewards = world
+    leopards, poachers, jammer, cover, steps = ground
+    return Step(*step), World(Flight(*flight), Ground(Leopards(*leopards), Poachers(*poachers), Jammer(*jammer), cover,
+                                                      steps), SignRecords(*signs), Sensing(*sensing), Team(*team),
+                               Coverage(*coverage), Observe(*observe), Rewards(*rewards))
 
-    0. **Actions**: discrete ``choices`` (``(n,)`` ints; empty when the moves and communication choices in ``fly``
-       are already decoded) are decoded into ``fly``'s ``move`` and ``comm`` (:func:`decode_actions`); one out of
-       range raises :class:`ActionError` before anything changes. Then the poachers whose entry time ``t`` has come
-       enter play.
-    1. **Flight** (:func:`fly_and_collide` on ``fly``, its arguments): the UAVs move and spend energy; collisions
-       among those airborne before it.
 
+@njit(cache=True)
+def enter_poachers(poachers: Poachers, t: int) -> int:  # pragma: no cover - compiled
+    """The waiting poachers whose entry time ``t`` has come enter play; returns how many did."""
+    entered = 0
+    for i in range(len(poachers.status)):
+        if poachers.status[i] == POACHER_WAITING and poachers.entry_time[i] <= t:
+            poachers.status[i] = POACHER_ACTIVE
+            entered += 1
+    return entered
+
+
+@njit(cache=True)
+def advance_world(step: tuple, world: tuple) -> tuple:  # pragma: no cover - compiled
+    """A step in one compiled call, with its random draws taken from the step's stream (``step.addresses``) in the
+    order the phases make them. ``step`` is a :class:`Step` and ``world`` a :class:`World`, as plain tuples
+    (:func:`named`):
+
+    0. **Actions**: discrete ``choices`` (empty when ``move`` and ``comm`` are already decoded) are decoded into
+       ``move`` and ``comm`` (:func:`decode_actions`); one out of range raises :class:`ActionError` before anything
+       changes. Then the poachers whose entry time has come enter play (:func:`enter_poachers`).
+    1. **Flight** (:func:`fly_and_collide`): the UAVs move and spend energy; collisions among those airborne before it.
     2. **Ground** (:func:`move_ground_actors` on ``3 L`` uniform draws, then ``5 P`` if any poacher is active): the
        leopards and poachers move; the poachers' tracks become signs born now (:func:`place_signs`); the jammer, if
        any, moves to the active poachers' mean cell; the live signs in the airborne UAVs' windows
@@ -1054,19 +1331,16 @@ def advance_world(addresses: np.ndarray, t: int, choices: np.ndarray, fly: tuple
     3. **Sensing** (:func:`sense` on ``n (P + L + 2 + D + 2) + k`` uniform draws): detections, false alarms, decoys,
        sign sightings, false sign readings (records only the reading UAV knows of: :func:`add_signs_off_grid`,
        :func:`learn_signs`); caught poachers leave play; the noise on the signal channels (:func:`noisy_signals`,
-       normal draws) when ``noise_scale > 0``.
-    4. **Poaching** (:func:`poaching_timers`): an undetected poacher next to a live leopard for ``poaching_time``
-       steps kills it (one event per leopard) and leaves (a carcass sign where the leopard was).
+       normal draws) when ``signal_noise > 0``.
+    4. **Poaching** (:func:`poaching_timers`, :func:`poach`): an undetected poacher next to a live leopard for
+       ``poaching_time`` steps kills it (one event per leopard) and leaves (a carcass sign where the leopard was).
     5. **Sharing** (:func:`look_and_talk` on ``2 n n`` uniform draws, then :func:`fill_observations` and
-       :func:`sender_masks`): the UAVs not jammed talk; the poacher readings join the team's record ``events`` (rows
-       ``(time, uav, block)``, those older than ``horizon`` dropped); every UAV's observation is written.
-    6. **Rewards** (:func:`step_rewards` on ``reward``: the weights and the shaping).
+       :func:`sender_masks`): the UAVs not jammed talk; the poacher readings join the team's record ``events`` (those
+       older than ``horizon`` dropped); every UAV's observation is written into ``obs``.
+    6. **Rewards** (:func:`step_rewards`).
 
-    ``ground``, ``signs``, ``sensing`` and ``team`` are the state and constants each phase reads, ``observe`` the
-    arguments of :func:`fill_observations` (whose ``signals`` this step's readings are written into; see
-    ``ReserveParallelEnv._world_args``, which builds them all); every array in them is updated in place except the
-    record of readings, which is returned. The sign records and ``known``/``found`` must have room for ``P`` tracks,
-    ``n`` false readings and ``L`` carcasses more.
+    Every array of ``world`` is updated in place; the record of readings is returned. The sign records and the team's
+    ``known`` must have room for ``P`` tracks, ``n`` false readings and ``L`` carcasses more.
 
     :return: the poachers that entered, the rewards ``(n,)``, the team reward, the energy spent, whether every UAV
         is grounded, the collisions (pairs), the poacher readings ``(k, 3)`` ``(uav, row, col)``, poachers caught,
@@ -1074,96 +1348,79 @@ def advance_world(addresses: np.ndarray, t: int, choices: np.ndarray, fly: tuple
         whether the jammer is on, the readings record ``events``, the team's new high-risk cells and the senders'
         bit masks of ``heard_from`` (empty above 63 UAVs)
     """
-    (leopards, leopard_moved, home, home_range, leopard_move_prob, poachers, poacher_moved, status, timer, alive,
-     planned, sight, notice_radius, move_prob, wander_prob, evasion_prob, hide_in_cover, cover, steps, track_prob,
-     poaching_time, entry_time, waiting_status, active_status, caught_status, gone_status, jammer, jammed, has_jammer,
-     jam_radius) = ground
-    (grid, _, _, block_of, lifetime, count, record_pos, record_born, record_expires, record_kind, record_block,
-     track_kind, carcass_kind, false_kind, real) = signs
-    (detect_table, terrain, radius, alarm_probability, reach_offsets, decoys, decoy_table, sign_table, terrain_pad,
-     found, noise_scale) = sensing
-    (scale, high_risk, visited, stamps, block_last, block_first, knowledge, uav_pos, comm_radius, comm, loss, known,
-     counts, stale_cells, stale_blocks, dist, beacons, delivered, events, horizon) = team
-    cells = fly[4]
-    n, n_poachers, n_leopards = len(cells), len(poachers), len(leopards)
-    height, width = terrain.shape
-    window, signals = observe[3].reshape(n, -1), observe[5]
+    step, world = named(step, world)
+    flight, ground, signs, sensing, team, coverage = (world.flight, world.ground, world.signs, world.sensing,
+                                                      world.team, world.coverage)
+    poachers, leopards, addresses, t = ground.poachers, ground.leopards, step.addresses, step.t
+    n, n_poachers, n_leopards = len(flight.cells), len(poachers.pos), len(leopards.pos)
+    window = flight.window.reshape(n, -1)
     now = np.float64(t)
+    count = step.sign_count
 
     # 0. Actions, and the poachers due.
-    if len(choices):
-        move, comm_choices, valid = decode_actions(choices, steps.astype(np.float64), N_MOVES, N_COMMS)
+    if len(step.choices):
+        move, comm, valid = decode_actions(step.choices, ground.steps.astype(np.float64), N_MOVES, N_COMMS)
         if not valid:
             raise ActionError("discrete action out of range")
-        fly[6][:] = move
-        fly[7][:] = comm_choices
-    entered = 0
-    for i in range(n_poachers):
-        if status[i] == waiting_status and entry_time[i] <= t:
-            status[i] = active_status
-            entered += 1
+        step.move[:] = move
+        step.comm[:] = comm
+    entered = enter_poachers(poachers, t)
 
     # 1. Flight.
-    airborne = ~fly[3]
-    energy, everyone, own_collisions, pairs = fly_and_collide(*fly)
+    airborne = ~flight.grounded
+    energy, everyone, own_collisions, pairs = fly_and_collide(flight, step.move, step.comm)
 
     # 2. Ground.
-    active = status == active_status
+    active = poachers.status == POACHER_ACTIVE
     any_active = active.any()
     draws = uniform(addresses, 3 * n_leopards + 5 * n_poachers * any_active)
-    tracks = move_ground_actors(draws, leopards, leopard_moved, home, home_range, leopard_move_prob, poachers,
-                                poacher_moved, active, timer, alive, planned, sight, cells[airborne], notice_radius,
-                                move_prob, wander_prob, evasion_prob, hide_in_cover, cover, steps, track_prob)
-    count = place_new_signs(signs, count, tracks, now, track_kind)
-    jammer_on = has_jammer and any_active
+    tracks = move_ground_actors(draws, ground, active, flight.cells[airborne])
+    count = place_new_signs(signs, count, tracks, now, signs.track_kind)
+    jammer_on = ground.jammer.present and any_active
     if jammer_on:
-        move_jammer(jammer, poachers, active)
-    c_uav, c_cell, c_sign, c_p = sign_candidates(grid, record_born, record_expires, window, now, airborne,
-                                                 sign_table, terrain_pad)
+        move_jammer(ground.jammer.pos, poachers.pos, active)
+    candidates = Candidates(*sign_candidates(signs.grid, signs.born, signs.expires, window, now, airborne,
+                                             sensing.sign, sensing.terrain_pad))
 
     # 3. Sensing.
-    signals[:] = 0.0
-    draws = uniform(addresses, n * (n_poachers + n_leopards + 2 + len(decoys) + 2) + len(c_p))
+    sensing.signals[:] = 0.0
+    draws = uniform(addresses, n * (n_poachers + n_leopards + 2 + len(sensing.decoys) + 2) + len(candidates.p))
     seen, caught, n_caught, readings, false_alarms, fresh_signs, f_uav, f_where = sense(
-        draws, poachers, status == active_status, poacher_moved, leopards, alive, leopard_moved, cells, airborne,
-        detect_table, terrain, radius, alarm_probability, reach_offsets, height, width, decoys, decoy_table, c_uav,
-        c_cell, c_sign, c_p, known, counts, record_block, record_kind, real, found, signals)
+        draws, ground, flight.cells, airborne, sensing, candidates, team, signs)
     for i in range(n_poachers):
         if caught[i]:
-            status[i] = caught_status
-    near, new_timer, done, any_done = poaching_timers(poachers, status, leopards, alive, timer, poaching_time)
+            poachers.status[i] = POACHER_CAUGHT
+    near, new_timer, done, any_done = poaching_timers(poachers.pos, poachers.status, leopards.pos, leopards.alive,
+                                                      poachers.timer, poachers.poaching_time)
     if len(f_uav):  # false sign readings: phantom records that only the reading UAV knows of
-        phantom = add_signs_off_grid(f_where, now, false_kind, lifetime, block_of, count, record_pos, record_born,
-                                     record_expires, record_kind, record_block)
+        phantom = add_signs_off_grid(signs, f_where, now, signs.false_kind, count)
         count += len(phantom)
-        learn_signs(known, counts, f_uav, phantom, record_block[phantom])
-    if noise_scale > 0:
-        noisy_signals(addresses, signals, noise_scale)
+        learn_signs(team.known, team.counts, f_uav, phantom, signs.block[phantom])
+    if sensing.signal_noise > 0:
+        noisy_signals(addresses, sensing.signals, sensing.signal_noise)
 
     # 4. Poaching.
-    timer[:] = new_timer
+    poachers.timer[:] = new_timer
     events_now = 0
     if any_done:
-        victims = poach(near, done, status, timer, alive, gone_status)
+        victims = poach(near, done, poachers, leopards.alive)
         events_now = len(victims)
-        count = place_new_signs(signs, count, leopards[victims], now, carcass_kind)
+        count = place_new_signs(signs, count, leopards.pos[victims], now, signs.carcass_kind)
 
     # 5. Sharing.
-    ok = jam(jammed, airborne, uav_pos, jammer, jam_radius, jammer_on)
-    events = record_readings_seen(events, readings, now, block_of, horizon)
+    ok = jam(ground.jammer, airborne, flight.pos, jammer_on)
+    events = record_readings_seen(step.events, readings, now, signs.block_of, team.horizon)
     cell_blocks = np.empty(n, dtype=np.int64)
     for u in range(n):
-        cell_blocks[u] = block_of[cells[u, 0], cells[u, 1]]
+        cell_blocks[u] = signs.block_of[flight.cells[u, 0], flight.cells[u, 1]]
     talk = uniform(addresses, 2 * n * n).reshape(2, n, n)
-    fresh, new = look_and_talk(np.float32(t), scale, window, cell_blocks, airborne, high_risk, visited, stamps,
-                               block_last, block_first, knowledge, uav_pos, ok, comm_radius, comm, talk[0], talk[1],
-                               loss, known[:, :count], counts, record_block[:count], stale_cells, stale_blocks, dist,
-                               beacons, delivered)
-    fill_observations(*observe[:19], events, *observe[20:])  # type: ignore[call-arg]  # (the readings as they are now)
-    masks = sender_masks(delivered) if n <= 63 else np.zeros(0, dtype=np.int64)
+    fresh, new = look_and_talk(team, coverage, Looks(np.float32(t), window, cell_blocks, airborne),
+                               Talk(flight.pos, ok, step.comm, talk[0], talk[1]), signs.block[:count])
+    fill_observations(step.obs, world.observe, flight, team, events, now, min(t / world.observe.max_cycles, 1.0))
+    masks = sender_masks(team.comm_links) if n <= 63 else np.zeros(0, dtype=np.int64)
 
     # 6. Rewards.
-    rewards, team_reward, spent = step_rewards(reward[0], reward[1], n_caught, new, fresh_signs, events_now, pairs,
+    rewards, team_reward, spent = step_rewards(world.rewards, Tally(n_caught, new, fresh_signs, events_now, pairs),
                                                energy, seen, fresh, own_collisions)
     return (entered, rewards, team_reward, spent, everyone, pairs, readings, n_caught, false_alarms, fresh_signs, events_now,
             count, jammer_on, events, new, masks)

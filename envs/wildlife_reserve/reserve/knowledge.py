@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.constants import NEVER
-from wildlife_reserve.reserve.kernels import learn_signs, look_and_talk, sender_masks, senders_by_receiver
+from wildlife_reserve.reserve.kernels import Team, sender_masks, senders_by_receiver
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0
@@ -72,7 +72,8 @@ class TeamKnowledge:
     Public arrays: ``knowledge`` ``(n, n)``; ``beacons[s, r]`` (r heard s's position this step);
     ``comm_links[s, r]`` (a message of s reached r this step); ``own_last`` / ``own_first`` ``(n, *padded)``
     (each UAV's last and first look at each cell); ``known_signs`` ``(n, capacity)`` (which sign records
-    each UAV knows of) and ``sign_counts`` ``(n, blocks)``.
+    each UAV knows of) and ``sign_counts`` ``(n, blocks)``. ``record`` holds them, with the constants the compiled step
+    reads, as a ``kernels.Team`` (from the first reset on).
 
     :param n: number of UAVs
     :param padded_shape: shape of the padded grids
@@ -102,6 +103,10 @@ class TeamKnowledge:
         self._time_scale = np.float32(1.0 / max_cycles)  # made once: every step's compiled call reads it
         self._stamp_layout = STAMP_LAYOUT
 
+    def __getstate__(self) -> dict:
+        """Pickle without :attr:`record`, which unpickling remakes."""
+        return {name: value for name, value in self.__dict__.items() if name != "record"}
+
     def __setstate__(self, state: dict) -> None:
         """Unpickle (checkpoints), turning the stamps of a state from before :data:`STAMP_LAYOUT`."""
         self.__dict__.update(state)
@@ -113,6 +118,8 @@ class TeamKnowledge:
             self._stamps = pack_stamps(self.__dict__.pop("_last"), self.__dict__.pop("_first"),
                                        stamp_dtype(self.max_cycles))
         self._stamp_layout = STAMP_LAYOUT
+        if hasattr(self, "knowledge"):  # (a team that has had an episode)
+            self._refresh_record()
 
     def reset(self) -> None:
         """Forget everything: a new episode."""
@@ -127,6 +134,7 @@ class TeamKnowledge:
         self.events = np.zeros((0, 3))  # (time, reading UAV, block) of the poacher readings
         self.known_signs = np.zeros((n, 64), dtype=bool)
         self.sign_counts = np.zeros((n, self.n_blocks), dtype=np.float64)
+        self._refresh_record()
 
     @property
     def own_last(self) -> np.ndarray:
@@ -138,71 +146,14 @@ class TeamKnowledge:
         """``(n, *padded)`` float32 each UAV's first look at each cell, ``-NEVER`` where it never looked (a copy)."""
         return unpack_stamps(self._stamps, 1).T.reshape(self.n, *self.padded_shape)
 
-    # ------------------------------------------------------------------ one step: look, then talk
-    def look_and_talk(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
-                      airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
-                      ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
-                      stale_blocks: np.ndarray) -> tuple[np.ndarray, int]:
-        """What the team knows after this step, in one compiled call (``kernels.look_and_talk`` on
-        :meth:`talk_args`, whose arguments these are):
-
-        1. **Staleness** (as each UAV knew it before this look): time since each window cell and coarse block was
-           seen, into ``stale_window`` ``(n, w, w)`` and ``stale_blocks`` ``(n, blocks)``. UAV r knows UAV s's
-           visits up to ``knowledge[r, s]``: s's last visit if it is that old, else s's first visit if that one is,
-           else nothing; ages are ``min((t - newest known visit) / max_cycles, 1)``.
-        2. **Looks**: the ``airborne`` UAVs stamp their visit histories of the cells in their windows and of the
-           block below them, and mark the team's coverage ``visited`` (flat padded bool, updated in place) of the
-           ``high_risk`` cells.
-        3. **Links**: UAVs both ``ok`` (airborne, unjammed) within ``R_c`` of each other; the position beacons heard
-           over them (each lost with ``comm_loss``).
-        4. **Messages** (skipped when ``comm`` is None, as at reset): broadcasts push and queries pull each UAV's
-           knowledge (one hop), each message lost with ``comm_loss``; what the receivers learn (knowledge stamps,
-           signs, counted by ``sign_blocks``, the block of every sign record).
-
-        The random draws are the beacons' ``(n, n)``, then the messages' ``(n, n)``. ``knowledge``, ``dist``,
-        ``beacons`` and ``comm_links`` are updated in place.
-
-        :param window: ``(n, w, w)`` padded flat indices of each UAV's window
-        :param cell_blocks: ``(n,)`` the block under each UAV
-        :param comm: ``(n,)`` communication choices (0 none, 1 broadcast, 2 query), or None
-        :return: the high-risk cells each UAV saw that nobody had seen before ``(n,)``, and the team's new ones
-        """
-        return look_and_talk(*self.talk_args(t, rng, window, cell_blocks, airborne, high_risk, visited, uav_pos, ok,
-                                             comm, sign_blocks, stale_window, stale_blocks))
-
-    def talk_args(self, t: int, rng: np.random.Generator, window: np.ndarray, cell_blocks: np.ndarray,
-                  airborne: np.ndarray, high_risk: np.ndarray, visited: np.ndarray, uav_pos: np.ndarray,
-                  ok: np.ndarray, comm: np.ndarray | None, sign_blocks: np.ndarray, stale_window: np.ndarray,
-                  stale_blocks: np.ndarray) -> tuple:
-        """The arguments of ``kernels.look_and_talk`` for :meth:`look_and_talk`'s (it draws the step's random
-        numbers): one tuple (the reserve's reset; its step calls the same kernel inside ``kernels.advance_world``)."""
-        n = self.n
-        if comm is None:
-            draws = rng.random((1, n, n))
-            comm = np.zeros(n, dtype=np.int64)
-        else:
-            draws = rng.random((2, n, n))  # the same numbers as two (n, n) draws
-        return (
-            np.float32(t), self._time_scale, window.reshape(n, -1), cell_blocks,
-            airborne, high_risk, visited, self._stamps, self._block_last, self._block_first, self.knowledge,
-            uav_pos, ok, self.comm_radius, comm, draws[0], draws[-1], self.comm_loss,
-            self.known_signs[:, :len(sign_blocks)], self.sign_counts, sign_blocks, stale_window.reshape(n, -1),
-            stale_blocks, self.dist, self.beacons, self.comm_links)
-
-    def add_readings(self, t: int, uavs: np.ndarray, blocks: np.ndarray) -> None:
-        """Poacher readings (true or false) made at ``t`` by ``uavs`` in ``blocks``; old ones are dropped."""
-        if len(uavs):
-            fresh = np.column_stack([np.full(len(uavs), t), uavs, blocks])
-            self.events = np.concatenate([self.events, fresh])
-        if len(self.events) and self.events[0, 0] <= t - self.horizon:  # events are in time order
-            self.events = self.events[self.events[:, 0] > t - self.horizon]
-
-    def learn_signs(self, uavs: np.ndarray, signs: np.ndarray, sign_blocks: np.ndarray) -> None:
-        """Each of ``uavs`` found sign record ``signs`` (lying in ``sign_blocks``)."""
-        if not len(uavs):
-            return
-        self.fit_signs(int(signs.max()) + 1)
-        learn_signs(self.known_signs, self.sign_counts, uavs, signs, sign_blocks)
+    def _refresh_record(self) -> None:
+        """:attr:`record` of the arrays as they are now (they are replaced at every reset and when ``known_signs``
+        grows)."""
+        self.record = Team(knowledge=self.knowledge, stamps=self._stamps, block_last=self._block_last,
+                           block_first=self._block_first, known=self.known_signs, counts=self.sign_counts,
+                           dist=self.dist, beacons=self.beacons, comm_links=self.comm_links,
+                           time_scale=self._time_scale, comm_radius=self.comm_radius, comm_loss=self.comm_loss,
+                           horizon=float(self.horizon), belief_decay=self.belief_decay)
 
     def fit_signs(self, size: int) -> None:
         """Make room in ``known_signs`` for ``size`` sign records."""
@@ -210,6 +161,7 @@ class TeamKnowledge:
             grown = np.zeros((self.n, max(size, 2 * self.known_signs.shape[1])), dtype=bool)
             grown[:, :self.known_signs.shape[1]] = self.known_signs
             self.known_signs = grown
+            self._refresh_record()
 
     def heard_from(self, masks: np.ndarray | None = None) -> list[tuple[int, ...]]:
         """For each UAV, the indices of the teammates whose message reached it this step (ascending).

@@ -8,7 +8,7 @@ import numpy as np
 
 from wildlife_reserve.reserve.config import ReserveConfig
 from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
-from wildlife_reserve.reserve.kernels import fill_observations
+from wildlife_reserve.reserve.kernels import Observe
 from wildlife_reserve.reserve.knowledge import SIGN_VALUES, sign_values
 
 if TYPE_CHECKING:
@@ -58,30 +58,15 @@ def state_size(config: ReserveConfig) -> int:
     return 4 * config.n_uavs + 4 * config.n_poachers + 3 * config.n_leopards + 2 * config.belief_size**2 + 1
 
 
-def build_observations(env: ReserveParallelEnv, signals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``(n, obs_dim)`` observations of every UAV.
-
-    :param env: the reserve, after this step's sensing and communication
-    :param signals: ``(n, 3, w, w)`` this step's poacher, leopard and sign readings, as the sensors report them
-    :param out: a C-contiguous float32 ``(n, obs_dim)`` array to fill (every entry is written), or None
-    """
-    obs = np.empty((env.n, env.obs_dim), dtype=np.float32) if out is None else out
-    fill_observations(*observation_args(env, signals, obs))
-    return finish_observations(env, obs)
-
-
-def observation_args(env: ReserveParallelEnv, signals: np.ndarray, obs: np.ndarray) -> tuple:
-    """The arguments of ``kernels.fill_observations`` that write ``obs`` (all but the optional parts at its end),
-    for :func:`build_observations` and the step's ``kernels.advance_world`` (which writes this step's readings into
-    ``signals`` and passes the readings record as it is after them). The arrays are the ones the step updates in
-    place, so they may be taken before it."""
-    cfg, team, layout = env.config, env.team, env.observation_layout
-    return (obs, env._occ_pad, env._risk_pad, env._window, env._stale_window, signals, env._cells,
-            env.grounded, env.r, env.uav_pos, env._inv_scale, env.velocity, env.battery,
-            min(env.t / env.max_cycles, 1.0), team.beacons, team.dist, 1.0 / max(cfg.comm_radius, 1.0),
-            cfg.max_neighbors, env._stale_blocks, team.events, team.knowledge, team.belief_decay,
-            float(env.t), team.sign_counts, SIGN_VALUES, layout["own"][0].start,
-            layout["neighbours"][0].start, layout[MAP_NAMES[0]][0].start)
+def observation_record(env: ReserveParallelEnv) -> Observe:
+    """What ``kernels.fill_observations`` reads of the reserve besides the flight and the team (the arrays the steps
+    update in place, made at reset, and the layout's offsets): the reserve's world builds it once an episode."""
+    cfg, layout = env.config, env.observation_layout
+    return Observe(occlusion=env._occ_pad, risk=env._risk_pad, staleness=env._stale_window, signals=env._signals,
+                   block_staleness=env._stale_blocks, radius=env.r, inv_scale=env._inv_scale,
+                   neighbour_scale=1.0 / max(cfg.comm_radius, 1.0), max_neighbours=cfg.max_neighbors,
+                   sign_values=SIGN_VALUES, own=layout["own"][0].start, neighbours=layout["neighbours"][0].start,
+                   maps=layout[MAP_NAMES[0]][0].start, max_cycles=env.max_cycles)
 
 
 def finish_observations(env: ReserveParallelEnv, obs: np.ndarray) -> np.ndarray:

@@ -59,7 +59,7 @@ from __future__ import annotations
 import functools
 import threading
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from gymnasium import spaces
@@ -79,32 +79,59 @@ from wildlife_reserve.reserve.constants import (
     COMM_QUERY,
     N_COMMS,
     N_MOVES,
-    POACHER_ACTIVE,
-    POACHER_CAUGHT,
-    POACHER_GONE,
     POACHER_WAITING,
 )
+from wildlife_reserve.reserve.kernels import (
+    Coverage,
+    Flight,
+    Ground,
+    Jammer,
+    Leopards,
+    Looks,
+    Poachers,
+    Rewards,
+    Sensing,
+    Step,
+    Talk,
+    World,
+    plain,
+)
 from wildlife_reserve.reserve.knowledge import TeamKnowledge
-from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, Weather, decode_mode
+from wildlife_reserve.reserve.observation import (
+    finish_observations,
+    global_state,
+    observation_layout,
+    observation_record,
+    observation_size,
+    state_size,
+)
 from wildlife_reserve.reserve.stream import Stream
 
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.rendering import ReserveRenderer
-from wildlife_reserve.reserve.observation import (
-    build_observations,
-    finish_observations,
-    global_state,
-    observation_args,
-    observation_layout,
-    observation_size,
-    state_size,
-)
 
 _NO_CHOICES = np.zeros(0, dtype=np.int64)  # continuous actions: decoded before the step's compiled call
 _NO_JAMMER = np.zeros(2)  # what the step's compiled call gets for the jammer's cell without one (never written)
-#: What ``ReserveParallelEnv._set_map`` makes from a map.
-MAP_ATTRIBUTES = ("terrain", "risk", "hotspots", "high_risk", "n_high_risk", "cover", "_occ_pad", "_terrain_pad",
-                  "_risk_pad", "_high_risk_pad", "_sectors")
+
+
+class ReserveMap(NamedTuple):
+    """A map and what the steps read from it (:meth:`ReserveParallelEnv._make_map`): the ``terrain``, ``risk`` and
+    ``hotspots``, the ``high_risk`` cells and their number, the cells that give ``cover``, the padded flat grids of the
+    visual occlusion, the terrain, the risk and the high-risk cells, and with ``coverage_sectors`` each strategy's
+    padded flat high-risk cells and their number (else None)."""
+
+    terrain: np.ndarray
+    risk: np.ndarray
+    hotspots: terrain_lib.Hotspots
+    high_risk: np.ndarray
+    n_high_risk: int
+    cover: np.ndarray
+    occlusion_pad: np.ndarray
+    terrain_pad: np.ndarray
+    risk_pad: np.ndarray
+    high_risk_pad: np.ndarray
+    sectors: tuple[tuple[np.ndarray, int], ...] | None
 
 
 def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
@@ -190,7 +217,8 @@ class ReserveParallelEnv(ParallelEnv):
     and tools: ``uav_pos`` (float rows/cols), ``battery``, ``grounded``, ``poacher_pos``,
     ``poacher_status``, ``leopard_pos``, ``leopard_alive``, ``terrain``, ``risk``, ``signs``
     (:class:`~wildlife_reserve.reserve.signs.Signs`) and ``team``
-    (:class:`~wildlife_reserve.reserve.knowledge.TeamKnowledge`: what each UAV knows, the links).
+    (:class:`~wildlife_reserve.reserve.knowledge.TeamKnowledge`: what each UAV knows, the links), ``sensors``
+    (:class:`~wildlife_reserve.reserve.sensing.SensorTables` of the episode's weather).
 
     :param kwargs: see :class:`~wildlife_reserve.reserve.config.ReserveConfig`
     """
@@ -211,7 +239,6 @@ class ReserveParallelEnv(ParallelEnv):
         self.preset = terrain_lib.REGIONS[cfg.region]
         self.n_dens = max(self.preset.n_dens, 1)
         offsets = np.arange(-self.r, self.r + 1)
-        self._ring = np.maximum(np.abs(offsets)[:, None], np.abs(offsets)[None, :])
         self._padded_shape = (self.height + 2 * self.r, self.width + 2 * self.r)
         # Flat offsets of the window cells around a cell, in the padded grids (row-major).
         wp = self._padded_shape[1]
@@ -227,8 +254,8 @@ class ReserveParallelEnv(ParallelEnv):
                                   cfg.comm_radius, cfg.comm_loss)
         self.np_random: np.random.Generator | None = None
         self._static_map = None
-        self._map_arrays: dict[str, Any] | None = None  # what a fixed map's steps read, made at the first reset
-        self._sensing_tables: dict[Any, dict[str, Any]] = {}  # what the sensing model reads, by weather
+        self._fixed_map: ReserveMap | None = None  # what a fixed map's steps read, made at the first reset
+        self._sensor_tables: dict[Weather, sensing.SensorTables] = {}  # what the sensors read, by weather
         if cfg.terrain_seed is not None:
             region_index = sorted(terrain_lib.REGIONS).index(cfg.region)
             self._static_map = self._build_map(np.random.default_rng([cfg.terrain_seed, region_index]))
@@ -292,38 +319,33 @@ class ReserveParallelEnv(ParallelEnv):
     def _pad(self, grid: np.ndarray, value: float) -> np.ndarray:
         return np.pad(grid, self.r, constant_values=value)
 
-    def _set_map(self, terrain: np.ndarray, risk: np.ndarray, hotspots: terrain_lib.Hotspots) -> None:
-        """Take a map and make what the steps read from it (high-risk cells, cover, the padded flat grids)."""
-        self.terrain, self.risk, self.hotspots = terrain, risk, hotspots
-        self.high_risk = self.risk >= terrain_lib.HIGH_RISK_THRESHOLD
-        self.n_high_risk = int(self.high_risk.sum())
-        self.cover = self.terrain != terrain_lib.OPEN
-        self._occ_pad = self._pad(terrain_lib.VISUAL_OCCLUSION[self.terrain], 1.0).ravel()
-        self._terrain_pad = self._pad(self.terrain, terrain_lib.OPEN).ravel()
-        self._risk_pad = self._pad(self.risk, 0.0).ravel()
-        self._high_risk_pad = self._pad(self.high_risk, False).ravel()
+    def _make_map(self, terrain: np.ndarray, risk: np.ndarray, hotspots: terrain_lib.Hotspots) -> ReserveMap:
+        """A map and what the steps read from it (high-risk cells, cover, the padded flat grids)."""
+        high_risk = risk >= terrain_lib.HIGH_RISK_THRESHOLD
         # With coverage_sectors, per strategy: the padded flat cells its coverage term pays for, and their count.
-        self._sectors = None
+        sectors = None
         if self.config.coverage_sectors:
-            sector = terrain_lib.sectors(self.high_risk, len(STRATEGIES))
-            self._sectors = tuple((self._pad(sector == k, False).ravel(), int((sector == k).sum()))
-                                  for k in range(len(STRATEGIES)))
+            sector = terrain_lib.sectors(high_risk, len(STRATEGIES))
+            sectors = tuple((self._pad(sector == k, False).ravel(), int((sector == k).sum()))
+                            for k in range(len(STRATEGIES)))
+        return ReserveMap(terrain=terrain, risk=risk, hotspots=hotspots, high_risk=high_risk,
+                          n_high_risk=int(high_risk.sum()), cover=terrain != terrain_lib.OPEN,
+                          occlusion_pad=self._pad(terrain_lib.VISUAL_OCCLUSION[terrain], 1.0).ravel(),
+                          terrain_pad=self._pad(terrain, terrain_lib.OPEN).ravel(), risk_pad=self._pad(risk, 0.0).ravel(),
+                          high_risk_pad=self._pad(high_risk, False).ravel(), sectors=sectors)
 
-    def _map_state(self) -> dict[str, Any]:
-        """The attributes :meth:`_set_map` sets (a fixed map's are kept and restored at every reset)."""
-        return {name: getattr(self, name) for name in MAP_ATTRIBUTES}
+    def _use_map(self, reserve_map: ReserveMap) -> None:
+        """Take the map of this episode."""
+        self.terrain, self.risk, self.hotspots = reserve_map.terrain, reserve_map.risk, reserve_map.hotspots
+        self.high_risk, self.n_high_risk, self.cover = reserve_map.high_risk, reserve_map.n_high_risk, reserve_map.cover
+        self._occ_pad, self._terrain_pad = reserve_map.occlusion_pad, reserve_map.terrain_pad
+        self._risk_pad, self._high_risk_pad = reserve_map.risk_pad, reserve_map.high_risk_pad
+        self._sectors = reserve_map.sectors
 
-    def _sensing_state(self, weather: Any) -> dict[str, Any]:
-        """What the sensing model reads in ``weather``: its reach, the window offsets within it and the tables."""
-        cfg = self.config
-        reach = sensing.effective_radius(self.r, weather)
-        return {"reach": reach,
-                # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
-                "_reach_offsets": np.argwhere(self._ring <= reach) - self.r,
-                "_detect_table": sensing.detection_table(self.r, weather, cfg.sensor_noise),
-                "_decoy_table": sensing.decoy_table(self.r, reach, cfg.sensor_noise),
-                # Chance of seeing a sign in each window cell, by terrain: (w * w, terrain types).
-                "_sign_table": sensing.sign_detection_table(self.r, weather, cfg.sensor_noise)[self._ring.ravel()]}
+    @property
+    def reach(self) -> int:
+        """The radius within which the sensors read anything in the episode's weather."""
+        return self.sensors.reach
 
     # ------------------------------------------------------------------ reset
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -339,58 +361,90 @@ class ReserveParallelEnv(ParallelEnv):
         seed, mode, start = self._check_reset(seed, options)
         announce_compilation()
         self._ready = False  # until this reset is through, step(), state() and the rest refuse
+        world_rng, mode_seed, ground_seed = self._seed(seed)
+        self._start_map(world_rng)
+        self._start_mode(mode, mode_seed)
+        self._start_uavs(world_rng, start)
+        self._start_ground(ground_seed)
+        self._start_tallies()
+        self._world = self._build_world()
+        obs = self._first_look()
+        infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
+        self._ready = True
+        if self.render_mode == "human":
+            self.render()
+        return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+
+    def _seed(self, seed: int | None) -> tuple[np.random.Generator, int, int]:
+        """Seed the episode (every generator of an episode comes from ``np_random``, seeded by ``seed`` when given) and
+        start its clock: sets the step's generator ``rng`` and its stream, the agents and ``t``.
+
+        :return: the generator of the map and the UAVs' start cells, and the seeds of the mode and of the ground actors
+        """
         if seed is not None or self.np_random is None:
             self.np_random, _ = seeding.np_random(seed)
-        cfg = self.config
-        world_seed, mode_seed, poacher_seed, step_seed = self.np_random.integers(0, 2**32, size=4)
-        world_rng = np.random.default_rng(world_seed)
+        world_seed, mode_seed, ground_seed, step_seed = self.np_random.integers(0, 2**32, size=4).tolist()
         self.rng = np.random.default_rng(step_seed)
         self._stream = Stream(self.rng)  # what the step's compiled call draws from (the same generator)
         self.agents = self.possible_agents[:]
         self.t = 0
-        shape = (self.height, self.width)
+        return np.random.default_rng(world_seed), mode_seed, ground_seed
 
-        # The map: fixed per region and terrain_seed, or drawn per episode.
+    def _start_map(self, world_rng: np.random.Generator) -> None:
+        """The map, fixed per region and terrain_seed (its arrays made once, read-only for the episodes) or drawn per
+        episode; nothing seen yet."""
         if self._static_map is None:
-            self._set_map(*self._build_map(world_rng))
-        elif self._map_arrays is None:  # a fixed map's derived arrays are made once (read-only for the episodes)
-            self._set_map(*self._static_map)
-            self._map_arrays = self._map_state()
+            self._use_map(self._make_map(*self._build_map(world_rng)))
         else:
-            self.__dict__.update(self._map_arrays)
+            if self._fixed_map is None:
+                self._fixed_map = self._make_map(*self._static_map)
+            self._use_map(self._fixed_map)
         self.visited = np.zeros(self._padded_shape, dtype=bool)
         self._n_covered = 0
 
-        # The hidden mode.
+    def _start_mode(self, mode: int | None, mode_seed: int) -> None:
+        """The hidden mode (``mode``, else drawn from the prior with ``mode_seed``): the poachers' strategy, the
+        weather and what the sensors read in it (made once per weather, read-only for the episodes)."""
         if mode is None:
-            mode = int(np.random.default_rng(mode_seed).choice(N_MODES, p=cfg.mode_prior))
+            mode = int(np.random.default_rng(mode_seed).choice(N_MODES, p=self.config.mode_prior))
         self.strategy, self.weather = decode_mode(mode)
         self.mode = int(mode)
         if self._sectors is not None:  # coverage pays in the strategy's sector only
             self._high_risk_pad, self.n_high_risk = self._sectors[STRATEGIES.index(self.strategy)]
-        if self.weather not in self._sensing_tables:  # made once per weather (read-only for the episodes)
-            self._sensing_tables[self.weather] = self._sensing_state(self.weather)
-        self.__dict__.update(self._sensing_tables[self.weather])
+        if self.weather not in self._sensor_tables:
+            self._sensor_tables[self.weather] = sensing.sensor_tables(self.r, self.weather, self.config.sensor_noise)
+        self.sensors = self._sensor_tables[self.weather]
 
-        # UAVs.
+    def _start_uavs(self, world_rng: np.random.Generator, start: np.ndarray | None) -> None:
+        """The UAVs at their start cells (``start``, else drawn with ``world_rng``), full and airborne, their windows,
+        the team knowing nothing, and the buffers of what they read."""
+        n, w = self.n, self.window
         if start is None:
-            cells = world_rng.choice(self.height * self.width, size=self.n, replace=self.n > self.height * self.width)
+            cells = world_rng.choice(self.height * self.width, size=n, replace=n > self.height * self.width)
             start = np.stack(np.divmod(cells, self.width), axis=-1).astype(np.float64)
         self.uav_pos = start + 0.5
-        self.velocity = np.zeros((self.n, 2))
-        self.battery = np.ones(self.n)
-        self.grounded = np.zeros(self.n, dtype=bool)
+        self.velocity = np.zeros((n, 2))
+        self.battery = np.ones(n)
+        self.grounded = np.zeros(n, dtype=bool)
         self.team.reset()
+        self._cells = np.empty((n, 2), dtype=np.int64)
+        self._window = np.empty((n, w, w), dtype=np.int64)
+        self._place_windows()
+        self._stale_window = np.empty((n, w, w), dtype=np.float32)
+        self._stale_blocks = np.empty((n, self.config.belief_size**2), dtype=np.float32)
+        self._signals = np.zeros((n, 3, w, w), dtype=np.float32)  # each step's readings
 
-        # Leopards at their dens.
+    def _start_ground(self, ground_seed: int) -> None:
+        """The leopards at their dens; the poachers planned from the mode's strategy and the signs their kind left
+        before the episode; in the adversarial condition, decoys at random cells (with fake signs around) and a jammer
+        that travels with the poachers."""
+        cfg, shape = self.config, (self.height, self.width)
         dens = self.hotspots.dens
         self.leopard_home = dens[np.arange(cfg.n_leopards) % len(dens)]
         self.leopard_pos = self.leopard_home.copy()
         self.leopard_alive = np.ones(cfg.n_leopards, dtype=bool)
         self.leopard_moved = np.zeros(cfg.n_leopards, dtype=bool)
-
-        # Poachers, planned from the mode's strategy, and the signs their kind left before the episode.
-        poacher_rng = np.random.default_rng(poacher_seed)
+        poacher_rng, sign_rng = np.random.default_rng(ground_seed), np.random.default_rng([ground_seed, 1])
         self.poacher_entry_time, self.poacher_entry, self.poacher_target = actors.plan_poachers(
             poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens, self.hotspots.road_entries)
         self.poacher_pos = self.poacher_entry.copy()
@@ -398,11 +452,8 @@ class ReserveParallelEnv(ParallelEnv):
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)
         self.poaching_timer = np.zeros(cfg.n_poachers, dtype=np.int64)
         self.signs = signs_lib.Signs(self._padded_shape, self.r, self._block)
-        self.signs.add(*signs_lib.plan_signs(sign_rng := np.random.default_rng([poacher_seed, 1]), self.strategy,
-                                             self.poacher_entry, self.poacher_target, dens, shape), t=0)
-        self._found = np.zeros(self.signs.capacity, dtype=bool)  # signs the team has found (for the reward)
-
-        # Adversarial condition: decoys at random cells (with fake signs around), a jammer that travels with the poachers.
+        self.signs.add(*signs_lib.plan_signs(sign_rng, self.strategy, self.poacher_entry, self.poacher_target, dens,
+                                             shape), t=0)
         if cfg.adversarial:
             self.decoy_pos = np.stack([poacher_rng.integers(0, self.height, cfg.n_decoys),
                                        poacher_rng.integers(0, self.width, cfg.n_decoys)], axis=-1)
@@ -417,25 +468,30 @@ class ReserveParallelEnv(ParallelEnv):
         self.jammed = np.zeros(self.n, dtype=bool)
         self.jammer_on = False
 
+    def _start_tallies(self) -> None:
+        """The episode's metrics, first times and readings, none yet."""
         self.metrics = {"team_reward": 0.0, "false_alarms": 0, "poaching_events": 0, "collisions": 0, "energy": 0.0,
                         "poachers_entered": 0, "poachers_detected": 0, "signs_found": 0}
         self.first_entry_time: int | None = None
         self.first_detection_time: int | None = None
         self.detections = np.zeros((0, 3), dtype=np.int64)  # this step's poacher readings: (uav, row, col)
-        self._cells = np.empty((self.n, 2), dtype=np.int64)
-        self._window = np.empty((self.n, self.window, self.window), dtype=np.int64)
-        self._place_windows()
-        self._stale_window = np.empty((self.n, self.window, self.window), dtype=np.float32)
-        self._stale_blocks = np.empty((self.n, cfg.belief_size**2), dtype=np.float32)
-        everyone = np.ones(self.n, dtype=bool)
-        self._look_and_talk(everyone, everyone, None)
-        self._signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)  # each step's readings
-        obs = build_observations(self, self._signals)
-        infos = {a: {"mode": self.mode, "heard_from": ()} for a in self.agents}
-        self._ready = True
-        if self.render_mode == "human":
-            self.render()
-        return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+
+    def _first_look(self) -> np.ndarray:
+        """The UAVs' look at the start (every one airborne and able to talk; nobody talks: the beacons draw, the
+        messages do not) and their first observations ``(n, obs_dim)``."""
+        n, world, cells = self.n, self._world, self._cells
+        everyone = np.ones(n, dtype=bool)
+        looks = Looks(t=np.float32(self.t), window=self._window.reshape(n, -1),
+                      cell_blocks=self._block[cells[:, 0], cells[:, 1]], airborne=everyone)
+        beacons = self.rng.random((1, n, n))[0]
+        talk = Talk(pos=self.uav_pos, ok=everyone, comm=np.zeros(n, dtype=np.int64), beacon_draws=beacons,
+                    message_draws=beacons)
+        self._n_covered += kernels.look_and_talk(world.team, world.coverage, looks, talk,
+                                                 self.signs.block[:self.signs.count])[1]
+        obs = np.empty((n, self.obs_dim), dtype=np.float32)
+        kernels.fill_observations(obs, world.observe, world.flight, world.team, self.team.events, float(self.t),
+                                  min(self.t / self.max_cycles, 1.0))
+        return finish_observations(self, obs)
 
     def _check_reset(self, seed: Any, options: dict | None) -> tuple[int | None, int | None, np.ndarray | None]:
         """``reset``'s arguments checked before anything changes: the seed (an int >= 0, numpy's included, or None),
@@ -508,7 +564,7 @@ class ReserveParallelEnv(ParallelEnv):
     def _advance(self, choices: np.ndarray, move: np.ndarray, comm: np.ndarray, out: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, bool, bool, dict[str, Any], list[tuple[int, ...]]]:
         """The step itself, from :meth:`_action_arrays`' actions (see :meth:`step_arrays` for what it returns): the
-        whole step runs in one compiled call (``kernels.advance_world``, on :meth:`_world_args`: the actions'
+        whole step runs in one compiled call (``kernels.advance_world``, on :meth:`_step_and_world`: the actions'
         decoding, the poachers' entry, the flight, ground, sensing, poaching, sharing and reward phases); the
         episode's metrics are counted here."""
         self.t += 1
@@ -516,7 +572,7 @@ class ReserveParallelEnv(ParallelEnv):
         try:
             (entered, rewards, team_reward, spent, terminated, collisions, readings, n_caught, false_alarms,
              signs_found, poaching_events, self.signs.count, self.jammer_on, self.team.events, new_cells,
-             masks) = kernels.advance_world(*self._world_args(choices, move, comm, obs))
+             masks) = kernels.advance_world(*self._step_and_world(choices, move, comm, obs))
         except kernels.ActionError:  # raised before anything changed
             self.t -= 1
             raise self._bad_actions(choices) from None
@@ -546,55 +602,90 @@ class ReserveParallelEnv(ParallelEnv):
             self.render()
         return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from(masks)
 
+    def __getstate__(self) -> dict:
+        """Pickle without the step's records (:meth:`_build_world`), which unpickling remakes."""
+        return {name: value for name, value in self.__dict__.items() if name not in ("_world", "_world_tuple")}
+
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (checkpoints), adding what a reserve pickled by an older version lacks: the step's compiled call
-        reads the generator through a :class:`Stream` and writes the readings and decoded actions into buffers."""
+        """Unpickle (checkpoints), adding what a reserve pickled by an older version lacks (the step's compiled call
+        reads the generator through a :class:`Stream`, writes the readings and decoded actions into buffers and reads
+        the episode's :class:`~wildlife_reserve.reserve.sensing.SensorTables`; the signs keep which the team found)
+        and remaking the step's records."""
         self.__dict__.update(state)
-        self.__dict__.pop("_next_entry", None)  # (0.18.4's entry shortcut: the compiled step checks every poacher)
+        for name in ("_next_entry", "_map_arrays", "_sensing_tables", "_ring", "reach", "_reach_offsets",
+                     "_detect_table", "_decoy_table", "_sign_table"):  # (what older versions kept, now remade)
+            self.__dict__.pop(name, None)
+        self.__dict__.setdefault("_fixed_map", None)
+        self.__dict__.setdefault("_sensor_tables", {})
         if "_move" not in state:
             self._move, self._comm = np.zeros((self.n, 2)), np.zeros(self.n, dtype=np.int64)
-        if "_stream" not in state and "rng" in state:
+        if "rng" not in state:  # (pickled before its first reset)
+            return
+        if "_stream" not in state:
             self._stream = Stream(self.rng)
-        if "_signals" not in state and "rng" in state:
+        if "_signals" not in state:
             self._signals = np.zeros((self.n, 3, self.window, self.window), dtype=np.float32)
+        if "sensors" not in state:
+            self.sensors = sensing.sensor_tables(self.r, self.weather, self.config.sensor_noise)
+        found = self.__dict__.pop("_found", None)
+        if found is not None:  # (the reserve kept it before the signs did)
+            self.signs.found[:len(found)] = found
+        self._world = self._build_world()
 
-    # ------------------------------------------------------------------ the phases of a step
-    def _world_args(self, choices: np.ndarray, move: np.ndarray, comm: np.ndarray, obs: np.ndarray) -> tuple:
-        """The arguments of ``kernels.advance_world`` for this step's actions (:meth:`_action_arrays`' three
-        arrays), writing the observations into ``obs`` (the arrays it updates in place are this
-        reserve's own); first makes room for the signs the step may add (a track per poacher, a false reading per
-        UAV, a carcass per leopard) in the records, in what the UAVs know and in what the team found."""
-        cfg, signs, team, strategy, n = self.config, self.signs, self.team, self.strategy, self.n
-        fly = (self.uav_pos, self.velocity, self.battery, self.grounded, self._cells, self._window, move, comm,
-               cfg.uav_speed, self._upper, ENERGY_COSTS["hover"], ENERGY_COSTS["move"], self._comm_costs,
-               self._padded_shape[1], self._win_offsets)
-        signs.make_room(len(self.poacher_pos) + n + len(self.leopard_pos))
+    # ------------------------------------------------------------------ the step's records
+    def _build_world(self) -> World:
+        """The records of the step's phases (``kernels.World``), on this episode's arrays (which the steps update in
+        place), and the same as plain tuples (what ``kernels.advance_world`` takes): made at reset; the signs' and the
+        team's own records replace theirs when those grow (:meth:`_step_and_world`)."""
+        cfg, strategy, n = self.config, self.strategy, self.n
+        flight = Flight(pos=self.uav_pos, velocity=self.velocity, battery=self.battery, grounded=self.grounded,
+                        cells=self._cells, window=self._window, speed=cfg.uav_speed, upper=self._upper,
+                        hover=ENERGY_COSTS["hover"], move_cost=ENERGY_COSTS["move"], comm_costs=self._comm_costs,
+                        padded_width=self._padded_shape[1], window_offsets=self._win_offsets)
+        leopards = Leopards(pos=self.leopard_pos, moved=self.leopard_moved, home=self.leopard_home,
+                            alive=self.leopard_alive, home_range=float(cfg.leopard_range),
+                            move_prob=actors.LEOPARD_MOVE_PROB)
+        poachers = Poachers(pos=self.poacher_pos, moved=self.poacher_moved, status=self.poacher_status,
+                            timer=self.poaching_timer, planned=self.poacher_target, entry_time=self.poacher_entry_time,
+                            sight=float(actors.POACHER_SIGHT),
+                            notice_radius=actors.NOTICE_RADIUS * self.weather.notice_factor,
+                            move_prob=strategy.move_prob, wander_prob=strategy.wander_prob,
+                            evasion_prob=strategy.evasion_prob, hide_in_cover=strategy.hide_in_cover,
+                            track_prob=signs_lib.TRACK_PROB, poaching_time=cfg.poaching_time)
+        jammer = Jammer(pos=_NO_JAMMER if self.jammer_pos is None else self.jammer_pos, jammed=self.jammed,
+                        present=self.jammer_pos is not None, radius=float(cfg.jam_radius))
+        sensors = self.sensors
+        readings = Sensing(detection=sensors.detection, terrain=self.terrain, radius=self.r,
+                           false_alarm=self._false_alarm, reach_offsets=sensors.reach_offsets, decoys=self.decoy_pos,
+                           decoy=sensors.decoy, sign=sensors.sign, terrain_pad=self._terrain_pad,
+                           signal_noise=sensing.signal_noise(cfg.sensor_noise), signals=self._signals)
+        coverage = Coverage(high_risk=self._high_risk_pad, visited=self.visited.reshape(-1),
+                            stale_cells=self._stale_window.reshape(n, -1), stale_blocks=self._stale_blocks)
+        world = World(flight=flight, ground=Ground(leopards=leopards, poachers=poachers, jammer=jammer,
+                                                   cover=self.cover, steps=actors.STEPS),
+                      signs=self.signs.record, sensing=readings, team=self.team.record, coverage=coverage,
+                      observe=observation_record(self),
+                      rewards=Rewards(weights=self._weights, shaping=float(cfg.shaping)))
+        self._world_tuple = plain(world)
+        return world
+
+    def _step_and_world(self, choices: np.ndarray, move: np.ndarray, comm: np.ndarray,
+                        obs: np.ndarray) -> tuple[tuple, tuple]:
+        """``kernels.advance_world``'s arguments for this step's actions (:meth:`_action_arrays`' three arrays),
+        writing the observations into ``obs``: the :class:`~wildlife_reserve.reserve.kernels.Step` and the world
+        (:meth:`_build_world`), as plain tuples. First makes room for the signs the step may add (a track per poacher,
+        a false reading per UAV, a carcass per leopard) in the records and in what the UAVs know."""
+        signs, team = self.signs, self.team
+        signs.make_room(len(self.poacher_pos) + self.n + len(self.leopard_pos))
         team.fit_signs(signs.capacity)
-        if len(self._found) < signs.capacity:
-            self._found = np.concatenate([self._found, np.zeros(signs.capacity - len(self._found), dtype=bool)])
-        ground = (self.leopard_pos, self.leopard_moved, self.leopard_home, float(cfg.leopard_range),
-                  actors.LEOPARD_MOVE_PROB, self.poacher_pos, self.poacher_moved, self.poacher_status,
-                  self.poaching_timer, self.leopard_alive, self.poacher_target, float(actors.POACHER_SIGHT),
-                  actors.NOTICE_RADIUS * self.weather.notice_factor, strategy.move_prob, strategy.wander_prob,
-                  strategy.evasion_prob, strategy.hide_in_cover, self.cover, actors.STEPS, signs_lib.TRACK_PROB,
-                  cfg.poaching_time, self.poacher_entry_time, POACHER_WAITING, POACHER_ACTIVE, POACHER_CAUGHT,
-                  POACHER_GONE,
-                  _NO_JAMMER if self.jammer_pos is None else self.jammer_pos, self.jammed, self.jammer_pos is not None,
-                  float(cfg.jam_radius))
-        sign_args = (signs.grid.reshape(-1), signs.pad, signs.width, self._block, signs_lib.LIFETIME, signs.count,
-                     signs.pos, signs.born, signs.expires, signs.kind, signs.block, signs_lib.TRACK,
-                     signs_lib.CARCASS, signs_lib.FALSE_READING, signs_lib.REAL)
-        sensing_args = (self._detect_table, self.terrain, self.r, self._false_alarm, self._reach_offsets,
-                        self.decoy_pos, self._decoy_table, self._sign_table, self._terrain_pad, self._found,
-                        sensing.SIGNAL_NOISE_STD * cfg.sensor_noise)
-        team_args = (team._time_scale, self._high_risk_pad, self.visited.reshape(-1), team._stamps, team._block_last,
-                     team._block_first, team.knowledge, self.uav_pos, team.comm_radius, comm, team.comm_loss,
-                     team.known_signs, team.sign_counts, self._stale_window.reshape(n, -1), self._stale_blocks,
-                     team.dist, team.beacons, team.comm_links, team.events, float(team.horizon))
+        if signs.record is not self._world.signs or team.record is not self._world.team:  # (grown)
+            self._world = self._world._replace(signs=signs.record, team=team.record)
+            self._world_tuple = plain(self._world)
         if self._stream.rng is not self.rng:  # (the reserve was handed another generator)
             self._stream = Stream(self.rng)
-        return (self._stream.handle, self.t, choices, fly, ground, sign_args, sensing_args, team_args,
-                observation_args(self, self._signals, obs), (self._weights, float(cfg.shaping)))
+        step = Step(addresses=self._stream.handle, t=self.t, choices=choices, move=move, comm=comm, obs=obs,
+                    sign_count=signs.count, events=team.events)
+        return tuple(step), self._world_tuple
 
     # ------------------------------------------------------------------ helpers
     def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -662,24 +753,6 @@ class ReserveParallelEnv(ParallelEnv):
     def _covered(self) -> int:
         """High-risk cells seen so far this episode."""
         return self._n_covered
-
-    def _look_and_talk(self, airborne: np.ndarray, ok: np.ndarray, comm: np.ndarray | None) -> tuple[np.ndarray, int]:
-        """The staleness the UAVs knew before this step, their looks (coverage, visit stamps), links, beacons and
-        messages (none when ``comm`` is None); see ``TeamKnowledge.look_and_talk``.
-
-        :return: ``(n,)`` high-risk cells each UAV saw that nobody had seen before, and the team's new ones
-        """
-        fresh, new = kernels.look_and_talk(*self._talk_args(airborne, ok, comm))
-        self._n_covered += new
-        return fresh, new
-
-    def _talk_args(self, airborne: np.ndarray, ok: np.ndarray, comm: np.ndarray | None) -> tuple:
-        """``TeamKnowledge.talk_args`` of this step (it draws the step's random numbers of communication)."""
-        cells = self._cells
-        return self.team.talk_args(
-            self.t, self.rng, self._window, self._block[cells[:, 0], cells[:, 1]], airborne, self._high_risk_pad,
-            self.visited.reshape(-1), self.uav_pos, ok, comm, self.signs.block[:self.signs.count], self._stale_window,
-            self._stale_blocks)
 
     # ------------------------------------------------------------------ public extras
     def split_observation(self, obs: np.ndarray) -> dict[str, np.ndarray]:

@@ -10,6 +10,8 @@ probabilities (as tables over distance and terrain) and the noise on the signal 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from wildlife_reserve.reserve.modes import Weather
@@ -124,3 +126,38 @@ def decoy_table(sensor_radius: int, reach: int, noise: float) -> np.ndarray:
     """
     return DECOY_PEAK * range_falloff(np.arange(reach + 2), sensor_radius, reach) * (1 - 0.5 * noise)
 
+
+
+class SensorTables(NamedTuple):
+    """What the sensors read in one weather (:func:`sensor_tables`): the ``reach`` (:func:`effective_radius`), the
+    window offsets within it ``reach_offsets`` ``(k, 2)``, the :func:`detection_table`, the :func:`decoy_table` and the
+    :func:`sign_detection_table` by window cell ``sign`` ``(w * w, terrain types)``."""
+
+    reach: int
+    reach_offsets: np.ndarray
+    detection: np.ndarray
+    decoy: np.ndarray
+    sign: np.ndarray
+
+
+def sensor_tables(sensor_radius: int, weather: Weather, sensor_noise: float) -> SensorTables:
+    """The :class:`SensorTables` of ``weather``.
+
+    :param sensor_radius: nominal sensor radius
+    :param weather: the episode's weather
+    :param sensor_noise: sensor corruption level in [0, 1]
+    """
+    offsets = np.arange(-sensor_radius, sensor_radius + 1)
+    ring = np.maximum(np.abs(offsets)[:, None], np.abs(offsets)[None, :])  # each window cell's Chebyshev distance
+    reach = effective_radius(sensor_radius, weather)
+    # Readings (true or false) come from within the weather's reach; the whole window counts as flown over.
+    return SensorTables(reach=reach, reach_offsets=np.argwhere(ring <= reach) - sensor_radius,
+                        detection=detection_table(sensor_radius, weather, sensor_noise),
+                        decoy=decoy_table(sensor_radius, reach, sensor_noise),
+                        sign=sign_detection_table(sensor_radius, weather, sensor_noise)[ring.ravel()])
+
+
+def signal_noise(sensor_noise: float) -> float:
+    """The standard deviation of the noise on the signal channels at ``sensor_noise`` (:data:`SIGNAL_NOISE_STD` per
+    unit)."""
+    return SIGNAL_NOISE_STD * sensor_noise

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wildlife_reserve.reserve.kernels import place_signs
+from wildlife_reserve.reserve.kernels import SignRecords, place_signs
 from wildlife_reserve.reserve.modes import PoacherStrategy
 from wildlife_reserve.reserve.terrain import edge_points, nearest_edge
 
@@ -130,8 +130,9 @@ class Signs:
     """The signs of one episode: a growing table of records and a grid that points at each cell's sign.
 
     Records are public for tests and tools: ``pos`` ``(S, 2)``, ``born``, ``expires`` and ``kind`` ``(S,)``,
-    ``block`` (the coarse-map block of each sign), ``count`` (records in use). ``grid`` is padded by the
-    sensor radius and holds a record index or -1 per cell.
+    ``block`` (the coarse-map block of each sign), ``found`` (the team has found it), ``count`` (records in use).
+    ``grid`` is padded by the sensor radius and holds a record index or -1 per cell. ``record`` holds them all, with
+    the constants the compiled step reads, as a ``kernels.SignRecords`` (remade when the records grow).
 
     :param padded_shape: shape of the padded grids
     :param pad: the padding (the sensor radius)
@@ -146,17 +147,38 @@ class Signs:
         self._flat = self.grid.reshape(-1)
         self.count = 0
         self.pos, self.born, self.expires = np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0)
-        self.kind, self.block = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        self.kind, self.block, self.found = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool)
         self._grow(64)
+
+    def __getstate__(self) -> dict:
+        """Pickle without :attr:`record`, which unpickling remakes."""
+        return {name: value for name, value in self.__dict__.items() if name != "record"}
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (checkpoints); a state from before the signs kept ``found`` gets it all False (the reserve, which
+        kept it then, fills it in)."""
+        self.__dict__.update(state)
+        if "found" not in state:
+            self.found = np.zeros(self.capacity, dtype=bool)
+        self._refresh_record()
 
     def _grow(self, capacity: int) -> None:
         old = self.count
         pos, born, expires = np.zeros((capacity, 2), np.int64), np.zeros(capacity), np.zeros(capacity)
-        kind, block = np.zeros(capacity, np.int64), np.zeros(capacity, np.int64)
+        kind, block, found = np.zeros(capacity, np.int64), np.zeros(capacity, np.int64), np.zeros(capacity, bool)
         if old:
             pos[:old], born[:old], expires[:old] = self.pos[:old], self.born[:old], self.expires[:old]
             kind[:old], block[:old] = self.kind[:old], self.block[:old]
-        self.pos, self.born, self.expires, self.kind, self.block = pos, born, expires, kind, block
+        found[:len(self.found)] = self.found
+        self.pos, self.born, self.expires, self.kind, self.block, self.found = pos, born, expires, kind, block, found
+        self._refresh_record()
+
+    def _refresh_record(self) -> None:
+        """:attr:`record` of the records as they are now."""
+        self.record = SignRecords(grid=self._flat, pad=self.pad, width=self.width, block_of=self._block_of,
+                                  lifetime=LIFETIME, pos=self.pos, born=self.born, expires=self.expires, kind=self.kind,
+                                  block=self.block, found=self.found, real=REAL, track_kind=TRACK,
+                                  carcass_kind=CARCASS, false_kind=FALSE_READING)
 
     def make_room(self, k: int) -> None:
         """Room for ``k`` more records (the capacity at least doubles when it grows)."""
@@ -186,24 +208,16 @@ class Signs:
             np.asarray(born, dtype=np.float64), (k,))
         kind = np.full(k, kind, dtype=np.int64) if np.ndim(kind) == 0 else np.broadcast_to(
             np.asarray(kind, dtype=np.int64), (k,))
-        if on_grid:
-            grid, pad, width, block_of, lifetime, t, start, *records = self.place_args(k, t)
-            index, self.count = place_signs(grid, pad, width, block_of, pos, born, kind, lifetime, t, start, *records)
-            return index
         self.make_room(k)
+        if on_grid:
+            index, self.count = place_signs(self.record, pos, born, kind, t, self.count)
+            return index
         start = self.count
         ids = np.arange(start, start + k)
         self.pos[ids], self.born[ids], self.expires[ids], self.kind[ids] = pos, born, born + LIFETIME[kind], kind
         self.block[ids] = self._block_of[pos[:, 0], pos[:, 1]]
         self.count = start + k
         return ids
-
-    def place_args(self, k: int, t: float) -> tuple:
-        """Room for ``k`` more records, and the arguments of ``kernels.place_signs`` but the new signs' cells, times
-        and kinds, as ``(grid, pad, width, block_of, lifetime, t, start, *records)`` (:meth:`add`'s)."""
-        self.make_room(k)
-        return (self._flat, self.pad, self.width, self._block_of, LIFETIME, t, self.count, self.pos, self.born,
-                self.expires, self.kind, self.block)
 
     def live(self, t: float) -> np.ndarray:
         """Record indices of the signs on the ground at step ``t``."""
