@@ -38,11 +38,12 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
 from sb3_emmarl.common.callbacks import EvalCallback
-from sb3_emmarl.common.safe_zip import check_zip_pickles
+from sb3_emmarl.common.safe_zip import check_zip_pickles, pickle_globals
 
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
@@ -95,6 +96,42 @@ def dumps(obj: Any) -> bytes:
     buffer = io.BytesIO()
     _ViewPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
     return buffer.getvalue()
+
+
+class _FileReferencePickler(_ViewPickler):
+    """:class:`_ViewPickler` that keeps open files (SB3's ``Monitor`` writers inside a ``DummyVecEnv``, which hold a
+    file and a csv writer) out of the pickle, by their order of appearance: :func:`_loads_with_files` puts back the
+    live environment's in their place, so that a resumed run goes on writing its own monitor files."""
+
+    def __init__(self, file: io.BytesIO) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.files: list[Any] = []
+
+    def persistent_id(self, obj: Any) -> int | None:
+        if isinstance(obj, (io.IOBase, ResultsWriter)):
+            self.files.append(obj)
+            return len(self.files) - 1
+        return None
+
+
+def _dumps_with_files(obj: Any) -> tuple[bytes, list[Any]]:
+    """``obj`` pickled by :class:`_FileReferencePickler`, and the open files it refers to."""
+    buffer = io.BytesIO()
+    pickler = _FileReferencePickler(buffer)
+    pickler.dump(obj)
+    return buffer.getvalue(), pickler.files
+
+
+def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
+    """Unpickle :func:`_dumps_with_files`'s bytes, the open files taken from ``files`` (the live ones, same order)."""
+
+    class _Unpickler(pickle.Unpickler):
+        def persistent_load(self, pid: Any) -> Any:
+            if not isinstance(pid, int) or not 0 <= pid < len(files):
+                raise ValueError(f"the saved environment refers to open file {pid!r}; this one has {len(files)}")
+            return files[pid]
+
+    return _Unpickler(io.BytesIO(blob)).load()
 
 
 # ---------------------------------------------------------------------------------------------- atomic files
@@ -171,6 +208,33 @@ def check_model_file(path: str | Path) -> Path:
         raise ValueError(f"{path} is not a Stable-Baselines3 model (no 'data' in the zip)")
     check_zip_pickles(path)  # before anything in it is unpickled (a zip from an unknown source is code)
     return path
+
+
+def check_pickle_file(path: str | Path) -> Path:
+    """Check that ``path`` is a complete pickle (its opcodes read to the end without running anything: a file cut short
+    by a crash fails).
+
+    :raise ValueError: naming the file
+    """
+    try:
+        pickle_globals(Path(path).read_bytes())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path} is incomplete or corrupt ({error}); it may have been cut short by a crash") from None
+    return Path(path)
+
+
+def check_checkpoint(path: str | Path) -> Path:
+    """Check a checkpoint: its zip (:func:`check_model_file`) and the companions saved with it (training state,
+    replay buffer, ``VecNormalize`` statistics: :func:`check_pickle_file`).
+
+    :raise ValueError: naming the file that does not load
+    """
+    check_model_file(path)
+    for kind in (TRAINING_STATE, REPLAY_BUFFER, VEC_NORMALIZE):
+        file = companion(path, kind)
+        if file is not None and file.is_file():
+            check_pickle_file(file)
+    return Path(path)
 
 
 def _own_parameters(algo: type) -> set[str]:
@@ -264,7 +328,7 @@ def vec_env_state(venv: VecEnv | None) -> list[Any]:
             states.append(layer.get_state())
         else:
             names = next((attrs for cls, attrs in SB3_WRAPPER_STATE.items() if isinstance(layer, cls)), ())
-            states.append(dumps({name: getattr(layer, name) for name in names}) if names else None)
+            states.append(_dumps_with_files({name: getattr(layer, name) for name in names})[0] if names else None)
     return states
 
 
@@ -277,8 +341,10 @@ def set_vec_env_state(venv: VecEnv | None, states: list[Any]) -> None:
     for layer, state in zip(layers, states):
         if hasattr(layer, "set_state"):
             layer.set_state(state)
-        elif state is not None:
-            for name, value in pickle.loads(state).items():
+        elif state is not None:  # the layer's open files (monitor files) stay this environment's own
+            names = next(attrs for cls, attrs in SB3_WRAPPER_STATE.items() if isinstance(layer, cls))
+            _, files = _dumps_with_files({name: getattr(layer, name) for name in names})
+            for name, value in _loads_with_files(state, files).items():
                 setattr(layer, name, value)
 
 

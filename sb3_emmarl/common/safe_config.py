@@ -16,7 +16,8 @@ Everything a user hands the zoo as text (``-params`` and ``--env-kwargs`` values
   (a recursive alias is refused): a "billion laughs" file fails at once, naming the file.
 - :func:`check_imports` accepts for the keys that make rl_zoo3 import or call something (``callback``,
   ``env_wrapper``, ``vec_env_wrapper``) only the names of :data:`IMPORT_KEYS`, with keyword arguments that are plain
-  data and that the class takes.
+  data, that the class takes (every required one) and of the types its signature says
+  (:func:`~sb3_emmarl.common.signatures.check_arguments`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import yaml
 from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
 
 from sb3_emmarl.common.extras import requires
+from sb3_emmarl.common.signatures import check_arguments
 
 #: Longest text :func:`parse_value` reads (a value longer than this is a mistake or an attack).
 MAX_VALUE_CHARS = 10_000
@@ -385,10 +387,17 @@ def check_imports(key: str, value: Any) -> Any:
         if not isinstance(kwargs, dict) or not all(isinstance(k, str) for k in kwargs) or not is_plain(kwargs):
             raise ValueError(f"{key} {item}: its keyword arguments must be a mapping of names to plain values, "
                              f"got {_short(repr(kwargs))}")
-        parameters = set(inspect.signature(_load_name(item).__init__).parameters) - {"self", "venv", "env"}
+        cls = _load_name(item)
+        signature = inspect.signature(cls.__init__).parameters
+        parameters = set(signature) - {"self", "venv", "env"}
         unknown = sorted(set(kwargs) - parameters)
         if unknown:
             raise ValueError(f"{key} {item}: unknown keyword argument(s) {unknown}; it takes {sorted(parameters)}")
+        missing = sorted(name for name in parameters - set(kwargs) if signature[name].default is inspect.Parameter.empty
+                         and signature[name].kind not in (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD))
+        if missing:
+            raise ValueError(f"{key} {item}: missing keyword argument(s) {missing} (give {{{item}: {{{missing[0]}: ...}}}})")
+        check_arguments(cls, kwargs, f"{key} {item}")  # the types its signature says (max_episodes: int)
     return value
 
 

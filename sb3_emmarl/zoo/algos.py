@@ -1,10 +1,15 @@
 """Which algorithms the zoo trains on the reserve, and in which view.
 
 rl_zoo3 takes new algorithms by insertion into ``rl_zoo3.ALGOS`` (and, for ``-optimize``, into its
-``HYPERPARAMS_SAMPLER`` / ``HYPERPARAMS_CONVERTER``); :func:`register_algorithms` does that once.
+``HYPERPARAMS_SAMPLER`` / ``HYPERPARAMS_CONVERTER``); :func:`register_algorithms` does that once. Each algorithm tunes
+with its base algorithm's sampler (rl_zoo3's); the EM algorithms' samplers add EM's own settings
+(:func:`sample_latent_params`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 from sb3_contrib import RecurrentPPO
 from stable_baselines3 import A2C, DDPG, DQN, PPO, TD3
@@ -50,15 +55,100 @@ STATE_ALGOS = ("mappo", "qmix")
 SHARED_HYPERPARAMS: dict[str, str] = {"oracle_ppo": "ppo"}
 
 
+#: The rl_zoo3 algorithm whose optuna sampler (and converter) each zoo algorithm takes for its base settings.
+SAMPLER_BASES: dict[str, str] = {
+    "cppo": "ppo", "em_ppo": "ppo", "em_ddpg": "ddpg", "oracle_ppo": "ppo", "mappo": "ppo", "qmix": "dqn", "vdn": "dqn",
+    "vdn_em": "dqn", "ppo_gat": "ppo", "ppo_transformer": "ppo"}
+#: What ``-optimize`` searches of EM's own settings, beside the base algorithm's (:func:`sample_latent_params`):
+#: the mixture's size, the decoder's likelihood temperature, how often the E-step runs and the window of data it
+#: fits (``e_step_kwargs`` ``window``). EM-PPO counts both in rollouts; EM-DDPG and VDN+EM in ``train()`` calls
+#: (their YAMLs: an E-step every 200 / 500 calls on the last 800 / 2,000), hence their own choices.
+LATENT_SEARCH: dict[str, dict[str, Any]] = {
+    "em_ppo": {"e_step_interval": [1, 2, 4, 8, 16], "e_step_window": [2, 4, 8, 16, 32]},
+    "em_ddpg": {"e_step_interval": [50, 100, 200, 500, 1000], "e_step_window": [200, 400, 800, 2000, 4000]},
+    "vdn_em": {"e_step_interval": [50, 100, 200, 500, 1000], "e_step_window": [200, 400, 800, 2000, 4000]},
+}
+#: The mixture sizes and likelihood temperatures ``-optimize`` tries for every EM algorithm.
+N_COMPONENTS_CHOICES = [2, 4, 8, 16]
+LIKELIHOOD_TEMPERATURE_RANGE = (0.03, 3.0)
+
+
+def sample_latent_params(trial: Any, algo: str) -> dict[str, Any]:
+    """EM's own settings for an optuna trial of ``algo`` (:data:`LATENT_SEARCH`): ``n_components``,
+    ``likelihood_temperature`` (log-uniform), ``e_step_interval`` and the E-step's window, as hyperparameters
+    (the window as ``e_step_kwargs``; :func:`merge_latent_params` keeps the YAML's other E-step settings).
+
+    :param trial: the optuna trial
+    :param algo: ``em_ppo``, ``em_ddpg`` or ``vdn_em``
+    """
+    search = LATENT_SEARCH[algo]
+    window = trial.suggest_categorical("e_step_window", search["e_step_window"])
+    return {"n_components": trial.suggest_categorical("n_components", N_COMPONENTS_CHOICES),
+            "likelihood_temperature": trial.suggest_float("likelihood_temperature", *LIKELIHOOD_TEMPERATURE_RANGE,
+                                                          log=True),
+            "e_step_interval": trial.suggest_categorical("e_step_interval", search["e_step_interval"]),
+            "e_step_kwargs": {"window": window}}
+
+
+def convert_latent_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A trial's EM parameters (optuna's names) as hyperparameters: ``e_step_window`` becomes ``e_step_kwargs``.
+
+    :param params: the trial's parameters that :func:`sample_latent_params` suggested
+    """
+    names = ("n_components", "likelihood_temperature", "e_step_interval")
+    converted: dict[str, Any] = {key: params[key] for key in names if key in params}
+    if "e_step_window" in params:
+        converted["e_step_kwargs"] = {"window": params["e_step_window"]}
+    return converted
+
+
+def merge_latent_params(base: dict[str, Any], sampled: dict[str, Any]) -> dict[str, Any]:
+    """A trial's sampled settings as they update the YAML's ``base``: ``e_step_kwargs`` merged key by key (the
+    YAML's epochs, batch size and cap stay), and ``count_factors`` refitted to the sampled ``n_components``: the
+    YAML's pair if it still multiplies to it, else the same second factor (how far) with the first scaled, else None.
+
+    :param base: the YAML's hyperparameters
+    :param sampled: what the sampler returned (overrides ``base``)
+    """
+    merged = dict(sampled)
+    if "e_step_kwargs" in sampled:
+        merged["e_step_kwargs"] = {**(base.get("e_step_kwargs") or {}), **sampled["e_step_kwargs"]}
+    factors = base.get("count_factors")
+    n_components = merged.get("n_components")
+    if factors is not None and n_components is not None and factors[0] * factors[1] != n_components:
+        merged["count_factors"] = [n_components // factors[1], factors[1]] if n_components % factors[1] == 0 \
+            and n_components >= factors[1] else None
+    return merged
+
+
+def _latent_sampler(algo: str, base_sampler: Callable[..., dict[str, Any]]) -> Callable[..., dict[str, Any]]:
+    def sample(trial: Any, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict[str, Any]:
+        return {**base_sampler(trial, n_actions, n_envs, additional_args), **sample_latent_params(trial, algo)}
+
+    sample.__doc__ = f"rl_zoo3's sampler of {SAMPLER_BASES[algo]} and EM's own settings (sample_latent_params)."
+    return sample
+
+
+def _latent_converter(base_converter: Callable[[dict[str, Any]], dict[str, Any]]) -> Callable[..., dict[str, Any]]:
+    def convert(params: dict[str, Any]) -> dict[str, Any]:
+        latent = convert_latent_params(params)
+        names = {"e_step_window", *latent}
+        return {**base_converter({key: value for key, value in params.items() if key not in names}), **latent}
+
+    return convert
+
+
 def register_algorithms() -> None:
-    """Make rl_zoo3 know every algorithm of :data:`ZOO_ALGOS` (idempotent)."""
+    """Make rl_zoo3 know every algorithm of :data:`ZOO_ALGOS`, with an optuna sampler and converter each: the base
+    algorithm's (:data:`SAMPLER_BASES`), plus EM's own settings for the EM algorithms (idempotent)."""
     import rl_zoo3
     from rl_zoo3 import hyperparams_opt
 
     for name, algo in ZOO_ALGOS.items():
         rl_zoo3.ALGOS.setdefault(name, algo)
-    for name, like in (("cppo", "ppo"), ("em_ppo", "ppo"), ("em_ddpg", "ddpg"), ("oracle_ppo", "ppo"), ("mappo", "ppo"),
-                       ("qmix", "dqn"), ("vdn", "dqn"), ("vdn_em", "dqn"),
-                       ("ppo_gat", "ppo"), ("ppo_transformer", "ppo")):
-        hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, hyperparams_opt.HYPERPARAMS_SAMPLER[like])
-        hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, hyperparams_opt.HYPERPARAMS_CONVERTER[like])
+    for name, like in SAMPLER_BASES.items():
+        sampler, converter = hyperparams_opt.HYPERPARAMS_SAMPLER[like], hyperparams_opt.HYPERPARAMS_CONVERTER[like]
+        if name in LATENT_SEARCH:
+            sampler, converter = _latent_sampler(name, sampler), _latent_converter(converter)
+        hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)
+        hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)

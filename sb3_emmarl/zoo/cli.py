@@ -27,6 +27,7 @@ from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.arguments import parse_key_values as parse_key_values
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
+    check_checkpoint,
     check_model_file,
     check_saved_algorithm,
     companion,
@@ -117,7 +118,8 @@ def train_parser() -> argparse.ArgumentParser:
                         help="torch threads (default 1: fastest for these small networks on a small CPU; -1: torch's default)")
     parser.add_argument("--log-interval", type=int_flag(-2, 10**6), default=-1,
                         help="override the log interval (-1: default, -2: none)")
-    parser.add_argument("--device", type=device_flag, default="auto", help="torch device")
+    parser.add_argument("--device", type=usable_device, default="auto",
+                        help="torch device: auto, cpu, or a cuda/mps device this machine has")
     parser.add_argument("--verbose", type=int_flag(0, 2), default=1, help="0: quiet, 1: info")
     parser.add_argument("-uuid", "--uuid", action="store_true", help="unique run folder name")
     parser.add_argument("-optimize", "--optimize-hyperparameters", action="store_true", help="optuna search")
@@ -135,6 +137,60 @@ def train_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def usable_device(text: str) -> str:
+    """An argparse ``type`` for ``--device``: ``auto`` or a torch device this machine has (SB3 would train a missing
+    ``cuda:N`` on the CPU without a word, and fail mid-run on a device type torch was not built with).
+
+    :param text: the flag's value
+    """
+    import torch as th
+
+    device = device_flag(text)
+    if device == "auto":
+        return device
+    parsed = th.device(device)
+    count = th.cuda.device_count() if th.cuda.is_available() else 0
+    if parsed.type == "cpu" or (parsed.type == "cuda" and (parsed.index or 0) < count) \
+            or (parsed.type == "mps" and th.backends.mps.is_available()):
+        return device
+    has = ["auto", "cpu", *(["cuda", *(f"cuda:{i}" for i in range(count))] if count else []),
+           *(["mps"] if th.backends.mps.is_available() else [])]
+    raise argparse.ArgumentTypeError(f"must be a device this machine has ({', '.join(has)}), got {text!r}")
+
+
+#: Flags that may be given with ``--resume`` whatever the run's own are (they find the run or only change output).
+RESUME_FREE_FLAGS = ("resume", "log_folder", "progress", "verbose")
+
+
+def explicit_flags(argv: list[str]) -> dict[str, Any]:
+    """The flags given on the command line ``argv`` (not the defaults), with their parsed values.
+
+    :param argv: the command line's arguments
+    """
+    parser = train_parser()
+    for action in parser._actions:  # argparse leaves out of the namespace a flag whose default is SUPPRESS
+        action.default = argparse.SUPPRESS
+    return vars(parser.parse_args(argv))
+
+
+def newest_loadable_checkpoint(checkpoints: list[tuple[int, Path]]) -> tuple[int, Path, list[str]]:
+    """The newest checkpoint whose zip and companions (training state, replay buffer, ``VecNormalize`` statistics) are
+    complete and safe to load (:func:`~sb3_emmarl.common.checkpoints.check_checkpoint`), and why each newer one is not.
+
+    :param checkpoints: ``(steps, zip)`` oldest first (:func:`~sb3_emmarl.common.checkpoints.list_checkpoints`)
+    :raise ValueError: if none loads, naming the newest and why
+    """
+    skipped = []
+    for steps, path in reversed(checkpoints):
+        try:
+            check_checkpoint(path)
+        except ValueError as error:
+            skipped.append(f"{path.name}: {error}")
+            continue
+        return steps, path, skipped
+    raise ValueError(f"none of the run's {len(checkpoints)} checkpoints loads (the newest, {skipped[0]})")
+
+
 def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.conf_file is not None and not Path(args.conf_file).is_file():
         parser.error(f"--conf-file {args.conf_file!r} does not exist")
@@ -146,9 +202,16 @@ def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace)
             parser.error(f"-i/--trained-agent: {error}")
 
 
-def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[argparse.Namespace, Path] | None:
-    """The stopped run's own arguments and its newest checkpoint (None if the run already finished)."""
-    from sb3_emmarl.zoo.exp_manager import read_yaml
+def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                 given: dict[str, Any]) -> tuple[argparse.Namespace, Path] | None:
+    """The stopped run's own arguments and its newest checkpoint that loads (None if the run already finished).
+
+    :param parser: the train parser (its errors end the command)
+    :param args: the command line's arguments
+    :param given: the flags given explicitly (:func:`explicit_flags`): any but :data:`RESUME_FREE_FLAGS` must equal
+        the run's own (``--algo a2c --resume <a PPO run>`` is refused, not trained as PPO)
+    """
+    from sb3_emmarl.zoo.exp_manager import plain, read_yaml
 
     if args.resume:
         run = Path(args.resume)
@@ -168,6 +231,10 @@ def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> t
         parser.error(f"--resume: {error}")
     if not isinstance(saved, dict) or saved.get("algo") not in ZOO_ALGOS:
         parser.error(f"--resume: {args_file} does not hold a zoo run's arguments")
+    differ = [f"--{key.replace('_', '-')} {value!r} (the run's: {saved.get(key)!r})" for key, value in given.items()
+              if key not in RESUME_FREE_FLAGS and plain(value) != saved.get(key, parser.get_default(key))]
+    if differ:
+        parser.error(f"--resume continues {run} with its own settings, and these differ from them: {'; '.join(differ)}")
     if (run / f"{env_id}.zip").is_file():
         print(f"{run} has finished (its final model {env_id}.zip exists): nothing to resume")
         return None
@@ -176,24 +243,83 @@ def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> t
     checkpoints = list_checkpoints(run)
     if not checkpoints:
         parser.error(f"--resume: {run} has no checkpoint (train with --save-freq to make runs resumable)")
-    steps, checkpoint = checkpoints[-1]
-    check_model_file(checkpoint)
+    try:
+        steps, checkpoint, skipped = newest_loadable_checkpoint(checkpoints)
+    except ValueError as error:
+        parser.error(f"--resume: {run}: {error}")
     resumed = {**vars(parser.parse_args([])), **{k: v for k, v in saved.items() if k in vars(args)}}
     resumed.update(resume=str(run), trained_agent=str(checkpoint), progress=args.progress, verbose=args.verbose)
     state = companion(checkpoint, TRAINING_STATE)
     print(f"Resuming {run} from {checkpoint.name} (step {steps}"
-          f"{', with its training state' if state is not None and state.is_file() else ', without training state'})")
+          f"{', with its training state' if state is not None and state.is_file() else ', without training state'})"
+          + (f"; newer checkpoints that do not load: {'; '.join(skipped)}" if skipped else ""))
     return argparse.Namespace(**resumed), run
 
 
-def _remove_run_folder(manager: Any) -> None:
-    """Remove a run folder this invocation created (and ``logs/<algo>/`` if that left it empty)."""
-    if manager is None or not manager.created_folder or not Path(manager.save_path).is_dir():
+def _files(folder: Path | None) -> set[Path]:
+    return set(folder.rglob("*")) if folder is not None and folder.is_dir() else set()
+
+
+def _remove_new_files(folder: Path | None, before: set[Path]) -> None:
+    """Remove what appeared in ``folder`` since ``before`` (a resumed run's folder after a failed start: its new
+    monitor file), deepest first."""
+    for path in sorted(_files(folder) - before, key=lambda p: len(p.parts), reverse=True):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def _remove_tensorboard_run(model: Any, tensorboard_log: str) -> None:
+    """Remove the tensorboard folder SB3 made for ``model``'s run under ``tensorboard_log`` (a run that failed before
+    its first checkpoint), and ``tensorboard_log`` if that leaves it empty."""
+    folder = model.logger.get_dir() if tensorboard_log and getattr(model, "_logger", None) is not None else None
+    root = Path(tensorboard_log).resolve() if tensorboard_log else None
+    if folder is None or root is None or root not in Path(folder).resolve().parents:
         return
-    shutil.rmtree(manager.save_path)
-    algo_folder = Path(manager.save_path).parent
-    if algo_folder.is_dir() and not any(algo_folder.iterdir()):
-        algo_folder.rmdir()
+    shutil.rmtree(folder, ignore_errors=True)
+    if root.is_dir() and not any(root.iterdir()):
+        root.rmdir()
+
+
+def _after_failed_training(manager: Any, model: Any, tensorboard_log: str) -> str:
+    """Tidy a run whose training failed and say where it stands: its checkpoints are kept; a new run without any is
+    removed with its tensorboard folder; a resumed one is left as it was.
+
+    :param manager: the run's experiment manager
+    :param model: the model that was training
+    :param tensorboard_log: ``-tb``'s folder
+    """
+    checkpoints = list_checkpoints(manager.save_path)
+    if checkpoints:
+        return (f"the run folder {manager.save_path} keeps its checkpoints up to step {checkpoints[-1][0]} "
+                f"and no final model; continue with --resume {manager.save_path}")
+    if manager.resume_run is None:
+        manager.remove_created_folders()
+        _remove_tensorboard_run(model, tensorboard_log)
+        return f"no checkpoint had been written, so the run folder {manager.save_path} was removed"
+    return f"the run folder {manager.save_path} is left as it was"
+
+
+def make_manager(args: argparse.Namespace, resume_run: Path | None = None) -> Any:
+    """The experiment manager of the train command's arguments (nothing is read or written yet).
+
+    :param args: :func:`train_parser`'s arguments
+    :param resume_run: the run folder to continue (``--resume``), if any
+    """
+    from sb3_emmarl.zoo.exp_manager import ReserveExperimentManager
+
+    return ReserveExperimentManager(
+        args, args.algo, args.env, args.log_folder, args.tensorboard_log, args.n_timesteps, args.eval_freq,
+        args.eval_episodes, args.save_freq, args.hyperparams, args.env_kwargs, args.eval_env_kwargs,
+        args.trained_agent, args.optimize_hyperparameters, args.storage, args.study_name, args.n_trials,
+        args.max_total_trials, args.n_jobs, args.sampler, args.pruner, args.optimization_log_path,
+        n_startup_trials=args.n_startup_trials, n_evaluations=args.n_evaluations,
+        uuid_str=f"_{uuid.uuid4()}" if args.uuid else "", seed=args.seed, log_interval=args.log_interval,
+        save_replay_buffer=args.save_replay_buffer, verbose=args.verbose, vec_env_type=args.vec_env,
+        n_eval_envs=args.n_eval_envs, no_optim_plots=args.no_optim_plots, device=args.device,
+        config=args.conf_file, show_progress=args.progress, resume_run=resume_run,
+    )
 
 
 def train_main(argv: list[str] | None = None) -> int:
@@ -202,15 +328,13 @@ def train_main(argv: list[str] | None = None) -> int:
     import torch as th
     from stable_baselines3.common.utils import set_random_seed
 
-    from sb3_emmarl.zoo.exp_manager import ReserveExperimentManager
-
     parser = train_parser()
     args = parser.parse_args(argv)
     resume_run = None
     if args.resume is not None:
         if args.trained_agent:
             parser.error("give -i/--trained-agent or --resume, not both")
-        resumed = _resume_args(parser, args)
+        resumed = _resume_args(parser, args, explicit_flags(sys.argv[1:] if argv is None else argv))
         if resumed is None:
             return 0
         args, resume_run = resumed
@@ -220,30 +344,26 @@ def train_main(argv: list[str] | None = None) -> int:
     set_random_seed(args.seed)
     if args.num_threads > 0:
         th.set_num_threads(args.num_threads)
-    if args.optimize_hyperparameters and args.storage is None:
-        Path(args.log_folder).mkdir(parents=True, exist_ok=True)
+    default_storage = args.optimize_hyperparameters and args.storage is None
+    if default_storage:  # its folder is made once the settings are checked
         args.storage = f"sqlite:///{Path(args.log_folder) / 'optuna.db'}"
         args.study_name = args.study_name or f"{args.algo}-{args.env}"
 
     manager = None
+    resumed_files = _files(resume_run)
     try:
-        manager = ReserveExperimentManager(
-            args, args.algo, args.env, args.log_folder, args.tensorboard_log, args.n_timesteps, args.eval_freq,
-            args.eval_episodes, args.save_freq, args.hyperparams, args.env_kwargs, args.eval_env_kwargs,
-            args.trained_agent, args.optimize_hyperparameters, args.storage, args.study_name, args.n_trials,
-            args.max_total_trials, args.n_jobs, args.sampler, args.pruner, args.optimization_log_path,
-            n_startup_trials=args.n_startup_trials, n_evaluations=args.n_evaluations,
-            uuid_str=f"_{uuid.uuid4()}" if args.uuid else "", seed=args.seed, log_interval=args.log_interval,
-            save_replay_buffer=args.save_replay_buffer, verbose=args.verbose, vec_env_type=args.vec_env,
-            n_eval_envs=args.n_eval_envs, no_optim_plots=args.no_optim_plots, device=args.device,
-            config=args.conf_file, show_progress=args.progress, resume_run=resume_run,
-        )
+        manager = make_manager(args, resume_run)
         results = manager.setup_experiment()
-    except (ValueError, TypeError, KeyError, AssertionError, yaml.YAMLError, OSError) as error:
-        _remove_run_folder(manager)  # nothing half-written is left behind
-        print(f"error: {error}", file=sys.stderr)
+    except (ValueError, TypeError, KeyError, AssertionError, yaml.YAMLError, OSError, RuntimeError,
+            NotImplementedError) as error:
+        if manager is not None:  # nothing half-written is left behind
+            manager.remove_created_folders()
+        _remove_new_files(resume_run, resumed_files)
+        print(f"error: {' '.join(str(error).split())}", file=sys.stderr)
         return 2
     if results is None:
+        if default_storage:
+            Path(args.log_folder).mkdir(parents=True, exist_ok=True)
         manager.hyperparameters_optimization()
         return 0
     model, _ = results
@@ -253,16 +373,8 @@ def train_main(argv: list[str] | None = None) -> int:
     try:
         manager.learn(model)
     except (ValueError, RuntimeError, FloatingPointError) as error:
-        checkpoints = list_checkpoints(manager.save_path)
-        if checkpoints:
-            where = (f"the run folder {manager.save_path} keeps its checkpoints up to step {checkpoints[-1][0]} "
-                     f"and no final model; continue with --resume {manager.save_path}")
-        elif resume_run is None:
-            _remove_run_folder(manager)
-            where = f"no checkpoint had been written, so the run folder {manager.save_path} was removed"
-        else:
-            where = f"the run folder {manager.save_path} is left as it was"
-        print(f"error: training stopped at step {model.num_timesteps}: {error}\n{where}", file=sys.stderr)
+        print(f"error: training stopped at step {model.num_timesteps}: {error}\n"
+              f"{_after_failed_training(manager, model, args.tensorboard_log)}", file=sys.stderr)
         return 1
     train_seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     manager.save_trained_model(model)

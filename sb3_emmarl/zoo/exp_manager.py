@@ -83,6 +83,7 @@ from sb3_emmarl.zoo.algos import (
     SHARED_HYPERPARAMS,
     STATE_ALGOS,
     ZOO_ALGOS,
+    merge_latent_params,
     register_algorithms,
 )
 
@@ -203,6 +204,25 @@ def write_yaml(path: str | Path, data: Any) -> None:
     write_text(path, yaml.safe_dump(plain(data), sort_keys=True))
 
 
+def check_tensorboard_folder(folder: str | None) -> None:
+    """Refuse a tensorboard folder SB3 could not create or write in (it tries at the start of ``learn``): an
+    existing file, or a path under a file, or under a folder this process may not write in.
+
+    :param folder: ``-tb``'s folder (None or empty: no tensorboard)
+    :raise ValueError: one line naming the folder and what is wrong
+    """
+    if not folder:
+        return
+    path = existing = Path(folder)
+    while not existing.exists() and existing != existing.parent:  # the nearest part of the path that exists
+        existing = existing.parent
+    if not existing.is_dir():
+        where = "is a file" if existing == path else f"is under {existing}, which is a file"
+        raise ValueError(f"--tensorboard-log {folder!r} {where}: give a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--tensorboard-log {folder!r}: cannot write in {existing}")
+
+
 class TeamTrialEvalCallback(TrialEvalCallback, TeamEvalCallback):
     """rl_zoo3's ``TrialEvalCallback`` (an optuna trial's evaluations, reported to the pruner) whose evaluations count
     team episodes: its ``super()._on_step()`` is :class:`~sb3_emmarl.common.callbacks.EvalCallback`'s. Same arguments
@@ -256,6 +276,7 @@ class ReserveExperimentManager(ExperimentManager):
             self.config = f"{self.params_path}/config.yml"
         #: True once this manager has created its run folder (a failed set-up removes only such a folder)
         self.created_folder = False
+        self.created_root: Path | None = None
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """rl_zoo3's reading, checked (:func:`~sb3_emmarl.common.validation.check_hyperparams`), except that
@@ -310,7 +331,39 @@ class ReserveExperimentManager(ExperimentManager):
         self._random_label = bool(processed[0].get("random_label", False))  # oracle_ppo's control: its envs' labels
         self._check_buffer_memory(processed[0], prototype)
         prototype.close()
+        self._check_before_folder(processed[0], processed[2])
         return processed
+
+    def _check_before_folder(self, kwargs: dict[str, Any], callbacks: list[Any]) -> None:
+        """What SB3 would only find in the first rollout or update, checked before the run folder exists: every
+        constructor argument against the algorithm's annotations (``ent_coef: 'auto'`` is SAC's, not PPO's),
+        ``policy_kwargs`` against the policy's, the optimizer stepped as SB3 steps it, the callbacks, and the
+        tensorboard folder (:func:`check_tensorboard_folder`).
+
+        :param kwargs: the algorithm's keyword arguments, as rl_zoo3 prepared them (schedules built)
+        :param callbacks: the callbacks rl_zoo3 built from the ``callback`` key
+        :raise ValueError: one line naming the setting
+        """
+        import torch as th
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        from sb3_emmarl.common.signatures import check_arguments, check_optimizer
+
+        algo = ZOO_ALGOS[self.algo]
+        check_arguments(algo, {key: value for key, value in kwargs.items() if key not in ZOO_ONLY or key == "policy"},
+                        "the hyperparameters", unknown=False)
+        policy_kwargs = kwargs.get("policy_kwargs") or {}
+        policy = kwargs.get("policy")
+        policy_class = (getattr(algo, "policy_aliases", {}) or {}).get(policy) if isinstance(policy, str) else policy
+        if isinstance(policy_class, type):
+            check_arguments(policy_class, policy_kwargs, "policy_kwargs")
+        for where, settings in (("the hyperparameters", kwargs), ("policy_kwargs", policy_kwargs)):
+            if "optimizer_class" in settings or "optimizer_kwargs" in settings:
+                check_optimizer(settings.get("optimizer_class", th.optim.Adam), settings.get("optimizer_kwargs"), where)
+        for callback in callbacks:
+            if not isinstance(callback, BaseCallback):
+                raise ValueError(f"callback: {type(callback).__name__} is not an SB3 callback (BaseCallback)")
+        check_tensorboard_folder(self.tensorboard_log)
 
     def _check_buffer_memory(self, hyperparams: dict[str, Any], prototype: Any) -> None:
         """Refuse a replay or rollout buffer larger than this machine's memory before SB3 allocates it (numpy's
@@ -339,7 +392,24 @@ class ReserveExperimentManager(ExperimentManager):
 
     def create_log_folder(self) -> None:
         self.created_folder = not Path(self.save_path).exists()
+        # the outermost folder this manager creates (the log folder itself when it did not exist)
+        self.created_root = next((path for path in reversed(Path(self.params_path).parents) if not path.exists()),
+                                 Path(self.params_path))
         super().create_log_folder()
+
+    def remove_created_folders(self) -> None:
+        """Remove the run folder this manager created and the parents it created for it that are left empty (the
+        log folder, ``<log>/<algo>``): a failed start leaves nothing behind."""
+        import shutil
+
+        if not self.created_folder or self.created_root is None or not Path(self.save_path).is_dir():
+            return
+        shutil.rmtree(self.save_path)
+        folder = Path(self.save_path).parent
+        while folder.is_dir() and not any(folder.iterdir()) and (folder == self.created_root
+                                                                 or self.created_root in folder.parents):
+            folder.rmdir()
+            folder = folder.parent
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         """The parameter-sharing vector environment (``n_envs`` entries, rounded up to whole reserve copies), guarded
@@ -350,6 +420,8 @@ class ReserveExperimentManager(ExperimentManager):
         :param no_log: no monitor file
         """
         if self.centralized:
+            if self.resume_run is not None:  # the stopped run's monitor files go on (rl_zoo3 writes <i>.monitor.csv)
+                self.monitor_kwargs = {**(self.monitor_kwargs or {}), "override_existing": False}
             env = super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
         else:
             n_copies = max(1, -(-n_envs // self.agents_per_copy))
@@ -405,12 +477,24 @@ class ReserveExperimentManager(ExperimentManager):
 
     def objective(self, trial: Any) -> float:
         """rl_zoo3's optuna objective, its trial's evaluations counting team episodes (rl_zoo3 builds its
-        ``TrialEvalCallback`` by its module's name, hence :class:`TeamTrialEvalCallback` there).
+        ``TrialEvalCallback`` by its module's name, hence :class:`TeamTrialEvalCallback` there); an EM algorithm's
+        sampled settings update the YAML's by :func:`~sb3_emmarl.zoo.algos.merge_latent_params`.
 
         :param trial: the optuna trial
         """
         rl_zoo3.exp_manager.TrialEvalCallback = TeamTrialEvalCallback  # type: ignore[misc]
-        return super().objective(trial)
+        if self.algo not in LATENT_ALGOS:
+            return super().objective(trial)
+        # rl_zoo3 updates the YAML's settings with the sampler's whole values: EM's e_step_kwargs are merged instead,
+        # and count_factors refitted to the sampled n_components (merge_latent_params)
+        samplers = rl_zoo3.exp_manager.HYPERPARAMS_SAMPLER
+        sampler, base = samplers[self.algo], self._hyperparams
+        rl_zoo3.exp_manager.HYPERPARAMS_SAMPLER = {  # type: ignore[misc]
+            **samplers, self.algo: lambda *args: merge_latent_params(base, sampler(*args))}
+        try:
+            return super().objective(trial)
+        finally:
+            rl_zoo3.exp_manager.HYPERPARAMS_SAMPLER = samplers  # type: ignore[misc]
 
     def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
         """Load ``-i`` / the checkpoint to resume (checked), with its replay buffer; resuming, its training state is
