@@ -174,12 +174,20 @@ def test_figures(spec, rows, tmp_path):
     (ax,) = figure.axes
     assert ax.get_xlabel() == "condition" and ax.get_ylabel() == "team_reward"
     assert "Table 9" in ax.get_title() and "team_reward" in ax.get_title()
-    bars = {container.get_label(): [patch.get_height() for patch in container.patches] for container in ax.containers
-            if hasattr(container, "patches")}
-    np.testing.assert_allclose(bars["b"], [np.mean([3.0, 3.5, 7.0]), np.mean([0.0, 2.5, 9.0])])
-    np.testing.assert_allclose(bars["a"], [np.mean([1.0, 2.0, 4.0]), np.mean([-1.0, 0.5])])
+    # One bar per (condition, algorithm), in the conditions' groups: the median over seeds (the legend names each
+    # algorithm once).
+    bars = sorted((patch.get_x() + patch.get_width() / 2, patch.get_height()) for container in ax.containers
+                  if hasattr(container, "patches") for patch in container.patches)
+    np.testing.assert_allclose([height for _, height in bars], [2.0, 3.5, 0.5 * (-1.0 + 0.5), 2.5])
+    assert [x for x, _ in bars] == pytest.approx([-0.2, 0.2, 0.8, 1.2])
+    assert [text.get_text() for text in ax.get_legend().get_texts()] == ["a", "b"]
     # One dot per seed: 3 + 3 + 2 + 3.
     assert sum(len(c.get_offsets()) for c in ax.collections if isinstance(c, PathCollection)) == 11
+    # A collapsed seed does not flatten the others: it is drawn at the axis' edge with its value.
+    collapsed = [dict(r, metrics={**r["metrics"], "team_reward": -1300.0}) if (r["algorithm"], r["condition"],
+                 r["seed"]) == ("a", "clean", 2) else r for r in rows]
+    ax = figure_bars(spec, collapsed, "team_reward", tmp_path / "figures" / "collapsed.png").axes[0]
+    assert ax.get_ylim()[0] > -100 and any("-1300" in text.get_text() for text in ax.texts)
     with pytest.raises(ValueError, match="latent_nmi"):
         figure_bars(spec, rows, "latent_nmi", tmp_path / "none.png")
 
@@ -196,6 +204,7 @@ def test_figures(spec, rows, tmp_path):
     assert ax.yaxis_inverted()  # row 0 at the top, as on the reserve's grid
     legend = [text.get_text() for text in ax.get_legend().get_texts()]
     assert legend[:10] == [f"UAV {i}" for i in range(10)] and "UAV 10" not in legend and "poachers" in legend
+    assert {"open", "forest", "mountain"} <= set(legend)  # the terrain's colours named
     figure = figure_trajectories(positions[:, :2], tmp_path / "plain.png", "no terrain")
     assert figure.axes[0].yaxis_inverted() and (tmp_path / "plain.png").stat().st_size > 0
 

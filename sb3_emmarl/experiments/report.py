@@ -6,7 +6,8 @@ Everything here reads the rows of a :class:`~sb3_emmarl.experiments.store.Result
 - :func:`summary_rows` / :func:`markdown_table`: mean +- std over seeds of every metric of the specification, per
   (condition, algorithm), the mean paired difference against the reference algorithm with its paired t-test over seeds
   (:func:`sb3_emmarl.common.statistics.paired_p_value`), and the paper's claimed value beside it;
-- :func:`figure_bars`: a metric as grouped bars (conditions x algorithms) with every seed drawn as a dot;
+- :func:`figure_bars`: a metric as grouped per-seed bars (conditions x algorithms): medians, quartiles, every seed a
+  dot, on an axis one collapsed seed does not flatten (:func:`sb3_emmarl.plots.seed_bars`);
 - :func:`figure_curves`: learning curves read from the cells' tensorboard event files, mean +- std over seeds on a
   common grid of agent-steps;
 - :func:`figure_trajectories`: a team's paths over one episode on the reserve's grid;
@@ -31,6 +32,7 @@ from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec
 from sb3_emmarl.experiments.store import UNKNOWN
+from wildlife_reserve.reserve.terrain import TERRAIN_NAMES
 
 with requires("matplotlib", "plots", "the experiments' figures"):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -199,9 +201,11 @@ def _save(figure: Figure, path: str | Path) -> Figure:
 
 
 def figure_bars(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], metric: str, path: str | Path) -> Figure:
-    """A metric as a grouped bar chart: one group per condition, one bar per algorithm.
+    """A metric as grouped per-seed bars that one outlying seed does not flatten: one group per condition, one bar per
+    algorithm (:func:`sb3_emmarl.plots.seed_bars`).
 
-    Bar height: mean over seeds; error bar: std over seeds (``ddof=0``); every seed's value is a dot on its bar.
+    Bar height: median over seeds; whiskers: the quartiles; every seed's value is a dot on its bar; the y range keeps
+    the other seeds readable, a seed far outside it drawn as an arrow at the axis' edge with its value beside it.
 
     :param spec: the experiment's specification (order of conditions and algorithms, the paper's name for the title)
     :param rows: finished cells as :meth:`ResultStore.rows` returns them
@@ -210,37 +214,34 @@ def figure_bars(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], metric: st
     :return: the figure
     :raise ValueError: when no finished cell has the metric
     """
-    cells = _cells(spec, rows)
-    values = {key: _by_seed(cell_rows, metric) for key, cell_rows in cells.items()}
-    if not any(values.values()):
-        raise ValueError(f"no finished cell of {spec.name} has the metric {metric!r}")
+    from sb3_emmarl.plots import seed_bars
+
     conditions = list(spec.conditions)
     algorithms = list(spec.algorithms)
     width = 0.8 / len(algorithms)
+    values: dict[str, list[float]] = {}
+    positions: dict[str, float] = {}
+    colours: dict[str, str] = {}
+    labels: dict[str, str] = {}
+    for (condition, algorithm), cell_rows in _cells(spec, rows).items():
+        seeds = list(_by_seed(cell_rows, metric).values())
+        if not seeds:
+            continue
+        arm = f"{algorithm}, {condition}"
+        values[arm] = seeds
+        positions[arm] = conditions.index(condition) + (algorithms.index(algorithm) - (len(algorithms) - 1) / 2) * width
+        colours[arm] = f"C{algorithms.index(algorithm) % 10}"
+        if algorithm not in labels.values():
+            labels[arm] = algorithm  # the legend names each algorithm once
+    if not values:
+        raise ValueError(f"no finished cell of {spec.name} has the metric {metric!r}")
     figure = _new_figure((max(5.0, 1.2 + 0.5 * len(conditions) * len(algorithms)), 4.0))
     ax = figure.add_subplot()
-    rng = np.random.default_rng(0)  # the dots' jitter, the same at every redraw
-    colours = [f"C{i % 10}" for i in range(len(algorithms))]
-    for i, algorithm in enumerate(algorithms):
-        xs, means, stds = [], [], []
-        for j, condition in enumerate(conditions):
-            seed_values = np.array(list(values.get((condition, algorithm), {}).values()), dtype=float)
-            if not seed_values.size:
-                continue
-            x = j + (i - (len(algorithms) - 1) / 2) * width
-            xs.append(x)
-            means.append(seed_values.mean())
-            stds.append(seed_values.std(ddof=0))
-            jitter = rng.uniform(-0.2, 0.2, seed_values.size) * width
-            ax.scatter(x + jitter, seed_values, s=14, color="black", zorder=3, linewidths=0)
-        if xs:
-            ax.bar(xs, means, width * 0.9, yerr=stds, capsize=3, color=colours[i], alpha=0.8, label=algorithm,
-                   error_kw={"elinewidth": 1})
+    seed_bars(ax, values, ylabel=metric, positions=positions, colors=colours, labels=labels, width=width)
     ax.set_xticks(range(len(conditions)), conditions)
+    ax.set_xlim(-0.6, len(conditions) - 0.4)
     ax.set_xlabel("condition")
-    ax.set_ylabel(metric)
-    ax.axhline(0.0, color="grey", linewidth=0.6)
-    ax.set_title(f"{spec.paper}: {metric}\n(mean +- std over seeds; dots: seeds)")
+    ax.set_title(f"{spec.paper}: {metric}\n(medians over seeds, quartiles, seeds as dots)")
     ax.legend(title="algorithm", fontsize="small")
     return _save(figure, path)
 
@@ -335,7 +336,8 @@ def figure_trajectories(positions: np.ndarray, path: str | Path, title: str, ter
     :param terrain: optional (H, W) integer terrain (0 open, 1 forest, 2 mountain) drawn underneath
     :param poachers: optional (T, n_poachers, 2) positions (row, col) of the poachers, NaN where a poacher is absent
         (not entered yet, or gone); drawn as black ``x`` markers along their paths
-    :return: the figure; the legend names the first :data:`MAX_LEGEND_UAVS` UAVs (and the poachers, if any)
+    :return: the figure; the legend names the first :data:`MAX_LEGEND_UAVS` UAVs (and the poachers and the terrain's
+        kinds, if any)
     :raise ValueError: on arrays of the wrong shape
     """
     positions = np.asarray(positions, dtype=float)
@@ -362,6 +364,9 @@ def figure_trajectories(positions: np.ndarray, path: str | Path, title: str, ter
                 label=f"UAV {i}" if i < MAX_LEGEND_UAVS else None)
         ax.plot(cols[0], rows_[0], "o", color=colour, markersize=6, markeredgecolor="black")
         ax.plot(cols[-1], rows_[-1], "s", color=colour, markersize=6, markeredgecolor="black")
+    if terrain is not None:
+        for value, name in enumerate(TERRAIN_NAMES):
+            ax.fill_between([], [], color=TERRAIN_CMAP(value), alpha=0.8, label=name)
     if poachers is not None:
         for k in range(poachers.shape[1]):
             ax.plot(poachers[:, k, 1], poachers[:, k, 0], "x", color="black", markersize=4, linestyle=":",
@@ -372,7 +377,7 @@ def figure_trajectories(positions: np.ndarray, path: str | Path, title: str, ter
     ax.set_xlabel("col (cells)")
     ax.set_ylabel("row (cells)")
     ax.set_title(f"{title}\n(o: start, s: end)" if n_uavs else title)
-    if n_uavs or poachers is not None:
+    if n_uavs or poachers is not None or terrain is not None:
         ax.legend(fontsize="x-small", loc="upper right", framealpha=0.8)
     return _save(figure, path)
 
