@@ -13,7 +13,7 @@ from wildlife_reserve.reserve import kernels
 
 
 def cache_folder() -> Path | None:
-    """The folder of numba's cache of the kernels (``__pycache__`` beside ``kernels.py``, or numba's user-wide or
+    """The folder of numba's cache of the kernels (``kernels/__pycache__``, or numba's user-wide or
     ``NUMBA_CACHE_DIR`` folder where that one is read-only); None when numba does not compile (``NUMBA_DISABLE_JIT=1``)."""
     cache = getattr(kernels.advance_world, "_cache", None)  # numba's cache object of a ``cache=True`` kernel
     folder = getattr(cache, "cache_path", None)
@@ -21,12 +21,12 @@ def cache_folder() -> Path | None:
 
 
 def cache_is_cold() -> bool:
-    """Whether numba's cache holds no compiled kernel of ``kernels.py`` yet (each compiled kernel has an index file
-    ``kernels.<name>-<line>.py<version>.nbi`` there), as after an install."""
+    """Whether numba's cache holds no compiled kernel of the ``kernels`` package yet (each compiled kernel has an index
+    file ``<module>.<name>-<line>.py<version>.nbi`` there), as after an install."""
     folder = cache_folder()
     if folder is None:
         return False
-    return not any(folder.glob(f"{Path(kernels.__file__).stem}.*.nbi"))
+    return not any(folder.glob("*.nbi"))
 
 
 @functools.cache
