@@ -9,9 +9,12 @@ valid one refused, an error does not name the argument or leaves a run folder, o
 
 Then the hostile cases of issue 52 (``tests/fuzz_zoo.py``, ``hostile_cases``): command lines, ``-conf`` files and
 tampered run folders (``--resume``, ``enjoy``) that try to run code (attribute walks, ``lambda``, ``__import__``,
-``th.os``, names rl_zoo3 imports and calls, Python tags, YAML bombs), each trying to create a marker file. It prints
-how many created their marker, printed a traceback (or not one ``error:`` line), left files behind or were accepted:
-all must be 0.
+``th.os``, names rl_zoo3 imports and calls, Python tags, YAML bombs), each trying to create a marker file; settings
+SB3 takes and that would fail in the first rollout or update (``ent_coef: 'auto'`` for PPO, optimizers and their
+arguments, callbacks' and wrappers' arguments, ``-tb`` under a file); and flags that do not fit the machine
+(``--device``), the zip (``-i``) or the run (``--resume`` with flags of other values, or no checkpoint that loads). It
+prints how many created their marker, printed a traceback (or not one ``error:`` line), left files behind or were
+accepted: all must be 0.
 
 Example: ``python benchmarks/fuzz_zoo.py`` (about two minutes); ``--hostile-only`` for the hostile cases alone
 """
@@ -38,7 +41,8 @@ def run_hostile(every: int = 1) -> collections.Counter:
     counts: collections.Counter = collections.Counter()
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        template = train_template_run(Path(tmp) / "template") if any(c.config for c in all_cases) else None
+        needs_template = any(c.config is not None or any("{t}" in a for a in c.argv) for c in all_cases)
+        template = train_template_run(Path(tmp) / "template") if needs_template else None
         for i, case in enumerate(all_cases):
             outcome = run_hostile_case(case, Path(tmp) / str(i), template)
             for name in HOSTILE_COUNTS:

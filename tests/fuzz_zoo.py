@@ -298,17 +298,76 @@ RUN_CASES = [
 ]
 
 
+# Issue 52, items 6 and 8: settings that SB3 takes and that fail in the first rollout or update, and flags that do not
+# fit the run, the zip or the machine. Each must be refused before a folder exists. ``{f}`` stands for a file, ``{t}``
+# for the template run's folder (a finished PPO run).
+CALLBACK = "stable_baselines3.common.callbacks.StopTrainingOnMaxEpisodes"
+HIDE = "sb3_emmarl.common.masking.HideObservationParts"
+MID_RUN_PARAMS = [  # (algo, -params values)
+    *[(algo, ["ent_coef:'auto'"]) for algo in ("ppo", "a2c", "mappo", "em_ppo", "ppo_lstm", "oracle_ppo", "cppo")],
+    ("ppo", ["ent_coef:'auto_0.1'"]),
+    *[("ppo", [f"policy_kwargs:dict(optimizer_kwargs=dict({kwargs}))"]) for kwargs in (
+        "momentum=0.9", "eps=-1.0", "betas=(2.0, 0.5)", "lr=0.1", "weight_decay=-1.0", "betas=(0.9,)")],
+    ("ppo", ["policy_kwargs:dict(optimizer_class=th.optim.SGD, optimizer_kwargs=dict(betas=(0.9, 0.99)))"]),
+    ("ppo", ["policy_kwargs:dict(optimizer_class=th.optim.LBFGS)"]),
+    ("ppo", ["policy_kwargs:dict(bogus=1)"]),
+    ("ppo", ["policy_kwargs:dict(ortho_init='{m}')"]),
+    ("ppo", ["policy_kwargs:dict(log_std_init='x')"]),
+    ("ppo", ["policy_kwargs:dict(features_extractor_kwargs=5)"]),
+    ("ppo", ["policy_kwargs:dict(share_features_extractor='no')"]),
+    ("ppo", ["use_sde:True"]),
+    ("dqn", ["policy_kwargs:dict(optimizer_kwargs=dict(momentum=0.9))"]),
+    ("em_ppo", ["ent_coef:'auto'", "n_components:4", "count_factors:[2, 2]"]),
+]
+MID_RUN_YAML = [  # (algo, settings updating the zoo's entry)
+    ("ppo", {"policy_kwargs": {"optimizer_class": "th.optim.LBFGS"}}),
+    ("ppo", {"policy_kwargs": {"optimizer_class": "{m}"}}),
+    ("ppo", {"policy_kwargs": {"activation_fn": "relu"}}),
+    ("ppo", {"policy_kwargs": {"activation_fn": "os.system"}}),
+    ("ppo", {"policy_kwargs": {"features_extractor_class": "pydoc.pipepager"}}),
+    ("ppo", {"callback": {CALLBACK: {"max_episodes": "abc"}}}),
+    ("ppo", {"callback": {CALLBACK: {"max_episodes": 1.5}}}),
+    ("ppo", {"callback": {CALLBACK: {"max_episodes": ["{m}"]}}}),
+    ("ppo", {"callback": CALLBACK}),
+    ("ppo", {"callback": [{CALLBACK: {"verbose": 1}}]}),
+    ("ppo", {"vec_env_wrapper": {HIDE: {"parts": "mode"}}}),
+    ("ppo", {"vec_env_wrapper": {HIDE: {"parts": 5}}}),
+    ("ppo", {"vec_env_wrapper": HIDE}),
+    ("a2c", {"ent_coef": "auto"}),
+    ("ppo", {"ent_coef": "auto"}),
+]
+FLAG_CASES = [  # (name, command line) refused before anything is written
+    *[(f"--device {device}", ["--algo", "ppo", "--device", device])
+      for device in ("cuda:99", "cuda", "xla", "meta", "hpu", "mps", "tpu", "vulkan", "cuda:-1")],
+    ("-tb a file", ["--algo", "ppo", "-tb", "{f}"]),
+    ("-tb under a file", ["--algo", "ppo", "-tb", "{f}/tb"]),
+    ("-tb under a file, em_ppo", ["--algo", "em_ppo", "-tb", "{f}/a/b"]),
+    *[(f"-i a PPO zip with --algo {algo}", ["--algo", algo, "-i", "{t}/WildlifeReserve-v0.zip"])
+      for algo in ("em_ppo", "dqn", "a2c", "ddpg", "ppo_lstm", "mappo", "qmix", "vdn_em")],
+    ("-i a PPO checkpoint with --algo em_ppo", ["--algo", "em_ppo", "-i", "{t}/rl_model_128_steps.zip"]),
+    ("-i a config file", ["--algo", "ppo", "-i", "{t}/WildlifeReserve-v0/config.yml"]),
+    ("self-merging anchor", ["--algo", "ppo", "-conf", "{f}.yml"]),
+]
+RESUME_FLAGS = [  # flags given with --resume of a stopped PPO run (their values differ from the run's own)
+    ["--algo", "a2c"], ["--algo", "em_ppo"], ["--env", "ZonePatrol-v0"], ["--seed", "5"], ["-n", "100000"],
+    ["-params", "n_steps:8"], ["--device", "cpu"], ["--vec-env", "supersuit"], ["--save-freq", "7"],
+    ["--env-kwargs", "n_uavs:3"], ["-conf", "{f}"], ["--eval-freq", "100"], ["-tb", "{m}"],
+]
+
+
 @dataclass
 class HostileCase:
     """One hostile attempt: a ``zoo/train.py`` (or, with ``enjoy``, ``zoo/enjoy.py``) command line; ``{m}`` in any
-    text is the marker's path; ``yaml_text`` is written to a ``-conf`` file; ``config`` updates a copy of a finished
-    run's ``config.yml`` (the copy is resumed, or played by ``enjoy``)."""
+    text is the marker's path, ``{f}`` a file, ``{t}`` the template run's folder; ``yaml_text`` is written to a
+    ``-conf`` file; ``config`` updates a copy of a finished run's ``config.yml`` (the copy is resumed with ``argv``
+    added, or played by ``enjoy``); ``corrupt`` cuts every checkpoint of the copy short."""
 
     name: str
     argv: list[str]
     yaml_text: str | None = None
     config: dict | None = None
     enjoy: bool = False
+    corrupt: bool = False
 
 
 def _fill(value, marker: str):
@@ -351,6 +410,16 @@ def hostile_cases() -> list[HostileCase]:
         for value in ({name: kwargs}, name, [{name: kwargs}]):
             out.append(HostileCase(f"enjoy config.yml vec_env_wrapper {str(value)[:40]}", ["--algo", "ppo"],
                                    config={"vec_env_wrapper": value}, enjoy=True))
+    for algo, params in MID_RUN_PARAMS:
+        out.append(HostileCase(f"mid-run -params {algo} {' '.join(params)[:60]}", ["--algo", algo, "-params", *params]))
+    for algo, settings in MID_RUN_YAML:
+        text = yaml.safe_dump({env: {**zoo_hyperparams(algo), **settings}})
+        out.append(HostileCase(f"mid-run -conf {algo} {str(settings)[:60]}", ["--algo", algo], yaml_text=text))
+    for name, argv in FLAG_CASES:
+        out.append(HostileCase(f"flags {name}", argv))
+    for flags in RESUME_FLAGS:
+        out.append(HostileCase(f"--resume {' '.join(flags)}", flags, config={}))
+    out.append(HostileCase("--resume with every checkpoint cut short", [], config={}, corrupt=True))
     return out
 
 
@@ -371,9 +440,10 @@ def _files(folder: Path) -> set[Path]:
 
 def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = None, time_limit: int = 30) -> dict:
     """Run one hostile case in ``folder`` (fresh); ``template`` is :func:`train_template_run`'s run (for the cases
-    with a ``config``). Returns ``{"marker", "traceback", "leftover", "accepted", "text"}``: the marker was created;
+    with a ``config`` or ``{t}``). Returns ``{"marker", "traceback", "leftover", "accepted", "text"}``: the marker was created;
     an exception escaped, a traceback was printed, the error was not one ``error:`` line, or the case hung; files were
-    left behind (a new run folder, or new files in the tampered run); the case ran (exit code 0)."""
+    left behind (anything new in ``folder``: a run or tensorboard folder, new files in the tampered run); the case ran
+    (exit code 0)."""
     import shutil
 
     from sb3_emmarl.zoo.cli import enjoy_main, train_main
@@ -381,12 +451,17 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
     folder.mkdir(parents=True, exist_ok=True)
     marker = str(folder / "marker")
     logs = folder / "logs"
+    a_file = folder / "file"
+    a_file.write_text("")
+    (folder / "file.yml").write_text("WildlifeReserve-v0: &e\n  <<: *e\n  n_timesteps: 64\n  policy: MlpPolicy\n")
+    places = {"{f}": str(a_file), "{t}": str(template)}
     argv = [_fill(a, marker) for a in case.argv]
+    for key, value in places.items():
+        argv = [a.replace(key, value) for a in argv]
     if case.yaml_text is not None:
         conf = folder / "conf.yml"
         conf.write_text(case.yaml_text.replace("{m}", marker))
         argv += ["-conf", str(conf)]
-    before: set[Path] = set()
     if case.config is not None:
         assert template is not None, "run-folder cases need the template run"
         run = logs / "ppo" / template.name
@@ -397,11 +472,14 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
         config = yaml.safe_load(config_file.read_text())
         config.update(_fill(case.config, marker))
         config_file.write_text(yaml.safe_dump(config))
-        before = _files(logs)
+        if case.corrupt:
+            for path in run.glob("rl_model_*_steps.zip"):
+                path.write_bytes(path.read_bytes()[:100])
         argv = (["--algo", "ppo", "-f", str(logs), "--episodes", "1", "--no-record"] if case.enjoy else
-                ["--algo", "ppo", "--resume", str(run), "--verbose", "0"])
+                ["--algo", "ppo", "--resume", str(run), "--verbose", "0", *argv])
     else:
         argv = [*argv, "-n", "64", *QUICK, *(TINY if "--env-kwargs" not in argv else []), "-f", str(logs)]
+    before = _files(folder)
     out, err = io.StringIO(), io.StringIO()
     escaped = hung = False
     previous = signal.signal(signal.SIGALRM, _alarm)
@@ -425,4 +503,4 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
     lines = text.splitlines()
     one_line = len(lines) == 1 and "error:" in lines[0] and "Traceback" not in text
     return {"marker": Path(marker).exists(), "traceback": escaped or hung or (code != 0 and not one_line),
-            "leftover": _files(logs) != before, "accepted": code == 0, "text": text[-300:]}
+            "leftover": _files(folder) - {Path(marker)} != before, "accepted": code == 0, "text": text[-300:]}
