@@ -159,6 +159,15 @@ def resume(capsys, *argv):
     return code, out.out, out.err.strip().splitlines()
 
 
+def test_a_run_folder_states_one_budget_and_checkpoints_count_agent_steps(template):
+    """-n 384 --save-freq 128 (tests/fuzz_zoo.py's template): config.yml says the budget args.yml says, and the
+    checkpoints fall every 128 agent-steps."""
+    config = yaml.safe_load((template / ENV / "config.yml").read_text())
+    arguments = yaml.safe_load((template / ENV / "args.yml").read_text())
+    assert config["n_timesteps"] == arguments["n_timesteps"] == 384
+    assert [steps for steps, _ in list_checkpoints(template)] == [128, 256]
+
+
 @pytest.mark.parametrize("broken", ["zip", "training state"])
 def test_resume_falls_back_to_the_newest_checkpoint_that_loads(template, tmp_path, capsys, broken):
     run = stopped_copy(template, tmp_path)

@@ -98,7 +98,8 @@ def train_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-episodes", type=int_flag(1, 10_000), default=5, help="episodes per periodic evaluation")
     parser.add_argument("--n-eval-envs", type=int_flag(1, 64), default=1, help="environments for periodic evaluation")
     parser.add_argument("--save-freq", type=int_flag(-1, MAX_TIMESTEPS), default=-1,
-                        help="checkpoint every n steps (0 or -1: never); checkpoints are atomic and resumable")
+                        help="checkpoint every n agent-steps, as -n counts them (0 or -1: never); checkpoints are atomic "
+                             "and resumable")
     parser.add_argument("--save-replay-buffer", action="store_true",
                         help="save the replay buffer with the final model and every checkpoint (off-policy algorithms)")
     parser.add_argument("--team-eval-episodes", type=int_flag(0, 10_000), default=5,

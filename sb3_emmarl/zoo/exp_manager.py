@@ -296,6 +296,8 @@ class ReserveExperimentManager(ExperimentManager):
         if self._eval_env_kwargs_args is None:
             self.eval_env_kwargs = self.env_kwargs
         saved_hyperparams = {key: hyperparams[key] for key in sorted(hyperparams)}
+        if self.n_timesteps > 0:  # -n: the budget the run uses, in config.yml as in args.yml
+            saved_hyperparams["n_timesteps"] = self.n_timesteps
         for key, value in saved_hyperparams.items():  # a value holding classes: saved as the text that names them
             if not is_plain(value):
                 saved_hyperparams[key] = to_source(value)
