@@ -8,7 +8,7 @@ Examples::
 
     python zoo/experiment.py table2_robustness --budget quick            # run what is missing, then report
     python zoo/experiment.py --all --budget quick --n-jobs 2
-    python zoo/experiment.py table4_coverage --budget full --backend ray --address ray://head:10001
+    python zoo/experiment.py table4_fig3_coverage_detection --budget full --backend ray --address HEAD_IP:6379 --gather
     python zoo/experiment.py --all --budget quick --report-only --update-docs   # docs/results.md and docs/figures/
     python zoo/experiment.py --list
 """

@@ -74,14 +74,21 @@ ADDED_COLUMNS = {"version": f"TEXT NOT NULL DEFAULT '{UNKNOWN}'", "git_commit": 
 Cell = tuple[str, str, int]
 
 
+def _stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command's name (state first), or None where ``/proc`` has no such
+    process (or there is no ``/proc``: not Linux)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
 def _process_start(pid: int) -> str:
     """When a process started (``/proc/<pid>/stat``'s start time, in clock ticks since boot), to tell it from a later
     process that reuses its id; ``""`` where ``/proc`` is missing (not Linux) or the process does not exist."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        return ""
+    fields = _stat(pid)
+    return fields[19] if fields is not None and len(fields) > 19 else ""
 
 
 def process_alive(pid: int, start: str = "") -> bool:
@@ -93,14 +100,10 @@ def process_alive(pid: int, start: str = "") -> bool:
         return False
     except PermissionError:
         pass  # it exists, owned by another user
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            fields = stat.read().rsplit(")", 1)[1].split()
-        if fields[0] in ("Z", "X"):
-            return False
-        return not start or fields[19] == start
-    except (OSError, IndexError):
-        return True  # no /proc: os.kill's answer is all there is
+    fields = _stat(pid)
+    if fields is None or len(fields) <= 19:
+        return not os.path.isdir("/proc/self")  # gone meanwhile; or no /proc, where os.kill's answer is all there is
+    return fields[0] not in ("Z", "X") and (not start or fields[19] == start)
 
 
 @cache
