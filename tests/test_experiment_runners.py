@@ -118,6 +118,11 @@ def test_an_old_store_gets_unknown_versions_and_a_report_refuses_to_mix_them(tmp
     store.record("tiny", "quick", "a2c", "clean", 0, {"team_reward": 2.0}, [], "r", "hw")
     assert {r["version"] for r in store.rows("tiny", "quick")} == {"unknown", __version__}
     assert store.finished("tiny", "quick", __version__) == {("a2c", "clean", 0)}
+    # --rerun-stale: a cell another version stored is claimed again (and replaced when it finishes).
+    runner = RunnerId()
+    assert store.claim("tiny", "quick", [("ppo", "clean", 0)], runner) is None
+    assert store.claim("tiny", "quick", [("ppo", "clean", 0)], runner, version=__version__) == Claim(("ppo", "clean", 0))
+    store.release(runner)
     spec = write_spec(tmp_path)
     argv = [str(spec), "-f", str(tmp_path / "runs"), "--report-only"]
     assert experiment_main(argv) == 1
