@@ -67,8 +67,9 @@ benchmark-em: install
 benchmark-em-speed: install
 	$(PYTHON) benchmarks/em_speed.py
 
-# The paper's experiments (sb3_emmarl/experiments/specs): the missing cells only (a killed run resumes), then the
-# tables and figures of docs/results.md. quick: each experiment within about 30 minutes here; full: the paper's budget.
+# The paper's experiments (sb3_emmarl/experiments/specs): the missing cells only (a killed run resumes), then their
+# tables and figures under logs/experiments/. quick: each experiment within about 30 minutes here; full: the paper's
+# budget. experiments-report rewrites docs/results.md's sections and docs/figures from the quick store (--update-docs).
 experiments-quick: install
 	$(PYTHON) zoo/experiment.py --all --budget quick
 
@@ -76,7 +77,7 @@ experiments-full: install
 	$(PYTHON) zoo/experiment.py --all --budget full
 
 experiments-report: install
-	$(PYTHON) zoo/experiment.py --all --budget quick --report-only
+	$(PYTHON) zoo/experiment.py --all --budget quick --report-only --update-docs
 
 # PPO and EM-PPO through the batched and SuperSuit paths against a zero-cost environment, raw stepping from 1 to 64
 # copies and at 50 and 200 UAVs, and PPO through the zoo at 10, 50 and 200 UAVs (about 15 minutes).
