@@ -8,8 +8,8 @@ Everything here reads the rows of a :class:`~sb3_emmarl.experiments.store.Result
   (:func:`sb3_emmarl.common.statistics.paired_p_value`), and the paper's claimed value beside it;
 - :func:`figure_bars`: a metric as grouped per-seed bars (conditions x algorithms): medians, quartiles, every seed a
   dot, on an axis one collapsed seed does not flatten (:func:`sb3_emmarl.plots.seed_bars`);
-- :func:`figure_curves`: learning curves read from the cells' tensorboard event files, mean +- std over seeds on a
-  common grid of agent-steps;
+- :func:`figure_curves`: learning curves read from the cells' tensorboard event files, mean +- standard error over
+  seeds on a common grid of agent-steps (:func:`sb3_emmarl.plots.aggregate_curves`);
 - :func:`figure_trajectories`: a team's paths over one episode on the reserve's grid;
 - :func:`render_section` / :func:`update_results_page`: one markdown section per experiment, kept between markers in
   the results page so that regenerating one experiment leaves the rest of the page as it was.
@@ -43,8 +43,6 @@ with requires("matplotlib", "plots", "the experiments' figures"):
 MISSING = "-"
 #: The heading above the experiments' sections of the results page (added once).
 RESULTS_HEADING = "## The paper's experiments, regenerated"
-#: Points of the common step grid the learning curves of a cell's seeds are interpolated onto.
-CURVE_POINTS = 200
 #: UAVs named in a trajectory plot's legend.
 MAX_LEGEND_UAVS = 10
 #: The reserve's terrain colours (open, forest, mountain: ``wildlife_reserve.reserve.terrain``).
@@ -246,42 +244,28 @@ def figure_bars(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], metric: st
     return _save(figure, path)
 
 
-def _event_files(run_dir: str | Path) -> list[Path]:
-    run_dir = Path(run_dir)
-    return sorted(run_dir.rglob("events.out.tfevents.*")) if run_dir.is_dir() else []
-
-
 def read_curve(run_dir: str | Path, tag: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """A tensorboard scalar of a run, from every event file under its folder (a resumed run writes several).
+    """A tensorboard scalar of a run, from every event file under its folder (a resumed run writes several), as
+    :func:`sb3_emmarl.plots.read_scalars` reads them.
 
     :param run_dir: the run's folder, searched recursively
     :param tag: the scalar's tag (``rollout/ep_rew_mean``, ...)
     :return: (steps, values) sorted by step, the last written value kept where a step repeats; None when no event
         file under ``run_dir`` has the tag
     """
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from sb3_emmarl.plots import read_scalars
 
-    events = []
-    for file in _event_files(run_dir):
-        accumulator = EventAccumulator(str(file), size_guidance={"scalars": 0})  # 0: keep every point
-        accumulator.Reload()
-        if tag in accumulator.Tags().get("scalars", []):
-            events.extend(accumulator.Scalars(tag))
-    if not events:
-        return None
-    by_step = {}
-    for event in sorted(events, key=lambda e: e.wall_time):
-        by_step[int(event.step)] = float(event.value)
-    steps = np.array(sorted(by_step), dtype=float)
-    return steps, np.array([by_step[int(s)] for s in steps], dtype=float)
+    scalar = read_scalars(run_dir).get(tag) if Path(run_dir).is_dir() else None
+    return None if scalar is None else (scalar[0], scalar[2])
 
 
 def figure_curves(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], tag: str, path: str | Path) -> Figure:
-    """Learning curves: a tensorboard scalar against agent-steps, mean +- std over seeds.
+    """Learning curves: a tensorboard scalar against agent-steps, mean +- standard error over seeds.
 
     Each seed's curve is interpolated linearly onto a common grid of the steps all seeds of the (algorithm, condition)
-    reached (from the latest first step to the earliest last step: no extrapolation); one line per algorithm (and
-    condition, when the specification has several), a shaded band of +- std.
+    reached (from the latest first step to the earliest last step: no extrapolation;
+    :func:`sb3_emmarl.plots.aggregate_curves`); one line per algorithm (and condition, when the specification has
+    several), a shaded band of +- the standard error.
 
     :param spec: the experiment's specification
     :param rows: finished cells as :meth:`ResultStore.rows` returns them; their ``run_dir`` is searched recursively
@@ -291,6 +275,8 @@ def figure_curves(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], tag: str
     :return: the figure
     :raise ValueError: naming the tag when no row has it
     """
+    from sb3_emmarl.plots import aggregate_curves
+
     curves: dict[tuple[str, str], list[tuple[np.ndarray, np.ndarray]]] = {}
     for (condition, algorithm), cell_rows in _cells(spec, rows).items():
         found = [curve for curve in (read_curve(r["run_dir"], tag) for r in cell_rows) if curve is not None]
@@ -306,21 +292,16 @@ def figure_curves(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], tag: str
     conditions = list(spec.conditions)
     styles = ("-", "--", ":", "-.")
     for (condition, algorithm), seeds in curves.items():
-        low = max(steps[0] for steps, _ in seeds)
-        high = min(steps[-1] for steps, _ in seeds)
-        if high < low:  # seeds that share no steps (cannot happen for runs of one budget): draw their union
-            low, high = min(s[0] for s, _ in seeds), max(s[-1] for s, _ in seeds)
-        grid = np.linspace(low, high, CURVE_POINTS) if high > low else np.array([low])
-        stacked = np.stack([np.interp(grid, steps, values) for steps, values in seeds])
-        mean, std = stacked.mean(axis=0), stacked.std(axis=0, ddof=0)
+        curve = aggregate_curves(seeds, band="se")
         colour = f"C{algorithms.index(algorithm) % 10}"
         label = f"{algorithm}, {condition}" if several else algorithm
-        ax.plot(grid, mean, styles[conditions.index(condition) % len(styles)], color=colour,
-                marker="o" if grid.size == 1 else None, label=f"{label} ({len(seeds)} seed{'s' * (len(seeds) > 1)})")
-        ax.fill_between(grid, mean - std, mean + std, color=colour, alpha=0.2, linewidth=0)
+        ax.plot(curve.x, curve.center, styles[conditions.index(condition) % len(styles)], color=colour,
+                marker="o" if curve.x.size == 1 else None,
+                label=f"{label} ({len(seeds)} seed{'s' * (len(seeds) > 1)})")
+        ax.fill_between(curve.x, curve.low, curve.high, color=colour, alpha=0.2, linewidth=0)
     ax.set_xlabel("agent-steps")
     ax.set_ylabel(tag)
-    ax.set_title(f"{spec.paper}: {tag}\n(mean +- std over seeds)")
+    ax.set_title(f"{spec.paper}: {tag}\n(mean +- standard error over seeds)")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
     return _save(figure, path)
