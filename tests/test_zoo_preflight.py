@@ -191,6 +191,22 @@ def test_resume_without_any_checkpoint_that_loads_is_refused_with_one_line(templ
     assert set(run.rglob("*")) == before
 
 
+def test_a_resumed_start_that_fails_adds_nothing_to_the_run(template, tmp_path, capsys, monkeypatch):
+    """A failure after the resumed run's environment is built (its new resumed_*.monitor.csv) leaves the folder as it
+    was."""
+    from sb3_emmarl.zoo.exp_manager import ReserveExperimentManager
+
+    def broken(self, hyperparams, env):
+        raise ValueError("the checkpoint does not fit")
+
+    monkeypatch.setattr(ReserveExperimentManager, "_load_pretrained_agent", broken)
+    run = stopped_copy(template, tmp_path)
+    before = set(run.rglob("*"))
+    code, _, err = resume(capsys, "--resume", str(run))
+    assert code == 2 and err == ["error: the checkpoint does not fit"]
+    assert set(run.rglob("*")) == before and not list(run.glob("resumed_*"))
+
+
 @pytest.mark.parametrize(("flags", "message"), [
     (["--algo", "a2c"], "--algo 'a2c' (the run's: 'ppo')"),
     (["--algo", "em_ppo", "-n", "5000"], "-n-timesteps"),

@@ -17,7 +17,12 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 - :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks (and
   :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms);
 - the hyperparameters are checked by :func:`~sb3_emmarl.common.validation.check_hyperparams` before anything
-  is built, and the YAML file must be a mapping holding the environment's entry;
+  is built, and the YAML file must be a mapping holding the environment's entry; then, still before the run folder
+  exists, what SB3 would only find in the first rollout or update (the constructors' annotations, the optimizer, the
+  callbacks, the tensorboard folder: :meth:`ReserveExperimentManager._check_before_folder`), and a start that fails
+  later removes the folders it made;
+- ``-optimize`` of an EM algorithm merges the sampled E-step window into the YAML's ``e_step_kwargs`` and refits
+  ``count_factors`` (:func:`~sb3_emmarl.zoo.algos.merge_latent_params`);
 - the periodic evaluations (``--eval-freq``) and optuna's trials count team episodes
   (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.checkpoints.AtomicEvalCallback`
   and :class:`TeamTrialEvalCallback`), not the UAVs of one episode as SB3's does;
