@@ -248,8 +248,8 @@ class Talk(NamedTuple):
     message_draws: np.ndarray
 
 class World(NamedTuple):
-    """Everything a step reads and updates but the :class:`Step` itself, by phase (``ReserveParallelEnv._world``
-    builds it; it crosses into :func:`advance_world` as plain tuples, named again inside)."""
+    """Everything a step reads and updates but the :class:`Step` itself, by phase (``ReserveParallelEnv._build_world``
+    builds it; it crosses into ``world.advance_world`` as plain tuples, named again inside)."""
 
     flight: Flight
     ground: Ground

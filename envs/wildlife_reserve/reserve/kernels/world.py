@@ -96,7 +96,7 @@ def step_rewards(rewards: Rewards, tally: Tally, energy: np.ndarray, seen: np.nd
     return out, team, spent
 
 def plain(record: tuple) -> tuple:
-    """``record`` (a record of this module, its fields records or not) as the plain tuples :func:`advance_world` takes
+    """``record`` (a record of :mod:`.records`, its fields records or not) as the plain tuples :func:`advance_world` takes
     (:func:`named` names them again inside)."""
     return tuple(plain(field) if hasattr(field, "_fields") else field for field in record)
 
