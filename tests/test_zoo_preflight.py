@@ -239,6 +239,13 @@ def test_a_zip_of_another_algorithm_is_refused_with_one_line(template, tmp_path,
     assert not (tmp_path / "logs").exists()
 
 
+def test_an_a2c_zip_is_refused_by_ppo(tmp_path, capsys):
+    assert train_main(["--algo", "a2c", "-n", "64", *QUICK, *TINY, "-f", str(tmp_path / "a2c_logs")]) == 0
+    code, lines = run(tmp_path, capsys, "--algo", "ppo", "-i", str(tmp_path / "a2c_logs" / "a2c" / f"{ENV}_1" / f"{ENV}.zip"))
+    assert code == 2 and len(lines) == 1 and "was not saved by PPO: its settings fit a2c" in lines[0], lines
+    assert not (tmp_path / "logs").exists()
+
+
 def test_a_refused_optimization_leaves_no_log_folder(tmp_path, capsys):
     code, lines = run(tmp_path, capsys, "--algo", "ppo", "-optimize", "-params", "ent_coef:'auto'")
     assert code == 2 and len(lines) == 1, lines

@@ -244,6 +244,16 @@ def _own_parameters(algo: type) -> set[str]:
     return set(inspect.signature(init).parameters) - {"self", "args", "kwargs"}
 
 
+def _stored_parameters(algo: type) -> set[str]:
+    """The arguments of ``algo``'s own constructor that it keeps as attributes of the same name (``self.n_epochs =``),
+    so that a zip it saved holds them (read from its source; none if the source cannot be read)."""
+    try:
+        source = inspect.getsource(algo.__dict__["__init__"])
+    except (KeyError, OSError, TypeError):
+        return set()
+    return set(re.findall(r"self\.(\w+)\s*=", source)) & _own_parameters(algo)
+
+
 def _parameters(algo: type) -> set[str]:
     """Constructor arguments of ``algo`` and of its base classes."""
     return set().union(*(_own_parameters(cls) for cls in algo.__mro__))
@@ -256,8 +266,9 @@ def fitting_algorithms(data: dict[str, Any], candidates: dict[str, type[BaseAlgo
     attributes: it fits if it takes every such argument the zip holds (a PPO zip holds ``n_epochs``, which A2C
     does not take), if its own constructor adds arguments to its base class's, the zip holds one of them
     (EM-PPO's ``e_step_interval``, which a PPO zip lacks), and the zip's policy is one of its ``policy_aliases``
-    (a PPO zip's ``ActorCriticPolicy`` is not RecurrentPPO's). Algorithms that differ only in defaults
-    (DDPG and TD3; PPO and A2C's policy) are not told apart.
+    (a PPO zip's ``ActorCriticPolicy`` is not RecurrentPPO's); of two that fit and do not derive from each other, one
+    whose constructor stores an argument the other does not take fits only if the zip holds it (an A2C zip lacks
+    PPO's ``n_epochs``). Algorithms that differ only in defaults (DDPG and TD3) are not told apart.
     """
     known = set().union(*(_parameters(algo) for algo in candidates.values()))
     saved = {key for key, value in data.items() if value is not None} & known  # None: an attribute never set
@@ -269,7 +280,12 @@ def fitting_algorithms(data: dict[str, Any], candidates: dict[str, type[BaseAlgo
             issubclass(policy_class, alias) for alias in getattr(algo, "policy_aliases", {}).values())
         if saved <= _parameters(algo) and (not own or own & saved) and policy_fits:
             fits.append(name)
-    return fits
+    present = set(data) & known  # attributes the zip holds, None or not
+    # Between two fitting algorithms that do not derive from each other, one whose constructor stores an attribute the
+    # other does not take must find it in the zip: an A2C zip lacks PPO's n_epochs, so it is A2C's alone.
+    return [name for name in fits if all(
+        _stored_parameters(candidates[name]) - _parameters(candidates[other]) <= present for other in fits
+        if not issubclass(candidates[name], candidates[other]) and not issubclass(candidates[other], candidates[name]))]
 
 
 def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidates: dict[str, type[BaseAlgorithm]]) -> None:

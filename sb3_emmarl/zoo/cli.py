@@ -235,7 +235,8 @@ def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace,
     differ = [f"--{key.replace('_', '-')} {value!r} (the run's: {saved.get(key)!r})" for key, value in given.items()
               if key not in RESUME_FREE_FLAGS and plain(value) != saved.get(key, parser.get_default(key))]
     if differ:
-        parser.error(f"--resume continues {run} with its own settings, and these differ from them: {'; '.join(differ)}")
+        parser.error(f"--resume continues {run} with its own settings, and these differ from them: {'; '.join(differ)} "
+                     "(to train on from one of its checkpoints with other settings, give it with -i: a new run)")
     if (run / f"{env_id}.zip").is_file():
         print(f"{run} has finished (its final model {env_id}.zip exists): nothing to resume")
         return None
