@@ -443,7 +443,8 @@ def _trajectory_figures(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], fi
 
 
 def _count(items: Sequence[str]) -> str:
-    """``"0.19.0 (3 cells) and 0.20.0 (9 cells)"``: each distinct item with how many cells have it, sorted."""
+    """``"a (3 cells) and b (9 cells)"`` (a and b two package versions): each distinct item with how many cells have it,
+    sorted."""
     counts = {item: items.count(item) for item in sorted(set(items))}
     parts = [f"{item} ({n} cell{'s' * (n != 1)})" for item, n in counts.items()]
     return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
