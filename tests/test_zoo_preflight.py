@@ -78,6 +78,14 @@ def test_a_setting_that_would_fail_mid_run_fails_first_with_one_line_and_no_fold
     assert not (tmp_path / "logs").exists() and not (tmp_path / "tb").exists()
 
 
+@pytest.mark.parametrize(("conf", "params", "key"), [({"bogus": 1}, [], "'bogus'"), ({"gamma": 2.0}, [], "gamma"),
+                                                    ({}, ["gamma:2.0"], "gamma"), ({"ent_coef": "auto"}, [], "ent_coef")])
+def test_an_error_names_the_file_and_the_key(tmp_path, capsys, conf, params, key):
+    code, lines = run(tmp_path, capsys, "--algo", "ppo", *(["-params", *params] if params else []), conf=ppo_with(**conf))
+    source = f"{tmp_path / 'conf.yml'}{' with -params' if params else ''}: "
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {source}") and key in lines[0], lines
+
+
 @pytest.mark.parametrize("params", [["ent_coef:'auto'"], ["policy_kwargs:dict(optimizer_class=th.optim.LBFGS)"],
                                     ["policy_kwargs:dict(optimizer_kwargs=dict(momentum=0.9))"]])
 def test_the_same_from_params(tmp_path, capsys, params):

@@ -294,7 +294,10 @@ class ReserveExperimentManager(ExperimentManager):
         else:
             hyperparams = {**yaml_section(content, self.env_name.gym_id, self.config), **(self.custom_hyperparams or {})}
         original_policy_kwargs = hyperparams.get("policy_kwargs")
-        hyperparams = check_hyperparams(self.algo, ZOO_ALGOS[self.algo], hyperparams)
+        try:
+            hyperparams = check_hyperparams(self.algo, ZOO_ALGOS[self.algo], hyperparams)
+        except ValueError as error:  # say where the setting comes from
+            raise ValueError(f"{self.settings_source()}: {error}") from None
         yaml_env_kwargs = hyperparams.get("env_kwargs") or {}
         self.env_kwargs = {**yaml_env_kwargs, **(self.env_kwargs or {})}
         hyperparams["env_kwargs"] = self.env_kwargs
@@ -341,6 +344,11 @@ class ReserveExperimentManager(ExperimentManager):
         self._check_before_folder(processed[0], processed[2])
         return processed
 
+    def settings_source(self) -> str:
+        """Where the hyperparameters come from, for messages: the YAML file (a resumed run's ``config.yml``), and
+        ``-params`` when given."""
+        return f"{self.config}{' with -params' if self.custom_hyperparams and self.resume_run is None else ''}"
+
     def _check_before_folder(self, kwargs: dict[str, Any], callbacks: list[Any]) -> None:
         """What SB3 would only find in the first rollout or update, checked before the run folder exists: every
         constructor argument against the algorithm's annotations (``ent_coef: 'auto'`` is SAC's, not PPO's),
@@ -356,20 +364,20 @@ class ReserveExperimentManager(ExperimentManager):
 
         from sb3_emmarl.common.signatures import check_arguments, check_optimizer
 
-        algo = ZOO_ALGOS[self.algo]
+        algo, source = ZOO_ALGOS[self.algo], self.settings_source()
         check_arguments(algo, {key: value for key, value in kwargs.items() if key not in ZOO_ONLY or key == "policy"},
-                        "the hyperparameters", unknown=False)
+                        source, unknown=False)
         policy_kwargs = kwargs.get("policy_kwargs") or {}
         policy = kwargs.get("policy")
         policy_class = (getattr(algo, "policy_aliases", {}) or {}).get(policy) if isinstance(policy, str) else policy
         if isinstance(policy_class, type):
-            check_arguments(policy_class, policy_kwargs, "policy_kwargs")
-        for where, settings in (("the hyperparameters", kwargs), ("policy_kwargs", policy_kwargs)):
+            check_arguments(policy_class, policy_kwargs, f"{source}: policy_kwargs")
+        for where, settings in ((source, kwargs), (f"{source}: policy_kwargs", policy_kwargs)):
             if "optimizer_class" in settings or "optimizer_kwargs" in settings:
                 check_optimizer(settings.get("optimizer_class", th.optim.Adam), settings.get("optimizer_kwargs"), where)
         for callback in callbacks:
             if not isinstance(callback, BaseCallback):
-                raise ValueError(f"callback: {type(callback).__name__} is not an SB3 callback (BaseCallback)")
+                raise ValueError(f"{source}: callback: {type(callback).__name__} is not an SB3 callback (BaseCallback)")
         check_tensorboard_folder(self.tensorboard_log)
 
     def _check_buffer_memory(self, hyperparams: dict[str, Any], prototype: Any) -> None:
