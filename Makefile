@@ -16,7 +16,7 @@ install:
 # The main job: a short EM-PPO run on the default reserve (a few minutes on 2 cores), tensorboard
 # logs in runs/, the run in logs/em_ppo/, then the team metrics (and latent accuracy) of 5 evaluation episodes.
 main: install
-	$(PYTHON) zoo/train.py --algo em_ppo --env WildlifeReserve-v0 -n 500000 --seed 0 -tb runs -f logs \
+	$(PYTHON) zoo/train.py --algo em_ppo --env WildlifeReserve-v1 -n 500000 --seed 0 -tb runs -f logs \
 		--eval-freq -1 --team-eval-episodes 5 --verbose 0 -P
 
 pytest:

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 
 def _random_steps(env, actions: list[list[int]], steps: int, k: int) -> int:
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
     first = None
     for n in args.uavs:
         def reserve(n=n):
-            return reserve_v0.parallel_env(n_uavs=n)
+            return reserve_v1.parallel_env(n_uavs=n)
 
         def mpe(n=n):
             return simple_spread.parallel_env(N=n, max_cycles=200)

@@ -3,7 +3,7 @@
 Draws ``--cases`` argument sets from the defaults by mutating one to three arguments with values from the
 catalogue of ``tests/fuzz_reserve.py`` (wrong types, NaN, infinities, zero, negative and huge values, wrong
 shapes, unknown names, and valid values, each labelled valid or invalid there), builds
-``reserve_v0.parallel_env(**kwargs)``, and for those that build resets and takes a few random steps, each
+``reserve_v1.parallel_env(**kwargs)``, and for those that build resets and takes a few random steps, each
 under a time limit and with tracemalloc measuring its peak memory. It prints the count of each outcome
 (``ran`` and ``clean_error`` are the good ones; silent acceptances of invalid values, false rejections of
 valid ones, unclean exceptions, bad output, hangs and memory peaks above the limit are failures), the worst
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
                             steps=args.steps, guard=None if args.no_guard else 4 * 2**30)
     counts = report.counts
     valid = sum(case.valid for case in cases)
-    print(f"Fuzz of reserve_v0.parallel_env arguments: {args.cases} cases from seed {args.seed} ({valid} valid, "
+    print(f"Fuzz of reserve_v1.parallel_env arguments: {args.cases} cases from seed {args.seed} ({valid} valid, "
           f"{args.cases - valid} invalid by the catalogue), {args.steps} random steps after each reset, limits "
           f"{args.time_limit:g} s and {args.memory_limit_mb:g} MiB per case")
     print(f"{'outcome':<18} {'cases':>6}  kind")

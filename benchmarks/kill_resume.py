@@ -79,7 +79,7 @@ def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: flo
         process.send_signal(signal.SIGKILL)
         process.wait()
         finished_before_kill = False
-    runs = sorted((folder / algo).glob("WildlifeReserve-v0_*")) if (folder / algo).is_dir() else []
+    runs = sorted((folder / algo).glob("WildlifeReserve-v1_*")) if (folder / algo).is_dir() else []
     outcome = {"delay": delay, "finished_before_kill": finished_before_kill, "checkpoint": None,
                "loads": None, "leftover_tmp": 0, "restarted": False}
     if runs:
@@ -101,7 +101,7 @@ def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: flo
         outcome["restarted"] = True
     else:
         run([sys.executable, TRAIN, "--algo", algo, "--resume", "-f", str(folder), "--verbose", "0"])
-    final = sorted((folder / algo).glob("WildlifeReserve-v0_*"))[-1] / "WildlifeReserve-v0.zip"
+    final = sorted((folder / algo).glob("WildlifeReserve-v1_*"))[-1] / "WildlifeReserve-v1.zip"
     outcome["difference"] = max_difference(parameters(final), reference)
     return outcome
 
@@ -125,7 +125,7 @@ def main() -> int:
             ref_folder = root / "reference"
             shutil.rmtree(ref_folder, ignore_errors=True)
             duration = run(command(algo, ref_folder, args.n_timesteps, args.save_freq, args.seed, args.vec_env))
-            reference = parameters(sorted((ref_folder / algo).glob("WildlifeReserve-v0_*"))[-1] / "WildlifeReserve-v0.zip")
+            reference = parameters(sorted((ref_folder / algo).glob("WildlifeReserve-v1_*"))[-1] / "WildlifeReserve-v1.zip")
             print(f"\n{algo} (--vec-env {args.vec_env}): reference run {duration:.1f} s, {args.n_timesteps} steps, "
                   f"a checkpoint every {args.save_freq} steps; {args.kills} runs killed at uniform random moments in "
                   f"[0, {duration:.1f}] s")

@@ -34,7 +34,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
 from wildlife_reserve.reserve.scripted import RandomPatrol, StalestBlockPatrol
 
@@ -115,7 +115,7 @@ def collect_features(env_kwargs: dict, patrol: str, seeds: range, points: tuple[
         team features ``{point: (episodes, 2f)}``, the modes ``(episodes,)``, and the same ``k`` UAVs' observations
         at each point alone ``{point: (episodes * k, d)}``
     """
-    env = reserve_v0.parallel_env(**env_kwargs)
+    env = reserve_v1.parallel_env(**env_kwargs)
     policy = PATROLS[patrol](env, patrol_seed)
     n = len(env.possible_agents)
     steps = {point: round(point * env.max_cycles) for point in points}
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         parser.error(f"--env-kwargs must be a dict literal of the reserve's arguments, got {args.env_kwargs!r}: {error}")
     try:
-        env = reserve_v0.parallel_env(**env_kwargs)
+        env = reserve_v1.parallel_env(**env_kwargs)
         for patrol in args.patrols:
             PATROLS[patrol](env, args.seed)
     except (ValueError, TypeError) as error:

@@ -77,7 +77,7 @@ from sb3_emmarl.zoo.benchmark import (
     run_variants,
 )
 from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode, next_strategy
 from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
 
@@ -201,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(str(error))
         variants = [(name, algo, [*params, *args.hyperparams]) for name, algo, params in variants]
     if args.hide:
-        env = reserve_v0.parallel_env(**dict(args.env_kwargs or {}))
+        env = reserve_v1.parallel_env(**dict(args.env_kwargs or {}))
         layout = env.observation_layout
         env.close()
         try:

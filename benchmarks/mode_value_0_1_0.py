@@ -60,7 +60,7 @@ def run(variant: str, seed: int, folder: Path, n_timesteps: int = 500_000) -> No
 
     from sb3_emmarl.common.evaluation import evaluate_team
     from sb3_emmarl.common.vec_env import make_vec_env
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
     from wildlife_reserve.reserve.modes import N_MODES, WEATHERS
 
     class OneHot(BaseParallelWrapper):
@@ -96,7 +96,7 @@ def run(variant: str, seed: int, folder: Path, n_timesteps: int = 500_000) -> No
             return (self._add(observations), *rest)
 
     def env_fn(label: str | None):
-        return reserve_v0.parallel_env if label is None else lambda **kw: OneHot(reserve_v0.parallel_env(**kw), label)
+        return reserve_v1.parallel_env if label is None else lambda **kw: OneHot(reserve_v1.parallel_env(**kw), label)
 
     label = {"told": "mode", "ppo": None, "control": "random"}[variant]
     th.set_num_threads(1)

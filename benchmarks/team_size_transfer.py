@@ -8,7 +8,7 @@ evaluated on the same seeded episodes for every model given; actions are sampled
 Example (a model of a comparison run, e.g. ``make benchmark-message-policies``)::
 
     python benchmarks/team_size_transfer.py --sizes 10 20 50 --episodes 5 \\
-        --models ppo_gat=logs/compare/ppo_gat/seed_0/ppo_gat/WildlifeReserve-v0_1/WildlifeReserve-v0.zip
+        --models ppo_gat=logs/compare/ppo_gat/seed_0/ppo_gat/WildlifeReserve-v1_1/WildlifeReserve-v1.zip
 """
 
 from __future__ import annotations

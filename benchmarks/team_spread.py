@@ -34,7 +34,7 @@ from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.benchmark import parse_variant, run_eval_env, run_settings
 from sb3_emmarl.zoo.cli import latest_run
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.actors import STEPS
 from wildlife_reserve.reserve.constants import N_MOVES
 
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
             if settings["vec_normalize_path"] is not None:  # the monitor reads positions from plain observations
                 parser.error(f"{run} was trained with VecNormalize: its observations do not hold plain positions")
             env_kwargs = settings["env_kwargs"]
-            probe = reserve_v0.parallel_env(**env_kwargs)
+            probe = reserve_v1.parallel_env(**env_kwargs)
             own, n, continuous = probe.observation_layout["own"][0], probe.n, probe.config.continuous_actions
             probe.close()
             model = ZOO_ALGOS[algo].load(run / f"{ENV_ID}.zip", device="cpu")

@@ -45,7 +45,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_emmarl.common.vec_env import ReserveVecEnv, compile_reserve, make_vec_env
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -147,7 +147,7 @@ def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, t
     if poll_seconds is None:
         venv = make_vec_env(n_copies, seed=0, env_kwargs=env_kwargs, vec_env_type=vec_env_type, num_cpus=num_cpus)
     else:  # the batched path with the given polling (make_vec_env leaves it at its default)
-        venv = VecMonitor(ReserveVecEnv(partial(reserve_v0.parallel_env, **env_kwargs), n_copies=n_copies,
+        venv = VecMonitor(ReserveVecEnv(partial(reserve_v1.parallel_env, **env_kwargs), n_copies=n_copies,
                                         num_cpus=num_cpus, poll_seconds=poll_seconds))
         venv.seed(0)
     venv.reset()

@@ -2,7 +2,7 @@
 
 Examples::
 
-    emmarl train --algo em_ppo --env WildlifeReserve-v0 -n 20000 -f logs
+    emmarl train --algo em_ppo --env WildlifeReserve-v1 -n 20000 -f logs
     emmarl enjoy --algo em_ppo -f logs --episodes 2
     emmarl experiment --list
     emmarl patrol --policy stalest_block --episodes 3

@@ -8,7 +8,7 @@ from __future__ import annotations
 from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.validation import int_flag
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.scripted import SCRIPTED_PATROLS, run_patrol
 
 
@@ -35,7 +35,7 @@ def patrol_main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     try:
-        env = reserve_v0.parallel_env(**args.env_kwargs)
+        env = reserve_v1.parallel_env(**args.env_kwargs)
     except (TypeError, ValueError) as error:
         parser.error(str(error))
     policy_cls = SCRIPTED_PATROLS[args.policy]

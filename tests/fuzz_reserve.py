@@ -17,7 +17,7 @@ is therefore valid whatever else it mutates, and a value labelled invalid is inv
 Mutations whose validity depends on another argument (the smallest grids, the memory bound ``n_uavs x cells``,
 terrain against ``grid_size``) come as combined entries that set every argument involved.
 
-Running a case builds ``reserve_v0.parallel_env(**kwargs)`` and, if that succeeds, resets it and takes a few
+Running a case builds ``reserve_v1.parallel_env(**kwargs)`` and, if that succeeds, resets it and takes a few
 random steps, under a time limit and with tracemalloc measuring the peak of Python and numpy memory. Outcomes:
 
 ==================== ===================================================================================
@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.config import MAX_CYCLES
 from wildlife_reserve.reserve.reserve import compile_kernels
 
@@ -420,7 +420,7 @@ def _play(case: Case, steps: int, stage: list[str]) -> str:
     """Build, reset and step; returns what was wrong with the output ("" if nothing). ``stage[0]`` tracks progress."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
-        env = reserve_v0.parallel_env(**case.kwargs)
+        env = reserve_v1.parallel_env(**case.kwargs)
         stage[0] = "reset"
         observations, _ = env.reset(seed=case.index)
         detail = _bad_output(observations, None)

@@ -53,10 +53,10 @@ VALUES = {
 STRUCTURE = [
     ("empty file", "", "must map"),
     ("a list", "- 1\n- 2\n", "must map"),
-    ("entry not a mapping", "WildlifeReserve-v0: [1, 2]\n", "no mapping of hyperparameters"),
+    ("entry not a mapping", "WildlifeReserve-v1: [1, 2]\n", "no mapping of hyperparameters"),
     ("no entry", "CartPole-v1:\n  n_timesteps: 10\n", "no mapping of hyperparameters"),
-    ("syntax error", "WildlifeReserve-v0:\n  n_timesteps: [1,\n", "not valid YAML"),
-    ("python tag", "WildlifeReserve-v0: !!python/object/apply:os.getcwd []\n", "Python object tag"),
+    ("syntax error", "WildlifeReserve-v1:\n  n_timesteps: [1,\n", "not valid YAML"),
+    ("python tag", "WildlifeReserve-v1: !!python/object/apply:os.getcwd []\n", "Python object tag"),
 ]
 MUTATIONS = [  # (algo, key, YAML value, valid?, mention)
     ("ppo", "n_stepz", "32", False, "n_stepz"),
@@ -152,9 +152,9 @@ def _entry(algo: str) -> dict:
 
 
 def _mutated(algo: str, key: str, value: str) -> str:
-    entry = yaml.safe_dump({"WildlifeReserve-v0": _entry(algo)})
+    entry = yaml.safe_dump({"WildlifeReserve-v1": _entry(algo)})
     return entry.rstrip("\n") + f"\n  {key}: {value}\n" if key not in _entry(algo) else \
-        yaml.safe_dump({"WildlifeReserve-v0": {**_entry(algo), key: "__VALUE__"}}).replace("__VALUE__", value)
+        yaml.safe_dump({"WildlifeReserve-v1": {**_entry(algo), key: "__VALUE__"}}).replace("__VALUE__", value)
 
 
 def cases() -> list[Case]:
@@ -342,10 +342,10 @@ FLAG_CASES = [  # (name, command line) refused before anything is written
     ("-tb a file", ["--algo", "ppo", "-tb", "{f}"]),
     ("-tb under a file", ["--algo", "ppo", "-tb", "{f}/tb"]),
     ("-tb under a file, em_ppo", ["--algo", "em_ppo", "-tb", "{f}/a/b"]),
-    *[(f"-i a PPO zip with --algo {algo}", ["--algo", algo, "-i", "{t}/WildlifeReserve-v0.zip"])
+    *[(f"-i a PPO zip with --algo {algo}", ["--algo", algo, "-i", "{t}/WildlifeReserve-v1.zip"])
       for algo in ("em_ppo", "dqn", "a2c", "ddpg", "ppo_lstm", "mappo", "qmix", "vdn_em")],
     ("-i a PPO checkpoint with --algo em_ppo", ["--algo", "em_ppo", "-i", "{t}/rl_model_128_steps.zip"]),
-    ("-i a config file", ["--algo", "ppo", "-i", "{t}/WildlifeReserve-v0/config.yml"]),
+    ("-i a config file", ["--algo", "ppo", "-i", "{t}/WildlifeReserve-v1/config.yml"]),
     ("self-merging anchor", ["--algo", "ppo", "-conf", "{f}.yml"]),
 ]
 RESUME_FLAGS = [  # flags given with --resume of a stopped PPO run (their values differ from the run's own)
@@ -382,7 +382,7 @@ def _fill(value, marker: str):
 
 def hostile_cases() -> list[HostileCase]:
     """Every hostile case, in a fixed order."""
-    env = "WildlifeReserve-v0"
+    env = "WildlifeReserve-v1"
     out: list[HostileCase] = []
     for i, payload in enumerate(PY_PAYLOADS):
         out.append(HostileCase(f"-params learning_rate #{i}", ["--algo", "ppo", "-params", f"learning_rate:{payload}"]))
@@ -431,7 +431,7 @@ def train_template_run(folder: Path) -> Path:
         code = train_main(["--algo", "ppo", "-n", "384", *TINY, *QUICK, "--save-freq", "128", "-f", str(folder),
                            "-params", "n_steps:16", "batch_size:32"])
     assert code == 0, "the template run failed"
-    return folder / "ppo" / "WildlifeReserve-v0_1"
+    return folder / "ppo" / "WildlifeReserve-v1_1"
 
 
 def _files(folder: Path) -> set[Path]:
@@ -453,7 +453,7 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
     logs = folder / "logs"
     a_file = folder / "file"
     a_file.write_text("")
-    (folder / "file.yml").write_text("WildlifeReserve-v0: &e\n  <<: *e\n  n_timesteps: 64\n  policy: MlpPolicy\n")
+    (folder / "file.yml").write_text("WildlifeReserve-v1: &e\n  <<: *e\n  n_timesteps: 64\n  policy: MlpPolicy\n")
     places = {"{f}": str(a_file), "{t}": str(template)}
     argv = [_fill(a, marker) for a in case.argv]
     for key, value in places.items():
@@ -467,8 +467,8 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
         run = logs / "ppo" / template.name
         shutil.copytree(template, run)
         if not case.enjoy:
-            (run / "WildlifeReserve-v0.zip").unlink()
-        config_file = run / "WildlifeReserve-v0" / "config.yml"
+            (run / "WildlifeReserve-v1.zip").unlink()
+        config_file = run / "WildlifeReserve-v1" / "config.yml"
         config = yaml.safe_load(config_file.read_text())
         config.update(_fill(case.config, marker))
         config_file.write_text(yaml.safe_dump(config))

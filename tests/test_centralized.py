@@ -11,7 +11,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_emmarl.common.centralized import ENV_ID, CentralizedReserveEnv, register_envs
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.constants import N_MOVES
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
@@ -92,7 +92,7 @@ def test_continuous_joint_action_drives_each_uav(mover):
 @pytest.mark.parametrize("kwargs", [{}, {"shaping": 0.5}, {"continuous_actions": True}])
 def test_reward_is_the_team_reward_of_the_parallel_env(kwargs):
     env = make(**kwargs)
-    reference = reserve_v0.parallel_env(**SMALL, **kwargs)
+    reference = reserve_v1.parallel_env(**SMALL, **kwargs)
     env.reset(seed=3, options={"uav_positions": START})
     reference.reset(seed=3, options={"uav_positions": START})
     env.action_space.seed(3)
@@ -186,7 +186,7 @@ def test_register_envs_and_make():
         warnings.simplefilter("error")  # re-registering would warn "Overriding environment"
         register_envs()
     spec = gymnasium.spec(ENV_ID)
-    assert ENV_ID == "WildlifeReserve-v0"
+    assert ENV_ID == "WildlifeReserve-v1"
     assert spec.entry_point == "sb3_emmarl.common.centralized:CentralizedReserveEnv"
     assert spec.max_episode_steps is None and not spec.disable_env_checker
     env = gymnasium.make(ENV_ID, n_uavs=2, grid_size=20)

@@ -74,7 +74,7 @@ def test_the_zoo_scripts_are_thin_calls_of_the_command():
 
 def test_the_core_package_imports_no_extra():
     code = ("import sys, sb3_emmarl, sb3_emmarl.cli, sb3_emmarl.patrol; from sb3_emmarl import EMPPO; "
-            "from wildlife_reserve import reserve_v0; reserve_v0.parallel_env(); "
+            "from wildlife_reserve import reserve_v1; reserve_v1.parallel_env(); "
             f"print(sorted(m for m in {EXTRA_MODULES!r} if m in sys.modules))")
     result = python("-c", code)
     assert result.returncode == 0, result.stderr
@@ -99,10 +99,10 @@ def test_the_zoo_without_rl_zoo3_is_one_line_naming_the_extra(monkeypatch, capsy
 
 
 def test_drawing_the_reserve_without_pygame_names_the_render_extra(monkeypatch):
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
 
     _without(monkeypatch, "pygame")
-    env = reserve_v0.parallel_env(render_mode="rgb_array", max_cycles=5)
+    env = reserve_v1.parallel_env(render_mode="rgb_array", max_cycles=5)
     env.reset(seed=0)
     with pytest.raises(MissingExtra, match=r"^drawing the reserve needs pygame: pip install 'sb3-emmarl\[render\]'$"):
         env.render()
@@ -147,9 +147,9 @@ def test_the_compile_notice_is_one_line_once_and_only_on_a_cold_cache(monkeypatc
 
 
 def test_the_compile_notice_finds_numbas_own_cache():
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
 
-    env = reserve_v0.parallel_env(max_cycles=2)
+    env = reserve_v1.parallel_env(max_cycles=2)
     env.reset(seed=0)
     env.step({agent: env.action_space(agent).sample() for agent in env.agents})  # compiled (or loaded) and cached
     assert compilation.cache_folder() is not None and not compilation.cache_is_cold()

@@ -23,7 +23,7 @@ from sb3_emmarl.zoo.benchmark import (
     summary_table,
 )
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 
 def records(team_reward: list[float], seeds: list[int] | None = None, **metrics: list[float]) -> list[dict]:
@@ -149,12 +149,12 @@ def test_reuse_runs_evaluates_the_finished_runs_again_and_refuses_runs_trained_o
     folder = ["-f", str(tmp_path)]
     assert compare_main([*TINY_RUN, *folder]) == 0
     trained = capsys.readouterr().out
-    runs = sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*"))
-    assert [run.name for run in runs] == ["WildlifeReserve-v0_1"]
+    runs = sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v1_*"))
+    assert [run.name for run in runs] == ["WildlifeReserve-v1_1"]
 
     # Evaluated again, not trained again: no new run folder, the same evaluation to the digit.
     assert compare_main([*TINY_RUN, *folder, "--reuse-runs"]) == 0
-    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*")) == runs
+    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v1_*")) == runs
     row = next(line for line in trained.splitlines() if line.startswith("ppo seed 0:"))
     assert row.split(", ", 1)[1] in capsys.readouterr().out
 
@@ -163,29 +163,29 @@ def test_reuse_runs_evaluates_the_finished_runs_again_and_refuses_runs_trained_o
     flags[1] = "512"
     assert compare_main(flags) == 2
     assert "was trained with n_timesteps 256, not 512" in capsys.readouterr().err
-    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v0_*")) == runs
+    assert sorted(tmp_path.glob("ppo/seed_0/ppo/WildlifeReserve-v1_*")) == runs
 
 
 def test_finished_run_reads_todays_yaml_through_its_base(tmp_path):
     # em_ppo.yml starts from ppo.yml (base: ppo): a run trained with the resolved settings is today's.
-    run = tmp_path / "em_ppo" / "WildlifeReserve-v0_1"
-    (run / "WildlifeReserve-v0").mkdir(parents=True)
-    (run / "WildlifeReserve-v0" / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams("em_ppo")))
-    (run / "WildlifeReserve-v0" / "args.yml").write_text(yaml.safe_dump({"algo": "em_ppo", "seed": 0,
+    run = tmp_path / "em_ppo" / "WildlifeReserve-v1_1"
+    (run / "WildlifeReserve-v1").mkdir(parents=True)
+    (run / "WildlifeReserve-v1" / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams("em_ppo")))
+    (run / "WildlifeReserve-v1" / "args.yml").write_text(yaml.safe_dump({"algo": "em_ppo", "seed": 0,
                                                                          "n_timesteps": 256}))
     (run / "run_stats.json").write_text("{}")
-    (run / "WildlifeReserve-v0.zip").write_bytes(b"")
+    (run / "WildlifeReserve-v1.zip").write_bytes(b"")
     assert finished_run(tmp_path, "em_ppo", 0, 256, [], None) == run
     # A run trained with the settings em_ppo.yml had before 0.13.0 is not today's.
-    (run / "WildlifeReserve-v0" / "config.yml").write_text(yaml.safe_dump({**zoo_hyperparams("em_ppo"), "n_epochs": 5}))
+    (run / "WildlifeReserve-v1" / "config.yml").write_text(yaml.safe_dump({**zoo_hyperparams("em_ppo"), "n_epochs": 5}))
     with pytest.raises(ValueError, match="trained with n_epochs 5, not 10"):
         finished_run(tmp_path, "em_ppo", 0, 256, [], None)
 
 
 def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_path):
     assert finished_run(tmp_path, "ppo", 0, 256, [], None) is None  # no run at all
-    run = tmp_path / "ppo" / "WildlifeReserve-v0_1"
-    params = run / "WildlifeReserve-v0"
+    run = tmp_path / "ppo" / "WildlifeReserve-v1_1"
+    params = run / "WildlifeReserve-v1"
     params.mkdir(parents=True)
     config = {**zoo_hyperparams("ppo"), "gamma": 0.9, "env_kwargs": {"n_uavs": 2}}
     (params / "config.yml").write_text(yaml.safe_dump(config))
@@ -193,7 +193,7 @@ def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_pa
                                                      "hyperparams": {"gamma": 0.9}, "env_kwargs": {"n_uavs": 2}}))
     (run / "run_stats.json").write_text("{}")
     assert finished_run(tmp_path, "ppo", 3, 256, ["gamma:0.9"], {"n_uavs": 2}) is None  # no final model: unfinished
-    (run / "WildlifeReserve-v0.zip").write_bytes(b"")
+    (run / "WildlifeReserve-v1.zip").write_bytes(b"")
     assert finished_run(tmp_path, "ppo", 3, 256, ["gamma:0.9"], {"n_uavs": 2}) == run
     with pytest.raises(ValueError, match="trained with seed 3, not 4"):
         finished_run(tmp_path, "ppo", 4, 256, ["gamma:0.9"], {"n_uavs": 2})
@@ -252,7 +252,7 @@ def test_the_spread_benchmark_counts_the_boundary_corners_and_how_alike_the_move
     spread = load_benchmark("team_spread")
     for continuous in (True, False):
         env_kwargs = {"n_uavs": 3, "grid_size": 20, "max_cycles": 100, "continuous_actions": continuous}
-        own = reserve_v0.parallel_env(**env_kwargs).observation_layout["own"][0]
+        own = reserve_v1.parallel_env(**env_kwargs).observation_layout["own"][0]
         monitor = spread.SpreadMonitor(make_vec_env(1, seed=0, env_kwargs=env_kwargs), own, 3, continuous)
         try:
             monitor.reset()

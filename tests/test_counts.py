@@ -5,13 +5,13 @@ import pytest
 from scipy.stats import poisson
 
 from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, PoissonMixture, ReadingCounter
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_SIGN
 
 
 @pytest.fixture(scope="module")
 def reserve():
-    env = reserve_v0.parallel_env(n_uavs=2, grid_size=16, sensor_radius=1, belief_size=4)
+    env = reserve_v1.parallel_env(n_uavs=2, grid_size=16, sensor_radius=1, belief_size=4)
     env.reset(seed=0)
     return env
 

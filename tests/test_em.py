@@ -17,11 +17,11 @@ from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
 #: The reserve's observation size with these settings.
-OBS_DIM = reserve_v0.parallel_env(**SMALL).obs_dim
+OBS_DIM = reserve_v1.parallel_env(**SMALL).obs_dim
 
 
 def task_env(task=ModeCueEnv, n=8, seed=0, **kwargs):
@@ -441,7 +441,7 @@ def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
     assert train_main(["--algo", algo, "-n", "300", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "150",
                        "--eval-episodes", "1", "--team-eval-episodes", "2", "--verbose", "0", "-params", *params,
                        "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:30"]) == 0
-    run = tmp_path / algo / "WildlifeReserve-v0_1"
+    run = tmp_path / algo / "WildlifeReserve-v1_1"
     records = json.loads((run / "team_eval.json").read_text())
     assert len(records) == 2 and "latent_accuracy_50" in records[0]
     assert (run / "best_model.zip").is_file()

@@ -12,7 +12,7 @@ from sb3_emmarl.common.centralized import CentralizedReserveEnv
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized
 from sb3_emmarl.common.metrics import TEAM_METRICS
 from sb3_emmarl.common.vec_env import make_vec_env
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 30}
 
@@ -26,7 +26,7 @@ def test_records_one_episode_each_with_every_metric_and_the_mode():
 
 def test_episodes_match_what_the_reserve_plays_from_that_seed():
     records = evaluate_team(RandomPolicy(spaces.Discrete(15), seed=0), n_episodes=3, seed=4, env_kwargs=SMALL)
-    env = reserve_v0.parallel_env(**SMALL)
+    env = reserve_v1.parallel_env(**SMALL)
     env.reset(seed=4)
     modes = [env.mode]
     for _ in range(2):

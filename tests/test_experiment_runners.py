@@ -221,7 +221,7 @@ def test_two_runners_on_one_store_finish_every_cell_once_and_a_killed_one_leaves
     # The taken-over cell's folder holds the taker's run only.
     for algorithm, condition, seed in cells:
         folder = runs / "tiny" / "quick" / algorithm / condition / f"seed_{seed}" / "stage_0" / algorithm
-        assert [p.name for p in folder.iterdir()] == ["WildlifeReserve-v0_1"]
+        assert [p.name for p in folder.iterdir()] == ["WildlifeReserve-v1_1"]
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -317,7 +317,7 @@ def test_the_ray_backend_runs_on_a_two_node_cluster_and_gathers_the_run_folders(
     assert len(re.findall(r"run folder gathered from node \w+", done.stdout)) == 1, done.stdout
     for row in store.rows("tiny", "quick"):
         assert Path(row["run_dir"]).is_relative_to(runs) and row["version"] == __version__
-        assert (Path(row["run_dir"]) / "stage_0" / "ppo" / "WildlifeReserve-v0_1" / "WildlifeReserve-v0.zip").is_file()
+        assert (Path(row["run_dir"]) / "stage_0" / "ppo" / "WildlifeReserve-v1_1" / "WildlifeReserve-v1.zip").is_file()
     for node in ("head", "worker"):
         assert sorted(p.name for p in (tmp_path / node).iterdir()) == [], f"{node} wrote into its working directory"
     # The same store contents as the local backend's for the same seeds (timings aside).

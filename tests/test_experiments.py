@@ -70,9 +70,9 @@ def mutate(path: str, value):
 
 @pytest.mark.parametrize("path,value,message", [
     ("algorithms.ppo.algo", "ppo2", r"algorithms.ppo.algo: unknown algorithm 'ppo2'"),
-    ("conditions.clean.train", {"n_drones": 3}, r"conditions.clean.train: not valid WildlifeReserve-v0 arguments"),
+    ("conditions.clean.train", {"n_drones": 3}, r"conditions.clean.train: not valid WildlifeReserve-v1 arguments"),
     ("conditions.clean.train", {"sensor_noise": 2.0},
-     r"conditions.clean.train: not valid WildlifeReserve-v0 arguments.*sensor_noise"),
+     r"conditions.clean.train: not valid WildlifeReserve-v1 arguments.*sensor_noise"),
     ("conditions.clean.weather", "rain", r"conditions.clean: unknown field\(s\) \['weather'\]"),
     ("metrics", ["team_reward", "happiness"], r"metrics: unknown metric 'happiness'"),
     ("budgets.quick.n_timesteps", 0, r"budgets.quick.n_timesteps: must be a positive whole number, got 0"),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fuzz_reserve import FAILURES, Case, Entry, generate_cases, run_case, run_cases
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.config import DEFAULT_REWARD_WEIGHTS, ReserveConfig
 
 
@@ -58,13 +58,13 @@ def test_the_runner_sorts_every_outcome(monkeypatch):
                     np.ones(8 * 2**20)  # 64 MiB
                 raise ValueError("something went wrong")
 
-        monkeypatch.setattr(fuzz_reserve, "reserve_v0", Stub("raise"))
+        monkeypatch.setattr(fuzz_reserve, "reserve_v1", Stub("raise"))
         assert run_case(case({"n_uavs": 0}, False)).outcome == "unclean_exception"
-        monkeypatch.setattr(fuzz_reserve, "reserve_v0", Stub("sleep"))
+        monkeypatch.setattr(fuzz_reserve, "reserve_v1", Stub("sleep"))
         start = time.perf_counter()
         assert run_case(case({"n_uavs": 0}, False), time_limit=0.2).outcome == "hang"
         assert time.perf_counter() - start < 2
-        monkeypatch.setattr(fuzz_reserve, "reserve_v0", Stub("allocate"))
+        monkeypatch.setattr(fuzz_reserve, "reserve_v1", Stub("allocate"))
         assert run_case(case({"n_uavs": 0}, False), memory_limit=2**20).outcome == "memory"
     finally:
         tracemalloc.stop()
@@ -75,12 +75,12 @@ def test_the_runner_sorts_every_outcome(monkeypatch):
 @pytest.mark.parametrize("value", ["false", "no", "0", "True", float("nan"), 0, 1, 1.0, None, [True], np.array([True])])
 def test_booleans_must_be_booleans(name, value):
     with pytest.raises(ValueError, match=rf"{name} must be a bool \(True or False\), got "):
-        reserve_v0.parallel_env(**{name: value})
+        reserve_v1.parallel_env(**{name: value})
 
 
 @pytest.mark.parametrize("value", [True, False, np.True_, np.False_])
 def test_real_booleans_are_accepted(value):
-    env = reserve_v0.parallel_env(adversarial=value, continuous_actions=value, n_uavs=2, grid_size=20)
+    env = reserve_v1.parallel_env(adversarial=value, continuous_actions=value, n_uavs=2, grid_size=20)
     assert env.config.adversarial is bool(value) and env.config.continuous_actions is bool(value)
 
 
@@ -109,7 +109,7 @@ def test_sizes_are_bounded_before_anything_is_allocated(kwargs, message):
     tracemalloc.start()
     try:
         with pytest.raises(ValueError, match=message):
-            reserve_v0.parallel_env(**kwargs)
+            reserve_v1.parallel_env(**kwargs)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -118,11 +118,11 @@ def test_sizes_are_bounded_before_anything_is_allocated(kwargs, message):
 
 def test_the_largest_grids_and_teams_still_build():
     # The joint bound: 24 UAVs fit a 1000 x 1000 grid with the default radius, 25 do not.
-    env = reserve_v0.parallel_env(n_uavs=24, grid_size=1000, n_poachers=0)
+    env = reserve_v1.parallel_env(n_uavs=24, grid_size=1000, n_poachers=0)
     assert (env.height, env.width) == (1000, 1000)
     with pytest.raises(ValueError, match=r"n_uavs .* must be <= 25_000_000 .*got 25 \* 1_012_036"):
-        reserve_v0.parallel_env(n_uavs=25, grid_size=1000)
-    env = reserve_v0.parallel_env(n_uavs=1000, max_neighbors=1000, n_poachers=1000, n_leopards=1000, n_decoys=1000)
+        reserve_v1.parallel_env(n_uavs=25, grid_size=1000)
+    env = reserve_v1.parallel_env(n_uavs=1000, max_neighbors=1000, n_poachers=1000, n_leopards=1000, n_decoys=1000)
     assert len(env.possible_agents) == 1000
 
 
@@ -155,46 +155,46 @@ def test_the_largest_grids_and_teams_still_build():
 ])
 def test_unclear_failures_are_now_value_errors_naming_the_argument(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        reserve_v0.parallel_env(**kwargs)
+        reserve_v1.parallel_env(**kwargs)
 
 
 def test_huge_values_are_abbreviated_in_messages():
     with pytest.raises(ValueError, match="mode_prior") as error:
-        reserve_v0.parallel_env(mode_prior=[1] * 10**6)
+        reserve_v1.parallel_env(mode_prior=[1] * 10**6)
     assert len(str(error.value)) < 300
     with pytest.raises(ValueError, match="risk") as error:
-        reserve_v0.parallel_env(risk=np.full((100, 100), 0.5 + 0j))
+        reserve_v1.parallel_env(risk=np.full((100, 100), 0.5 + 0j))
     assert "an array of shape (100, 100) and dtype complex128" in str(error.value)
 
 
 def test_unknown_argument_names_it_and_lists_the_allowed_ones():
     with pytest.raises(ValueError, match=r"unknown argument 'n_drones' of the reserve") as error:
-        reserve_v0.parallel_env(n_drones=3)
+        reserve_v1.parallel_env(n_drones=3)
     assert all(name in str(error.value) for name in ReserveConfig.argument_names())
     with pytest.raises(ValueError, match=r"unknown arguments 'seed', 'N_UAVS' \(did you mean 'n_uavs'\?\) of the reserve"):
-        reserve_v0.parallel_env(seed=1, N_UAVS=2)
+        reserve_v1.parallel_env(seed=1, N_UAVS=2)
 
 
 def test_reward_weights_none_means_no_overrides():
-    assert reserve_v0.parallel_env(reward_weights=None).config.reward_weights == DEFAULT_REWARD_WEIGHTS
-    assert reserve_v0.parallel_env(reward_weights={}).config.reward_weights == DEFAULT_REWARD_WEIGHTS
+    assert reserve_v1.parallel_env(reward_weights=None).config.reward_weights == DEFAULT_REWARD_WEIGHTS
+    assert reserve_v1.parallel_env(reward_weights={}).config.reward_weights == DEFAULT_REWARD_WEIGHTS
 
 
 def test_mode_prior_normalises_even_near_the_float_limit():
-    env = reserve_v0.parallel_env(mode_prior=[1e308] * 8, n_uavs=2, grid_size=20)
+    env = reserve_v1.parallel_env(mode_prior=[1e308] * 8, n_uavs=2, grid_size=20)
     np.testing.assert_allclose(env.config.mode_prior, np.full(8, 1 / 8))
     env.reset(seed=0)
-    env = reserve_v0.parallel_env(mode_prior=[0] * 5 + [1e308] + [0] * 2, n_uavs=2, grid_size=20)
+    env = reserve_v1.parallel_env(mode_prior=[0] * 5 + [1e308] + [0] * 2, n_uavs=2, grid_size=20)
     assert {env.reset(seed=seed)[1]["uav_0"]["mode"] for seed in range(5)} == {5}
 
 
 def test_the_documented_minimum_grid_builds_with_the_default_belief_size():
-    env = reserve_v0.parallel_env(grid_size=7)  # the sensing window with the default sensor_radius
+    env = reserve_v1.parallel_env(grid_size=7)  # the sensing window with the default sensor_radius
     assert env.config.belief_size == 7
     observations, _ = env.reset(seed=0)
     env.step({agent: 0 for agent in env.agents})
     assert observations["uav_0"].shape == (7 * 49 + 6 + 3 * 4 + 3 * 49,)
-    env = reserve_v0.parallel_env(grid_size=3, sensor_radius=1)
+    env = reserve_v1.parallel_env(grid_size=3, sensor_radius=1)
     assert env.config.belief_size == 3
     env.reset(seed=0)
 
@@ -202,7 +202,7 @@ def test_the_documented_minimum_grid_builds_with_the_default_belief_size():
 @pytest.mark.parametrize("kwargs", [{}, {"grid_size": 8}, {"grid_size": (8, 50)}, {"terrain": np.zeros((30, 40), int)},
                                     {"grid_size": 1000, "n_uavs": 2}])
 def test_default_observation_spaces_are_unchanged(kwargs):
-    env = reserve_v0.parallel_env(**kwargs)
+    env = reserve_v1.parallel_env(**kwargs)
     assert env.config.belief_size == 8
     assert env.observation_space("uav_0").shape == (553,)
     if not kwargs:
@@ -211,10 +211,10 @@ def test_default_observation_spaces_are_unchanged(kwargs):
 
 def test_the_largest_reward_weights_give_finite_rewards():
     with pytest.raises(ValueError, match=r"reward_weights\['coverage'\] must be in \[0.0, 1000000.0\], got 1e\+308"):
-        reserve_v0.parallel_env(reward_weights={"coverage": 1e308})
+        reserve_v1.parallel_env(reward_weights={"coverage": 1e308})
     weights = dict.fromkeys(DEFAULT_REWARD_WEIGHTS, 1e6)
     for shaping in (0.0, 0.5, 1.0):
-        env = reserve_v0.parallel_env(reward_weights=weights, shaping=shaping, n_uavs=20, grid_size=30, n_poachers=20,
+        env = reserve_v1.parallel_env(reward_weights=weights, shaping=shaping, n_uavs=20, grid_size=30, n_poachers=20,
                                       mode=0, max_cycles=30)
         env.reset(seed=0)
         rng = np.random.default_rng(0)

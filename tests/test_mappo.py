@@ -17,7 +17,7 @@ from sb3_emmarl.common.extractors import GraphAttentionExtractor
 from sb3_emmarl.common.messages import NeighbourMessageWrapper
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.mappo import MAPPO, GlobalStateWrapper, MAPPOPolicy, ValueNorm
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 SMALL = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
 FAST = {"n_steps": 20, "n_epochs": 2}
@@ -111,7 +111,7 @@ def test_actions_ignore_the_global_state_and_the_value_reads_it():
 @pytest.mark.parametrize("n_uavs", [1, 2, 3])
 def test_shapes_and_the_wrapper_follow_the_team_size(n_uavs):
     kwargs = {**SMALL, "n_uavs": n_uavs, "max_cycles": 5}
-    prototype = reserve_v0.parallel_env(**kwargs)
+    prototype = reserve_v1.parallel_env(**kwargs)
     obs_dim, state_dim = prototype.obs_dim, prototype.state_space.shape[0]
     model = small_model(env_kwargs=kwargs)
     n = 2 * n_uavs

@@ -10,14 +10,14 @@ from sb3_emmarl.common.masking import HideObservationParts, hidden_indices
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.benchmark import evaluate_run
 from sb3_emmarl.zoo.cli import enjoy_main, latest_run, train_main
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.constants import CH_SIGN
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 6}
 
 
 def layout():
-    return reserve_v0.parallel_env(**SMALL).observation_layout
+    return reserve_v1.parallel_env(**SMALL).observation_layout
 
 
 def test_hidden_indices_name_layout_parts_and_window_channels():
@@ -114,7 +114,7 @@ def test_mode_value_hides_the_parts_in_both_variants(tmp_path, capsys):
                             "--patrol-episodes", "0", "--hide", "signs", "window.sign", "--env-kwargs", "n_uavs:2",
                             "grid_size:20", "max_cycles:10"]) == 0
     for variant, algo in (("told_mode", "oracle_ppo"), ("ppo", "ppo")):
-        config = (latest_run(tmp_path / variant / "seed_1", algo) / "WildlifeReserve-v0" / "config.yml").read_text()
+        config = (latest_run(tmp_path / variant / "seed_1", algo) / "WildlifeReserve-v1" / "config.yml").read_text()
         assert "HideObservationParts" in config and "window.sign" in config
     runs = sorted(tmp_path.glob("*/seed_*/*/*"))
     # The finished runs are evaluated again with the same --hide, and refused without it (another observation).

@@ -156,7 +156,7 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     for variant in ("told_mode", "told_random", "ppo"):  # the overrides reached the training of every variant
         run = mode_value.latest_run(mode_value.run_folder(argparse.Namespace(log_folder=str(tmp_path)), variant, 0),
                                     "ppo" if variant == "ppo" else "oracle_ppo")
-        config = (run / "WildlifeReserve-v0" / "config.yml").read_text()
+        config = (run / "WildlifeReserve-v1" / "config.yml").read_text()
         assert "n_epochs: 2" in config and ("random_label" in config) == (variant == "told_random")
     with pytest.raises(ValueError, match=r"needs a run told the mode \(oracle_ppo\), not ppo"):
         mode_value.evaluate_run("ppo", run, 1, 0, mode_value.WRONG_STRATEGY)  # run: the last one, plain PPO's
@@ -194,11 +194,11 @@ def test_the_benchmark_rejects_bad_arguments(flags, message, capsys):
 
 
 def test_the_told_mode_patrol_holds_stations_where_the_strategy_s_poachers_come_from():
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
     from wildlife_reserve.reserve.modes import STRATEGIES, WEATHERS
     from wildlife_reserve.reserve.scripted import StalestBlockPatrol, ToldModePatrol
 
-    env = reserve_v0.parallel_env(n_poachers=0)
+    env = reserve_v1.parallel_env(n_poachers=0)
     guarded = {"hotspot_raid": lambda: env.hotspots.dens, "edge_infiltration": lambda: env.hotspots.road_entries}
     for strategy, spots in guarded.items():
         index = [s.name for s in STRATEGIES].index(strategy)
@@ -215,7 +215,7 @@ def test_the_told_mode_patrol_holds_stations_where_the_strategy_s_poachers_come_
 
 
 def test_a_station_plan_rejects_bad_values_and_a_plan_per_strategy_must_name_every_strategy():
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
     from wildlife_reserve.reserve.scripted import StationPatrol, StationPlan
 
     with pytest.raises(ValueError, match="spots must be None or one of"):
@@ -223,15 +223,15 @@ def test_a_station_plan_rejects_bad_values_and_a_plan_per_strategy_must_name_eve
     with pytest.raises(ValueError, match=r"until must be a fraction of the episode in \[0, 1\], got 1.5"):
         StationPlan("dens", 1.5)
     with pytest.raises(ValueError, match="one per strategy"):
-        StationPatrol(reserve_v0.parallel_env(), {"hotspot_raid": StationPlan("dens", 0.5)})
+        StationPatrol(reserve_v1.parallel_env(), {"hotspot_raid": StationPlan("dens", 0.5)})
     assert StationPlan(None).name == "sweep" and StationPlan("roads", 0.75).name == "roads<0.75"
 
 
 def test_a_station_plan_guards_its_spots_in_every_mode_until_its_time_then_sweeps():
-    from wildlife_reserve import reserve_v0
+    from wildlife_reserve import reserve_v1
     from wildlife_reserve.reserve.scripted import StalestBlockPatrol, StationPatrol, StationPlan
 
-    env = reserve_v0.parallel_env(n_poachers=0)
+    env = reserve_v1.parallel_env(n_poachers=0)
     plan = StationPlan("dens", 0.5)
     for mode in (0, 2 * 2 + 1, 3 * 2):  # a hotspot raid, a coordinated group in fog, a dispersed evasion
         obs, _ = env.reset(seed=1, options={"mode": mode})

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scripts import load_benchmark
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.scripted import RandomPatrol
 
 TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 8}
@@ -25,7 +25,7 @@ def test_features_are_running_means_and_maxima(evidence):
 def test_collected_features_summarise_the_episode_as_played(evidence):
     single, team, modes, now = evidence.collect_features(TINY, "random", range(3, 5), points=(0.0, 0.5, 1.0),
                                                          patrol_seed=7)
-    env = reserve_v0.parallel_env(**TINY)
+    env = reserve_v1.parallel_env(**TINY)
     policy = RandomPatrol(env, seed=7)
     for episode, seed in enumerate(range(3, 5)):
         observations, infos = env.reset(seed=seed)

@@ -230,7 +230,7 @@ def test_runs_of_one_tensorboard_name_are_refused(logs: Path, tmp_path: Path, ca
 
 
 def test_several_environments_need_env(logs: Path, capsys):
-    write_monitor(logs / "ppo" / "WildlifeReserve-v0_1", [1, 2], n_uavs=10)
+    write_monitor(logs / "ppo" / "WildlifeReserve-v1_1", [1, 2], n_uavs=10)
     with pytest.raises(SystemExit):
         plots.main(["-f", str(logs)])
     assert "runs of several environments under" in capsys.readouterr().err

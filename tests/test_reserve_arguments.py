@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.config import ReserveConfig
 
 BAD = [
@@ -44,23 +44,23 @@ BAD = [
 @pytest.mark.parametrize(("kwargs", "message"), BAD, ids=[next(iter(k)) + str(i) for i, (k, _) in enumerate(BAD)])
 def test_bad_argument_raises_value_error_naming_it(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        reserve_v0.parallel_env(**kwargs)
+        reserve_v1.parallel_env(**kwargs)
     with pytest.raises(ValueError, match=message):
-        reserve_v0.env(**kwargs)
+        reserve_v1.env(**kwargs)
 
 
 def test_unknown_keyword_is_rejected():
     # A ValueError like every argument error, naming it and listing the arguments; also a TypeError (what Python
     # raises for an unexpected keyword) for callers that catch that.
-    for make in (reserve_v0.parallel_env, reserve_v0.env, reserve_v0.raw_env):
+    for make in (reserve_v1.parallel_env, reserve_v1.env, reserve_v1.raw_env):
         with pytest.raises(ValueError, match=r"unknown argument 'n_drones' of the reserve; the arguments are: n_uavs, "):
             make(n_drones=3)
     with pytest.raises(TypeError, match="n_drones"):
-        reserve_v0.parallel_env(n_drones=3)
+        reserve_v1.parallel_env(n_drones=3)
 
 
 def test_bad_reset_options_are_rejected():
-    env = reserve_v0.parallel_env(n_uavs=2, grid_size=20)
+    env = reserve_v1.parallel_env(n_uavs=2, grid_size=20)
     with pytest.raises(ValueError, match=r"options\['uav_positions'\] must be 2 \(row, col\) cells inside \(20, 20\)"):
         env.reset(seed=0, options={"uav_positions": [[0, 0], [25, 3]]})
     with pytest.raises(ValueError, match=r"mode must be in \[0, 7\], got 9"):
@@ -68,7 +68,7 @@ def test_bad_reset_options_are_rejected():
 
 
 def test_the_terrain_array_sets_the_grid_size():
-    env = reserve_v0.parallel_env(terrain=np.ones((30, 40), dtype=int))
+    env = reserve_v1.parallel_env(terrain=np.ones((30, 40), dtype=int))
     env.reset(seed=0)
     assert (env.height, env.width) == (30, 40)
     assert (env.terrain == 1).all()

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors, kernels
 from wildlife_reserve.reserve.constants import CH_STALENESS, COMM_NONE, N_COMMS, N_MOVES, NEVER
 from wildlife_reserve.reserve.knowledge import (
@@ -79,7 +79,7 @@ def test_int32_stamps_give_the_observations_of_int16_ones_and_long_episodes_take
     from wildlife_reserve.reserve import knowledge
 
     def run(**kwargs):
-        env = reserve_v0.parallel_env(n_uavs=4, grid_size=20, comm_radius=30.0, **kwargs)
+        env = reserve_v1.parallel_env(n_uavs=4, grid_size=20, comm_radius=30.0, **kwargs)
         env.reset(seed=4)
         rng = np.random.default_rng(4)
         return env, np.array([env.step_arrays(rng.integers(0, N_MOVES * N_COMMS, 4))[0] for _ in range(150)])
@@ -91,7 +91,7 @@ def test_int32_stamps_give_the_observations_of_int16_ones_and_long_episodes_take
     np.testing.assert_array_equal(wide_obs, narrow_obs)
     np.testing.assert_array_equal(wide.team.own_last, narrow.team.own_last)
     monkeypatch.undo()
-    long = reserve_v0.parallel_env(n_uavs=4, grid_size=20, max_cycles=40_000)
+    long = reserve_v1.parallel_env(n_uavs=4, grid_size=20, max_cycles=40_000)
     long.reset(seed=4)
     assert long.team._stamps.dtype == np.int32
     obs = long.step_arrays(np.full(4, 3))[0]  # one step east: the windows' east column is new
@@ -155,12 +155,12 @@ def test_sign_values_are_numpys_exp_for_every_count():
 
 
 def test_step_arrays_writes_into_out_and_rejects_a_wrong_one():
-    env = reserve_v0.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
+    env = reserve_v1.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
     env.reset(seed=0)
     out = np.full((3, env.obs_dim), np.nan, dtype=np.float32)
     obs = env.step_arrays(np.zeros(3, dtype=np.int64), out)[0]
     assert obs is out and np.isfinite(out).all()
-    reference = reserve_v0.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
+    reference = reserve_v1.parallel_env(n_uavs=3, grid_size=20, max_cycles=5)
     reference.reset(seed=0)
     np.testing.assert_array_equal(reference.step_arrays(np.zeros(3, dtype=np.int64))[0], out)
     for bad in (np.zeros((3, env.obs_dim)), np.zeros((2, env.obs_dim), dtype=np.float32),
@@ -197,7 +197,7 @@ def test_a_checkpointed_team_from_before_the_source_major_block_stamps_is_turned
     """0.14.0 pickled the block stamps as (blocks, n); unpickled now they read as the same stamps, source-major."""
     import pickle
 
-    env = reserve_v0.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=50)
+    env = reserve_v1.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=50)
     env.reset(seed=2)
     for _ in range(20):
         env.step_arrays(np.random.default_rng(0).integers(0, N_MOVES * N_COMMS, 3))
@@ -218,7 +218,7 @@ def test_a_checkpointed_reserve_with_float_cell_stamps_is_packed_on_unpickling_a
     are packed, read as the same stamps and the reserve steps on exactly as the one never pickled."""
     import pickle
 
-    env = reserve_v0.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=80)
+    env = reserve_v1.parallel_env(n_uavs=3, grid_size=24, belief_size=4, max_cycles=80)
     env.reset(seed=5)
     rng = np.random.default_rng(5)
     for _ in range(30):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors
 from wildlife_reserve.reserve.constants import (
     CH_POACHER,
@@ -28,7 +28,7 @@ def make(size=15, ground=OPEN, **kwargs):
     kwargs.setdefault("n_leopards", 0)
     kwargs.setdefault("n_poachers", 1)
     kwargs.setdefault("mode", CLEAR)
-    return reserve_v0.parallel_env(grid_size=size, terrain=np.full((size, size), ground), **kwargs)
+    return reserve_v1.parallel_env(grid_size=size, terrain=np.full((size, size), ground), **kwargs)
 
 
 def put_poacher(env, cell, index=0):
@@ -96,7 +96,7 @@ def test_coverage_efficiency_on_a_scripted_path():
     rng = np.random.default_rng(3)
     risk = (rng.random((size, size)) < 0.3).astype(float)  # about 30% high-risk cells
     path = [RIGHT] * 5 + [DOWN] * 4 + [LEFT] * 2
-    env = reserve_v0.parallel_env(
+    env = reserve_v1.parallel_env(
         n_uavs=1, grid_size=size, risk=risk, sensor_radius=1, uav_speed=1.0, n_poachers=0, n_leopards=0,
         mode=CLEAR, max_cycles=len(path),
     )
@@ -235,7 +235,7 @@ def test_an_empty_battery_grounds_a_uav_and_it_stays_an_agent():
 
 
 def test_episode_metrics_arrive_on_the_last_step():
-    env = reserve_v0.parallel_env(max_cycles=30)
+    env = reserve_v1.parallel_env(max_cycles=30)
     env.reset(seed=0)
     infos = {}
     while env.agents:
@@ -273,7 +273,7 @@ def _subnormal(values: np.ndarray) -> np.ndarray:
 def test_observations_hold_no_float32_subnormals(region):
     # The hotspots' Gaussian tails once reached 1e-39..1e-45 in the risk channel, which slows every network
     # reading the window (matrix products over subnormal inputs) by about half.
-    env = reserve_v0.parallel_env(region=region)
+    env = reserve_v1.parallel_env(region=region)
     rng = np.random.default_rng(0)
     observations, _ = env.reset(seed=3)
     assert not _subnormal(env.unwrapped.risk).any()
@@ -297,7 +297,7 @@ def test_a_custom_risk_map_keeps_no_value_below_the_floor():
 
 def test_agent_ids_end_each_observation_with_the_uavs_one_hot_and_change_nothing_else():
     kwargs = {"n_uavs": 4, "grid_size": 30, "max_cycles": 40}
-    plain, tagged = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(agent_ids=True, **kwargs)
+    plain, tagged = reserve_v1.parallel_env(**kwargs), reserve_v1.parallel_env(agent_ids=True, **kwargs)
     assert tagged.obs_dim == plain.obs_dim + 4
     assert tagged.observation_layout["agent_id"][0] == slice(plain.obs_dim, plain.obs_dim + 4)
     for observed in side_by_side(plain, tagged):  # the same episodes with and without the ids
@@ -322,7 +322,7 @@ def side_by_side(plain, other, steps=60):
 
 def test_compass_points_at_the_nearest_den_and_road_entry_and_changes_nothing_else():
     kwargs = {"n_uavs": 4, "grid_size": 30, "max_cycles": 40}
-    plain, guided = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(compass=True, agent_ids=True, **kwargs)
+    plain, guided = reserve_v1.parallel_env(**kwargs), reserve_v1.parallel_env(compass=True, agent_ids=True, **kwargs)
     assert guided.obs_dim == plain.obs_dim + 4 + 4
     assert guided.observation_layout["compass"] == (slice(plain.obs_dim, plain.obs_dim + 4), (2, 2))
     for observed in side_by_side(plain, guided):  # the same episodes, the compass appended
@@ -354,7 +354,7 @@ def test_sectors_split_cells_by_angle_into_equal_counts():
     assert sorted(np.bincount(sectors(cells, 3)[cells])) == [2, 3, 3]
     assert (sectors(cells, 1)[cells] == 0).all()
     assert (sectors(np.zeros((4, 4), dtype=bool), 4) == -1).all()
-    env = reserve_v0.parallel_env()
+    env = reserve_v1.parallel_env()
     env.reset(seed=0)
     counts = np.bincount(sectors(env.high_risk, 4)[env.high_risk], minlength=4)
     assert counts.sum() == env.high_risk.sum() and counts.max() - counts.min() <= 1
@@ -369,7 +369,7 @@ def test_coverage_sectors_pay_coverage_in_the_strategys_sector_only_and_change_n
     only_coverage = {term: 0.0 for term in DEFAULT_REWARD_WEIGHTS} | {"coverage": 1.0}
     kwargs = {"n_uavs": 4, "grid_size": 40, "max_cycles": 40, "terrain_seed": terrain_seed,
               "reward_weights": only_coverage}
-    plain, paid = reserve_v0.parallel_env(**kwargs), reserve_v0.parallel_env(coverage_sectors=True, **kwargs)
+    plain, paid = reserve_v1.parallel_env(**kwargs), reserve_v1.parallel_env(coverage_sectors=True, **kwargs)
     for mode in range(N_MODES):
         rng = np.random.default_rng(mode)
         observed = [plain.reset(seed=mode, options={"mode": mode})[0], paid.reset(seed=mode, options={"mode": mode})[0]]
@@ -404,7 +404,7 @@ def test_compass_on_hand_built_cells_and_without_roads():
     # [0, 0]: den (2, 9) is 9 away, (10, 4) 10 away; [10, 10]: 8 and 6; [5, 9]: 3 and 5.
     np.testing.assert_allclose(out[:, 0], [[0.2, 0.45], [0.0, -0.3], [-0.3, 0.0]])
     assert (out[:, 1] == 0).all()  # no road entry on the map: zeros
-    env = reserve_v0.parallel_env(n_uavs=2, grid_size=20, compass=True, risk=np.eye(20))  # a custom map has no roads
+    env = reserve_v1.parallel_env(n_uavs=2, grid_size=20, compass=True, risk=np.eye(20))  # a custom map has no roads
     obs, _ = env.reset(seed=0)
     assert len(env.hotspots.road_entries) == 0
     assert (env.split_observation(obs["uav_0"])["compass"][1] == 0).all()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_POACHER, POACHER_ACTIVE
 from wildlife_reserve.reserve.modes import MODE_NAMES, N_MODES, STRATEGIES, WEATHERS, decode_mode
@@ -22,7 +22,7 @@ def test_mode_indices_decode_to_strategy_and_weather():
 def poacher_statistics(strategy_index, episodes=40):
     """Entry times, within-episode spread of entry cells, and per-step progress toward the target den
     while still on the way (further than a poacher's sight from it)."""
-    env = reserve_v0.parallel_env(n_uavs=1, grid_size=60, n_poachers=6, max_cycles=120, terrain_seed=None)
+    env = reserve_v1.parallel_env(n_uavs=1, grid_size=60, n_poachers=6, max_cycles=120, terrain_seed=None)
     times, spreads, progress = [], [], []
     for seed in range(episodes):
         env.reset(seed=seed, options={"mode": 2 * strategy_index, "uav_positions": [[0, 0]]})
@@ -53,7 +53,7 @@ def test_strategies_produce_different_entry_and_movement_distributions():
 
 
 def test_the_first_observation_is_the_same_in_every_mode():
-    env = reserve_v0.parallel_env()
+    env = reserve_v1.parallel_env()
     for seed in range(3):
         first, _ = env.reset(seed=seed, options={"mode": 0})
         for mode in range(1, N_MODES):
@@ -101,7 +101,7 @@ def nearest_centroid_accuracy(features, labels, seed=0):
 
 @pytest.fixture(scope="module")
 def random_patrol_episodes():
-    env = reserve_v0.parallel_env(grid_size=40, n_poachers=6, max_cycles=150, terrain_seed=None)
+    env = reserve_v1.parallel_env(grid_size=40, n_poachers=6, max_cycles=150, terrain_seed=None)
     rng = np.random.default_rng(0)
     histories, modes = [], []
     for episode in range(240):

@@ -3,11 +3,11 @@
 import numpy as np
 from gymnasium.utils.env_checker import data_equivalence
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 
 def rollout(seed, steps=500, **kwargs):
-    env = reserve_v0.parallel_env(**kwargs)
+    env = reserve_v1.parallel_env(**kwargs)
     obs, infos = env.reset(seed=seed)
     for i, agent in enumerate(env.possible_agents):
         env.action_space(agent).seed(seed + i)
@@ -44,7 +44,7 @@ def test_another_seed_differs():
 
 
 def test_unseeded_resets_after_a_seed_differ_but_repeat():
-    env = reserve_v0.parallel_env()
+    env = reserve_v1.parallel_env()
     env.reset(seed=5)
     first_positions = env.uav_pos.copy()
     env.reset()
@@ -54,12 +54,12 @@ def test_unseeded_resets_after_a_seed_differ_but_repeat():
 
 
 def test_terrain_seed_fixes_the_map_and_none_redraws_it():
-    fixed = reserve_v0.parallel_env(grid_size=40)
+    fixed = reserve_v1.parallel_env(grid_size=40)
     fixed.reset(seed=0)
     terrain = fixed.terrain.copy()
     fixed.reset(seed=1)
     assert np.array_equal(fixed.terrain, terrain)
-    drawn = reserve_v0.parallel_env(grid_size=40, terrain_seed=None)
+    drawn = reserve_v1.parallel_env(grid_size=40, terrain_seed=None)
     drawn.reset(seed=0)
     first = drawn.terrain.copy()
     drawn.reset(seed=1)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import sensing
 from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve.constants import CH_SIGN, COMM_BROADCAST, N_MOVES, POACHER_ACTIVE, STAY
@@ -21,7 +21,7 @@ def make(size=15, ground=OPEN, **kwargs):
     kwargs.setdefault("n_leopards", 0)
     kwargs.setdefault("n_poachers", 0)
     kwargs.setdefault("mode", CLEAR)
-    return reserve_v0.parallel_env(grid_size=size, terrain=np.full((size, size), ground), **kwargs)
+    return reserve_v1.parallel_env(grid_size=size, terrain=np.full((size, size), ground), **kwargs)
 
 
 def lay(env, cell, kind=signs_lib.SNARE, born=0):
@@ -172,7 +172,7 @@ def test_heard_from_lists_every_delivered_message():
 
 
 def test_with_total_communication_loss_no_link_is_listed():
-    env = reserve_v0.parallel_env(comm_loss=1.0, max_cycles=30)
+    env = reserve_v1.parallel_env(comm_loss=1.0, max_cycles=30)
     env.reset(seed=0)
     while env.agents:
         _, _, _, _, infos = env.step(dict.fromkeys(env.agents, BROADCAST))
@@ -192,7 +192,7 @@ def test_jamming_removes_the_links_inside_the_jammer():
 
 
 def test_adversarial_decoys_come_with_fake_signs():
-    env = reserve_v0.parallel_env(adversarial=True, n_decoys=3)
+    env = reserve_v1.parallel_env(adversarial=True, n_decoys=3)
     env.reset(seed=0)
     fakes = np.flatnonzero(env.signs.kind[:env.signs.count] == signs_lib.DECOY)
     assert len(fakes) >= 3
@@ -203,7 +203,7 @@ def test_adversarial_decoys_come_with_fake_signs():
 # ---------------------------------------------------------------------------------------------------- layouts
 def layouts(strategy, episodes=60):
     """Pre-episode signs of ``episodes`` episodes of one strategy (clear weather) on the default reserve."""
-    env = reserve_v0.parallel_env()
+    env = reserve_v1.parallel_env()
     out = []
     for seed in range(episodes):
         env.reset(seed=seed, options={"mode": strategy * len(WEATHERS)})
@@ -285,7 +285,7 @@ def test_the_strategies_lay_signs_in_different_places(all_layouts):
 
 
 def test_the_observation_stays_under_600_floats_for_ten_uavs():
-    env = reserve_v0.parallel_env()
+    env = reserve_v1.parallel_env()
     assert env.obs_dim == 553 < 600
     assert env.observation_layout["signs"][1] == (8, 8)
 

@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import kernels, stream
 from wildlife_reserve.reserve.sensing import SIGNAL_NOISE_STD
 
@@ -37,7 +37,7 @@ def test_a_stream_pickles_as_its_generator_and_rejects_anything_else():
 
 
 def test_a_reserve_whose_generator_is_replaced_draws_from_the_new_one():
-    env = reserve_v0.parallel_env(n_uavs=3, max_cycles=20)
+    env = reserve_v1.parallel_env(n_uavs=3, max_cycles=20)
     env.reset(seed=0)
     twin = pickle.loads(pickle.dumps(env))
     env.rng = np.random.default_rng(99)
@@ -51,7 +51,7 @@ def test_a_reserve_whose_generator_is_replaced_draws_from_the_new_one():
 
 
 def test_a_reserve_pickled_before_the_compiled_step_loads_and_steps_as_one_pickled_now():
-    env = reserve_v0.parallel_env(n_uavs=3, max_cycles=40)
+    env = reserve_v1.parallel_env(n_uavs=3, max_cycles=40)
     env.reset(seed=5)
     env.step_arrays(np.full(3, 7, dtype=np.int64))
     old = dict(env.__dict__)
@@ -106,7 +106,7 @@ def test_step_rewards_add_the_weighted_terms_and_shape_each_uavs_share():
 
 
 def test_an_action_out_of_range_is_rejected_before_the_step_changes_anything():
-    env = reserve_v0.parallel_env(n_uavs=4, max_cycles=30)
+    env = reserve_v1.parallel_env(n_uavs=4, max_cycles=30)
     env.reset(seed=1)
     for _ in range(3):
         env.step_arrays(np.zeros(4, dtype=np.int64))
@@ -121,7 +121,7 @@ def test_an_action_out_of_range_is_rejected_before_the_step_changes_anything():
 
 def episode_digest(seed: int, steps: int, **kwargs) -> str:
     """Hash of ``steps`` steps of random actions (with resets): observations, rewards, ends, infos and the state."""
-    env = reserve_v0.parallel_env(**kwargs)
+    env = reserve_v1.parallel_env(**kwargs)
     digest = hashlib.sha256()
     observations, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed + 1)

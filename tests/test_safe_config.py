@@ -34,7 +34,7 @@ from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
 from sb3_emmarl.zoo.exp_manager import read_yaml, zoo_file, zoo_hyperparams
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = "WildlifeReserve-v0"
+ENV = "WildlifeReserve-v1"
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 QUIET = ["--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--seed", "0"]
 #: os.system reached from a literal by an attribute walk (what the old restricted eval let through)

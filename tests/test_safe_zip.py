@@ -15,7 +15,7 @@ from sb3_emmarl.common.safe_zip import allowed_global, check_zip_pickles, pickle
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import enjoy_main, train_main
 
-ENV = "WildlifeReserve-v0"
+ENV = "WildlifeReserve-v1"
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 QUIET = ["--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--seed", "0"]
 ON_POLICY = ("ppo", "em_ppo", "oracle_ppo", "mappo", "ppo_gat", "ppo_transformer", "ppo_lstm", "cppo")

@@ -9,7 +9,7 @@ import pytest
 from scripts import load_benchmark
 
 from sb3_emmarl.common.metrics import TEAM_METRICS, format_summary, summarize
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.scripted import RandomPatrol, StalestBlockPatrol, run_patrol
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ def test_summarize_rejects_bad_records():
 
 
 def test_stalest_block_patrol_covers_more_than_random():
-    env = reserve_v0.parallel_env(max_cycles=150)
+    env = reserve_v1.parallel_env(max_cycles=150)
     random_runs = run_patrol(env, RandomPatrol(env, seed=0), episodes=3, seed=0)
     scripted_runs = run_patrol(env, StalestBlockPatrol(env), episodes=3, seed=0)
     random_cov = np.mean([r["coverage_efficiency"] for r in random_runs])
@@ -44,13 +44,13 @@ def test_stalest_block_patrol_covers_more_than_random():
 
 
 def test_run_patrol_is_reproducible():
-    env = reserve_v0.parallel_env(max_cycles=40)
+    env = reserve_v1.parallel_env(max_cycles=40)
     assert run_patrol(env, RandomPatrol(env, seed=1), 2, seed=3) == run_patrol(env, RandomPatrol(env, seed=1), 2, seed=3)
 
 
 def test_stalest_block_patrol_refuses_continuous_actions():
     with pytest.raises(ValueError, match="continuous_actions=False"):
-        StalestBlockPatrol(reserve_v0.parallel_env(continuous_actions=True))
+        StalestBlockPatrol(reserve_v1.parallel_env(continuous_actions=True))
 
 
 def run(script, *args):
@@ -115,8 +115,8 @@ def test_a_finished_run_says_where_its_curves_are_and_what_to_run_next():
 
     from sb3_emmarl.zoo.cli import next_steps
 
-    args = Namespace(algo="em_ppo", env="WildlifeReserve-v0", tensorboard_log="runs", log_folder="logs")
-    text = next_steps(args, "logs/em_ppo/WildlifeReserve-v0_1", 5120)
+    args = Namespace(algo="em_ppo", env="WildlifeReserve-v1", tensorboard_log="runs", log_folder="logs")
+    text = next_steps(args, "logs/em_ppo/WildlifeReserve-v1_1", 5120)
     assert "tensorboard --logdir runs" in text and "zoo/enjoy.py --algo em_ppo" in text and "-n 5120" in text
     text = next_steps(Namespace(**{**vars(args), "env": "ZonePatrol-v0", "tensorboard_log": ""}), "x", 10)
     assert "tensorboard" not in text and "zone_patrol_value.py" in text

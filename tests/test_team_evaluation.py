@@ -169,7 +169,7 @@ def test_the_zoos_periodic_evaluations_are_team_episodes(tmp_path):
     assert train_main(["--algo", "em_ppo", "-n", "256", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "128",
                        "--eval-episodes", "4", "--team-eval-episodes", "0", "--verbose", "0", "-params", "n_steps:32",
                        "batch_size:32", "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:30"]) == 0
-    evaluations = np.load(tmp_path / "em_ppo" / "WildlifeReserve-v0_1" / "evaluations.npz")
+    evaluations = np.load(tmp_path / "em_ppo" / "WildlifeReserve-v1_1" / "evaluations.npz")
     assert evaluations["results"].shape == (2, 4)  # two evaluations of four team episodes
     # SB3's would score the two UAVs of each of two episodes here: two pairs of equal rewards
     assert all(len(set(row)) == 4 for row in evaluations["results"].tolist())

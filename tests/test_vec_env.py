@@ -10,7 +10,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_emmarl.common.vec_env import ReserveVecEnv, SharedPolicyVecEnv, make_vec_env
 from sb3_emmarl.common.vec_env.workers import POLL_SECONDS
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 25}
 
@@ -32,7 +32,7 @@ def test_index_layout_is_copy_major_then_agent():
     obs = venv.reset()
     assert venv.num_envs == 9 and venv.get_attr("n")[0] == 3
     for c in range(3):
-        direct, _ = reserve_v0.parallel_env(**SMALL).reset(seed=11 + c)
+        direct, _ = reserve_v1.parallel_env(**SMALL).reset(seed=11 + c)
         for a, agent in enumerate(["uav_0", "uav_1", "uav_2"]):
             np.testing.assert_array_equal(obs[c * 3 + a], direct[agent])
 
@@ -62,7 +62,7 @@ def test_vec_env_seed_then_reset_reproduces_and_other_seeds_differ():
 def test_every_copy_plays_a_different_episode_even_unseeded():
     # SuperSuit fault: copies were clones of one environment, sharing its random state.
     def pre_seeded():
-        env = reserve_v0.parallel_env(**SMALL)
+        env = reserve_v1.parallel_env(**SMALL)
         env.reset(seed=0)  # a random state that a clone would copy
         return env
 
@@ -303,7 +303,7 @@ def test_the_doorbells_count_every_message_and_polling_needs_a_cpu_per_process()
         assert split.poll_seconds == (POLL_SECONDS if cpus >= 2 else 0.0)
     finally:
         venv.close()
-    blocking = ReserveVecEnv(partial(reserve_v0.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=0)
+    blocking = ReserveVecEnv(partial(reserve_v1.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=0)
     try:
         assert blocking.venv.poll_seconds == 0.0
         blocking.seed(0)
@@ -313,7 +313,7 @@ def test_the_doorbells_count_every_message_and_polling_needs_a_cpu_per_process()
         blocking.close()
     for bad in (-1.0, float("nan"), float("inf"), "0.1", True):
         with pytest.raises(ValueError, match=f"poll_seconds must be None or a finite number >= 0, got {bad!r}"):
-            ReserveVecEnv(partial(reserve_v0.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=bad)
+            ReserveVecEnv(partial(reserve_v1.parallel_env, **SMALL), n_copies=2, num_cpus=2, poll_seconds=bad)
 
 
 def test_the_state_switched_on_reaches_the_worker_processes():
@@ -363,7 +363,7 @@ def test_a_copy_that_cannot_be_built_in_a_worker_is_reported_and_no_worker_is_le
     def build():
         if os.getpid() != parent:
             raise ValueError("no reserve in this process")
-        return reserve_v0.parallel_env(**SMALL)
+        return reserve_v1.parallel_env(**SMALL)
 
     with pytest.raises(RuntimeError, match=r"(?s)reserve copies 1-1 failed.*no reserve in this process"):
         ReserveVecEnv(build, n_copies=2, num_cpus=2)

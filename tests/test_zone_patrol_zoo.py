@@ -78,7 +78,7 @@ def test_the_zoo_refuses_an_algorithm_without_a_zone_patrol_section(tmp_path, ca
 
 
 def test_environment_ids_are_checked():
-    assert set(ENV_MODULES) == {"WildlifeReserve-v0", ZONE_PATROL_ID}
+    assert set(ENV_MODULES) == {"WildlifeReserve-v1", ZONE_PATROL_ID}
     assert parallel_env_fn(ZONE_PATROL_ID) is zone_patrol_v0.parallel_env
     with pytest.raises(ValueError, match="unknown environment id 'CartPole-v1'; known"):
         check_env_id("CartPole-v1")

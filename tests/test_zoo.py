@@ -18,11 +18,11 @@ TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 
 
 def load_config(run):
-    return dict(read_yaml(run / "WildlifeReserve-v0" / "config.yml", "the run's config"))
+    return dict(read_yaml(run / "WildlifeReserve-v1" / "config.yml", "the run's config"))
 
 
 def train(tmp_path, *extra):
-    return train_main(["--algo", "ppo", "--env", "WildlifeReserve-v0", "-n", "1024", "--seed", "1", "-f",
+    return train_main(["--algo", "ppo", "--env", "WildlifeReserve-v1", "-n", "1024", "--seed", "1", "-f",
                        str(tmp_path / "logs"), "-tb", str(tmp_path / "runs"), "--eval-freq", "512", "--eval-episodes", "2",
                        "--team-eval-episodes", "2", "--verbose", "0", "-params", "n_steps:32", "batch_size:64", *TINY,
                        *extra])
@@ -36,9 +36,9 @@ def trained_run(tmp_path_factory):
 
 
 def test_train_saves_the_run_in_rl_zoo_layout(trained_run):
-    run = trained_run / "logs" / "ppo" / "WildlifeReserve-v0_1"
-    for name in ["WildlifeReserve-v0.zip", "best_model.zip", "evaluations.npz", "monitor.csv", "team_eval.json",
-                 "WildlifeReserve-v0/config.yml", "WildlifeReserve-v0/args.yml", "WildlifeReserve-v0/command.txt"]:
+    run = trained_run / "logs" / "ppo" / "WildlifeReserve-v1_1"
+    for name in ["WildlifeReserve-v1.zip", "best_model.zip", "evaluations.npz", "monitor.csv", "team_eval.json",
+                 "WildlifeReserve-v1/config.yml", "WildlifeReserve-v1/args.yml", "WildlifeReserve-v1/command.txt"]:
         assert (run / name).is_file(), name
     config = load_config(run)
     assert config["n_steps"] == 32 and config["env_kwargs"]["n_uavs"] == 2
@@ -87,18 +87,18 @@ def test_bad_inputs_stop_before_training_and_leave_nothing(tmp_path, capsys, arg
     assert train(tmp_path, *args) == 2
     assert message in capsys.readouterr().err
     assert not list((tmp_path / "logs").rglob("*.zip"))
-    assert not (tmp_path / "logs" / "ppo" / "WildlifeReserve-v0_1").exists()
+    assert not (tmp_path / "logs" / "ppo" / "WildlifeReserve-v1_1").exists()
 
 
 def test_malformed_yaml_stops_with_its_name(tmp_path, capsys):
     bad = tmp_path / "bad.yml"
-    bad.write_text("WildlifeReserve-v0:\n  n_timesteps: [1,\n  policy: 'MlpPolicy'\n")
+    bad.write_text("WildlifeReserve-v1:\n  n_timesteps: [1,\n  policy: 'MlpPolicy'\n")
     assert train(tmp_path, "-conf", str(bad)) == 2
     assert "bad.yml" in capsys.readouterr().err
     missing = tmp_path / "other.yml"
     missing.write_text("CartPole-v1:\n  n_timesteps: 10\n")
     assert train(tmp_path, "-conf", str(missing)) == 2
-    assert "has no mapping of hyperparameters under 'WildlifeReserve-v0'" in capsys.readouterr().err
+    assert "has no mapping of hyperparameters under 'WildlifeReserve-v1'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -149,7 +149,7 @@ def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
     lstm = zoo_hyperparams("ppo_lstm")
     assert lstm["policy"] == "MlpLstmPolicy" and lstm["n_epochs"] == ppo["n_epochs"]
     # Own keys win, a whole value at a time; "default" is read when the env has no section.
-    own = yaml_section({"default": {"base": "ppo", "n_epochs": 3, "env_kwargs": {"n_uavs": 2}}}, "WildlifeReserve-v0",
+    own = yaml_section({"default": {"base": "ppo", "n_epochs": 3, "env_kwargs": {"n_uavs": 2}}}, "WildlifeReserve-v1",
                        "own.yml")
     assert own == {**ppo, "n_epochs": 3, "env_kwargs": {"n_uavs": 2}}
 
@@ -158,30 +158,30 @@ def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
                                                (["ppo"], "base must name a zoo hyperparameter file")])
 def test_a_bad_base_is_rejected_naming_it(base, message):
     with pytest.raises(ValueError, match=message) as error:
-        yaml_section({"WildlifeReserve-v0": {"base": base}}, "WildlifeReserve-v0", "own.yml")
+        yaml_section({"WildlifeReserve-v1": {"base": base}}, "WildlifeReserve-v1", "own.yml")
     assert "own.yml" in str(error.value) and repr(base) in str(error.value)
 
 
 def test_a_cycle_of_base_files_is_rejected(tmp_path, monkeypatch):
-    (tmp_path / "a.yml").write_text("WildlifeReserve-v0:\n  base: b\n")
-    (tmp_path / "b.yml").write_text("WildlifeReserve-v0:\n  base: a\n")
+    (tmp_path / "a.yml").write_text("WildlifeReserve-v1:\n  base: b\n")
+    (tmp_path / "b.yml").write_text("WildlifeReserve-v1:\n  base: a\n")
     monkeypatch.setattr(exp_manager, "HYPERPARAMS_DIR", tmp_path)
     with pytest.raises(ValueError, match="cycle: a -> b -> a"):
-        yaml_section({"WildlifeReserve-v0": {"base": "a"}}, "WildlifeReserve-v0", "own.yml")
+        yaml_section({"WildlifeReserve-v1": {"base": "a"}}, "WildlifeReserve-v1", "own.yml")
 
 
 def test_training_reads_a_users_file_through_its_base(tmp_path):
     own = tmp_path / "own.yml"
-    own.write_text("WildlifeReserve-v0:\n  base: ppo\n  n_epochs: 1\n")
+    own.write_text("WildlifeReserve-v1:\n  base: ppo\n  n_epochs: 1\n")
     assert train(tmp_path, "-conf", str(own)) == 0
-    config = load_config(tmp_path / "logs" / "ppo" / "WildlifeReserve-v0_1")
+    config = load_config(tmp_path / "logs" / "ppo" / "WildlifeReserve-v1_1")
     assert config["n_epochs"] == 1 and config["ent_coef"] == zoo_hyperparams("ppo")["ent_coef"] and "base" not in config
 
 
 def test_cli_env_kwargs_update_the_yaml_ones(tmp_path):
     assert train_main(["--algo", "ddpg", "-n", "200", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "-1",
                        "--team-eval-episodes", "0", "--verbose", "0", "-params", "learning_starts:50", *TINY]) == 0
-    config = load_config(Path(tmp_path) / "ddpg" / "WildlifeReserve-v0_1")
+    config = load_config(Path(tmp_path) / "ddpg" / "WildlifeReserve-v1_1")
     assert config["env_kwargs"] == {"continuous_actions": True, "n_uavs": 2, "grid_size": 20, "max_cycles": 40}
 
 
@@ -191,7 +191,7 @@ def test_optimize_runs_optuna_trials_into_a_sqlite_study(tmp_path):
     assert train_main(["--algo", "ppo", "-optimize", "--n-trials", "2", "-n", "1000", "--n-evaluations", "1",
                        "--sampler", "random", "--pruner", "none", "-f", str(tmp_path), "--verbose", "0",
                        "--eval-episodes", "1", "--no-optim-plots", *TINY]) == 0
-    study = optuna.load_study(study_name="ppo-WildlifeReserve-v0", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
+    study = optuna.load_study(study_name="ppo-WildlifeReserve-v1", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
     assert len(study.trials) == 2 and all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
 
 

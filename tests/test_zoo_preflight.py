@@ -16,7 +16,7 @@ from sb3_emmarl.zoo.algos import ZOO_ALGOS, convert_latent_params, merge_latent_
 from sb3_emmarl.zoo.cli import make_manager, train_main, train_parser
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
-ENV = "WildlifeReserve-v0"
+ENV = "WildlifeReserve-v1"
 CALLBACK = "stable_baselines3.common.callbacks.StopTrainingOnMaxEpisodes"
 
 
@@ -116,7 +116,7 @@ def test_a_model_that_fails_to_build_leaves_no_log_folder(tmp_path, capsys, monk
 
 
 def test_every_zoo_yaml_passes_the_checks_without_making_a_folder(tmp_path):
-    for env in ("WildlifeReserve-v0", "ZonePatrol-v0"):
+    for env in ("WildlifeReserve-v1", "ZonePatrol-v0"):
         for algo in sorted(ZOO_ALGOS):
             try:
                 zoo_hyperparams(algo, env)

@@ -11,7 +11,7 @@ from sb3_emmarl.common.checkpoints import REPLAY_BUFFER, TRAINING_STATE, compani
 from sb3_emmarl.zoo.cli import enjoy_main, train_main
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
-ENV = "WildlifeReserve-v0"
+ENV = "WildlifeReserve-v1"
 TINY = ["--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:40"]
 QUIET = ["--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0"]
 

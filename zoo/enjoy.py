@@ -1,6 +1,6 @@
 """``emmarl enjoy``: watch a trained team, print its team metrics and record an animated GIF (or MP4) of its patrol.
 
-Example: ``python zoo/enjoy.py --algo ppo --env WildlifeReserve-v0 -f logs/ --episodes 5``
+Example: ``python zoo/enjoy.py --algo ppo --env WildlifeReserve-v1 -f logs/ --episodes 5``
 """
 
 import sys

@@ -1,6 +1,6 @@
 """``emmarl train``: train an agent on the wildlife reserve with rl-baselines3-zoo's flags.
 
-Example: ``python zoo/train.py --algo ppo --env WildlifeReserve-v0 -n 200000 --seed 0 -tb runs/ -f logs/``
+Example: ``python zoo/train.py --algo ppo --env WildlifeReserve-v1 -n 200000 --seed 0 -tb runs/ -f logs/``
 """
 
 import sys

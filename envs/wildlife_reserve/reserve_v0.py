@@ -1,7 +1,17 @@
-"""The wildlife reserve, as PettingZoo names an environment: :func:`~wildlife_reserve.reserve.reserve.env` (AEC),
-:func:`~wildlife_reserve.reserve.reserve.parallel_env` (a :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv`)
-and :func:`~wildlife_reserve.reserve.reserve.raw_env`; its card is :mod:`wildlife_reserve.reserve.reserve`."""
+"""The reserve's former name, kept so that old code runs: importing it warns once and gives
+:mod:`wildlife_reserve.reserve_v1`'s environments.
 
-from wildlife_reserve.reserve.reserve import env, parallel_env, raw_env
+The reserve kept the name ``reserve_v0`` from sb3-emmarl 0.1.0 to 0.20.0 while its observation grew from 440 to 553
+floats and its dynamics changed many times, so a ``reserve_v0`` episode of today is not one of 0.1.0. Following
+PettingZoo's rule (the version rises whenever a change can change an episode), the environment is now ``reserve_v1``.
+"""
+
+import warnings
+
+from wildlife_reserve.reserve_v1 import env, parallel_env, raw_env
+
+warnings.warn("wildlife_reserve.reserve_v0 is the reserve's former name: its episodes differ from sb3-emmarl 0.1.0's "
+              "reserve_v0 (the observation and dynamics changed); this alias gives reserve_v1, the current version: "
+              "import wildlife_reserve.reserve_v1", FutureWarning, stacklevel=2)
 
 __all__ = ["env", "parallel_env", "raw_env"]

@@ -12,7 +12,7 @@ single-agent Stable-Baselines3 algorithm can train on the reserve:
 
     model = PPO("MlpPolicy", CentralizedReserveEnv(n_uavs=3, grid_size=20)).learn(10_000)
 
-:func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v0", **env_kwargs)``,
+:func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v1", **env_kwargs)``,
 and ZonePatrol's (:class:`CentralizedZonePatrolEnv`) as ``gymnasium.make("ZonePatrol-v0", **env_kwargs)``.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, check_env_id
-from wildlife_reserve import reserve_v0, zone_patrol_v0
+from wildlife_reserve import reserve_v1, zone_patrol_v0
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 #: Values of one UAV's continuous action: ``(d_row, d_col, comm)``.
@@ -49,7 +49,7 @@ class CentralizedReserveEnv(gymnasium.Env):
       every step and ``"metrics"`` (:meth:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv.episode_metrics`)
       on the last step.
 
-    :param env_kwargs: arguments of ``reserve_v0.parallel_env`` (see
+    :param env_kwargs: arguments of ``reserve_v1.parallel_env`` (see
         :class:`~wildlife_reserve.reserve.config.ReserveConfig`), ``render_mode`` included
     """
 
@@ -59,7 +59,7 @@ class CentralizedReserveEnv(gymnasium.Env):
     }
 
     #: The parallel environment's constructor (a subclass names another environment's).
-    parallel_env_fn = staticmethod(reserve_v0.parallel_env)
+    parallel_env_fn = staticmethod(reserve_v1.parallel_env)
 
     def __init__(self, **env_kwargs: Any) -> None:
         super().__init__()
@@ -156,7 +156,7 @@ def centralized_env(env_id: str = ENV_ID, **env_kwargs: Any) -> CentralizedReser
 
 
 def register_envs() -> None:
-    """Register the centralised views with Gymnasium (``"WildlifeReserve-v0"``, ``"ZonePatrol-v0"``).
+    """Register the centralised views with Gymnasium (``"WildlifeReserve-v1"``, ``"ZonePatrol-v0"``).
 
     Idempotent: calling it again does nothing. There is no ``max_episode_steps``: the environments
     truncate themselves after their episode length.

@@ -35,7 +35,7 @@ from sb3_emmarl.common.checkpoints import (
     vec_normalize_stats,
     write_text,
 )
-from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, parallel_env_fn
+from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.safe_config import wrapper_from_config
@@ -81,7 +81,8 @@ def train_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(description="Train an agent on the wildlife reserve or ZonePatrol "
                                                  "(rl-baselines3-zoo flags).")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
-    parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
+    parser.add_argument("--env", default=ENV_ID, type=current_env_id, choices=sorted(ENV_MODULES),
+                        help="environment id (a former id gives its current one, with a warning)")
     parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS, extra=(-1,)), default=-1,
                         help="overwrite the YAML's n_timesteps (-1: the YAML's)")
     parser.add_argument("--seed", type=int_flag(0, 2**32 - 1, extra=(-1,)), default=-1, help="random seed (-1: draw one)")
@@ -420,7 +421,8 @@ def next_steps(args: argparse.Namespace, save_path: str, n_timesteps: int) -> st
 def enjoy_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(description="Watch a trained team: team metrics and an animation of its patrol.")
     parser.add_argument("--algo", default="ppo", choices=sorted(ZOO_ALGOS), help="algorithm")
-    parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="environment id")
+    parser.add_argument("--env", default=ENV_ID, type=current_env_id, choices=sorted(ENV_MODULES),
+                        help="environment id (a former id gives its current one, with a warning)")
     parser.add_argument("-f", "--folder", default="logs", help="log folder of the runs")
     parser.add_argument("--exp-id", type=int_flag(0, 10**6), default=0, help="run number (0: the latest)")
     parser.add_argument("--load-best", action="store_true", help="the best model of the periodic evaluations")

@@ -1,5 +1,5 @@
 """rl_zoo3's ``ExperimentManager``, taught to build the parameter-sharing vector environments of the reserve and
-ZonePatrol (``--env WildlifeReserve-v0``, the default, or ``--env ZonePatrol-v0``).
+ZonePatrol (``--env WildlifeReserve-v1``, the default, or ``--env ZonePatrol-v0``).
 
 rl_zoo3 reads the YAML hyperparameters, builds schedules, callbacks and action noise, saves runs in
 its folder layout and tunes with optuna; all of that is reused. What changes:
@@ -8,7 +8,7 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   one vector entry per UAV) instead of ``gym.make`` copies, with the true mode for ``oracle_ppo`` (the EM
   algorithms add their belief wrapper themselves, to the evaluation environment too); the centralised algorithms keep
   rl_zoo3's own path
-  through the Gymnasium id ``WildlifeReserve-v0``; ``ppo_gat`` / ``ppo_transformer`` get the neighbour messages
+  through the Gymnasium id ``WildlifeReserve-v1``; ``ppo_gat`` / ``ppo_transformer`` get the neighbour messages
   (training and evaluation environments alike);
 - ``oracle_ppo`` reads ``ppo.yml``: the same settings as PPO by construction;
 - ``n_envs`` is counted in vector entries (copies x UAVs) once the YAML is read, so that rl_zoo3's

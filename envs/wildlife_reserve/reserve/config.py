@@ -1,6 +1,6 @@
 """The reserve's keyword arguments: defaults, allowed ranges and validation, in one place.
 
-:meth:`ReserveConfig.from_kwargs` is the one gate of ``reserve_v0.parallel_env`` / ``env`` / ``raw_env``: it
+:meth:`ReserveConfig.from_kwargs` is the one gate of ``reserve_v1.parallel_env`` / ``env`` / ``raw_env``: it
 rejects unknown argument names, and :class:`ReserveConfig` checks the type and range of every value
 before the environment allocates anything. Every rejection is a :class:`ValueError` whose message
 names the argument, shows the value (abbreviated if long) and says what is allowed.
@@ -164,7 +164,7 @@ class UnknownArgumentError(ValueError, TypeError):
 
 @dataclass
 class ReserveConfig:
-    """Every argument of ``reserve_v0.env`` / ``parallel_env``, validated on construction.
+    """Every argument of ``reserve_v1.env`` / ``parallel_env``, validated on construction.
 
     Every bad value raises a :class:`ValueError` naming the argument, the value and what is allowed. Ints must be
     ints (``int`` or numpy integers: no floats, bools or strings), numbers ints or floats (no bools, strings or

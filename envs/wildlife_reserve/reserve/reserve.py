@@ -1,7 +1,7 @@
 """
 # Wildlife Reserve
 
-| Import             | `from wildlife_reserve import reserve_v0`                  |
+| Import             | `from wildlife_reserve import reserve_v1`                  |
 |--------------------|------------------------------------------------------------|
 | Actions            | Discrete (default) or continuous                           |
 | Parallel API       | Yes                                                        |
@@ -223,7 +223,7 @@ class ReserveParallelEnv(ParallelEnv):
     :param kwargs: see :class:`~wildlife_reserve.reserve.config.ReserveConfig`
     """
 
-    metadata: dict[str, Any] = {"name": "wildlife_reserve_v0", "render_modes": ["human", "rgb_array"],
+    metadata: dict[str, Any] = {"name": "wildlife_reserve_v1", "render_modes": ["human", "rgb_array"],
                                 "is_parallelizable": True, "render_fps": 10}
 
     def __init__(self, **kwargs: Any) -> None:

@@ -223,7 +223,7 @@ def play_station_plan(plan: StationPlan | dict[str, StationPlan], episodes: int,
     :param plan: see :class:`StationPatrol`
     :param episodes: number of episodes
     :param seed: seed of the first episode
-    :param env_kwargs: arguments of ``reserve_v0.parallel_env``
+    :param env_kwargs: arguments of ``reserve_v1.parallel_env``
     """
     env = parallel_env(**dict(env_kwargs or {}))
     records = run_patrol(env, StationPatrol(env, plan), episodes, seed=seed)

@@ -46,7 +46,7 @@ from sb3_emmarl.common.vec_env.shared_policy import (
     SharedPolicyVecEnv,
     require_state,
 )
-from wildlife_reserve import reserve_v0
+from wildlife_reserve import reserve_v1
 
 __all__ = ["COPY_SEEDS_KEY", "LINKS_KEY", "STATE_KEY", "TERMINAL_LINKS_KEY", "TERMINAL_STATE_KEY", "VEC_ENV_TYPES",
            "ZOO_VEC_ENVS", "FiniteCheck", "ReserveVecEnv", "SharedPolicyVecEnv", "compile_reserve", "make_vec_env",
@@ -80,7 +80,7 @@ def make_vec_env(
     num_cpus: int = 0,
     monitor_dir: str | None = None,
     vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,
-    env_fn: Callable[..., ParallelEnv] = reserve_v0.parallel_env,
+    env_fn: Callable[..., ParallelEnv] = reserve_v1.parallel_env,
     with_state: bool = False,
     vec_env_type: str | None = None,
 ) -> VecEnv:
@@ -105,7 +105,7 @@ def make_vec_env(
     env_kwargs = dict(env_kwargs or {})
     build = partial(env_fn, **env_kwargs)
     if vec_env_type is None:
-        vec_env_type = "batched" if env_fn is reserve_v0.parallel_env else "supersuit"
+        vec_env_type = "batched" if env_fn is reserve_v1.parallel_env else "supersuit"
     if vec_env_type == "batched":
         venv: VecEnv = ReserveVecEnv(build, n_copies=n_copies, with_state=with_state, num_cpus=num_cpus)
     else:

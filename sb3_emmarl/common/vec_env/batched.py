@@ -22,7 +22,7 @@ class ReserveVecEnv(SharedPolicyVecEnv):
     (:meth:`get_state`) hold every copy, so they restore into any number of processes, and ``get_attr``,
     ``set_attr`` and ``env_method`` reach every copy wherever it lives.
 
-    :param env_fn: builds one reserve (``reserve_v0.parallel_env`` with its arguments)
+    :param env_fn: builds one reserve (``reserve_v1.parallel_env`` with its arguments)
     :param n_copies: number of independent copies
     :param with_state: the global state in the infos (see :class:`SharedPolicyVecEnv`)
     :param num_cpus: processes stepping the copies (0 or 1: this one alone; at most one per copy)
