@@ -1,9 +1,10 @@
 """The reserve's former name, kept so that old code runs: importing it warns once and gives
 :mod:`wildlife_reserve.reserve_v1`'s environments.
 
-The reserve kept the name ``reserve_v0`` from sb3-emmarl 0.1.0 to 0.20.0 while its observation grew from 440 to 553
-floats and its dynamics changed many times, so a ``reserve_v0`` episode of today is not one of 0.1.0. Following
-PettingZoo's rule (the version rises whenever a change can change an episode), the environment is now ``reserve_v1``.
+The reserve kept the name ``reserve_v0`` from its first release on while its observation grew from 440 to 553 floats
+and its dynamics changed many times, so a ``reserve_v0`` episode of today is not one of the first release. Following
+PettingZoo's rule (the version rises whenever a change can change an episode), the environment is now ``reserve_v1``
+(the environment card's version history says what changed when).
 """
 
 import warnings
