@@ -11,6 +11,7 @@ import importlib
 import os
 import re
 import sys
+import warnings
 from pathlib import Path
 
 from docutils.utils import new_document
@@ -23,6 +24,10 @@ sys.path[:0] = [ROOT, os.path.join(ROOT, "envs")]
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from sb3_emmarl.version import __version__  # noqa: E402
+
+# The API pages walk every module, the reserve's former name too (wildlife_reserve.reserve_v0, an alias that warns
+# users who import it): its warning says nothing to a reader of the build.
+warnings.filterwarnings("ignore", message="wildlife_reserve.reserve_v0 is the reserve's former name", category=FutureWarning)
 
 # -- Project information -----------------------------------------------------------------------------------------------
 
