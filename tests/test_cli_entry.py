@@ -82,7 +82,11 @@ def test_the_core_package_imports_no_extra():
 
 
 def _without(monkeypatch, module: str, *reimported: str) -> None:
-    """Simulate ``module`` not installed, and forget ``reimported`` modules (restored after the test)."""
+    """Simulate ``module`` not installed, and forget ``reimported`` modules (restored after the test). Its submodules
+    go too: an earlier test may have imported them, and Python finds ``matplotlib.figure`` in ``sys.modules`` without
+    looking at ``matplotlib``."""
+    for name in [name for name in sys.modules if name.startswith(f"{module}.")]:
+        monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, module, None)
     for name in [name for name in sys.modules if name.startswith(reimported)] if reimported else []:
         monkeypatch.delitem(sys.modules, name)

@@ -93,6 +93,7 @@ def test_runners_claiming_at_once_never_get_the_same_cell(tmp_path):
         while (claim := store.claim("tiny", "quick", cells, runner)) is not None:
             assert store.record("tiny", "quick", *claim.cell, {{}}, [], "run", "hw", runner, ("v", "c"))
             print(claim.cell[2], flush=True)
+            time.sleep(0.02)  # a cell takes time: the others claim meanwhile, even when one process started first
     """)
     start = str(time.time() + 3.0)
     runners = [subprocess.Popen([sys.executable, "-c", script, start], stdout=subprocess.PIPE, text=True)
