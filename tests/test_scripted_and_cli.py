@@ -117,6 +117,6 @@ def test_a_finished_run_says_where_its_curves_are_and_what_to_run_next():
 
     args = Namespace(algo="em_ppo", env="WildlifeReserve-v1", tensorboard_log="runs", log_folder="logs")
     text = next_steps(args, "logs/em_ppo/WildlifeReserve-v1_1", 5120)
-    assert "tensorboard --logdir runs" in text and "zoo/enjoy.py --algo em_ppo" in text and "-n 5120" in text
+    assert "tensorboard --logdir runs" in text and "emmarl enjoy --algo em_ppo" in text and "-n 5120" in text
     text = next_steps(Namespace(**{**vars(args), "env": "ZonePatrol-v0", "tensorboard_log": ""}), "x", 10)
     assert "tensorboard" not in text and "zone_patrol_value.py" in text

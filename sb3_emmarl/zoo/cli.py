@@ -408,13 +408,13 @@ def next_steps(args: argparse.Namespace, save_path: str, n_timesteps: int) -> st
     if args.tensorboard_log:
         lines.append(f"the learning curves (rollout/, train/, and the team's metrics): tensorboard --logdir "
                      f"{args.tensorboard_log}")
-    lines += [f"watch the team (metrics and a GIF in the run folder): python zoo/enjoy.py --algo {args.algo} "
+    lines += [f"watch the team (metrics and a GIF in the run folder): emmarl enjoy --algo {args.algo} "
               f"--env {args.env} -f {args.log_folder}",
-              (f"compare with PPO over seeds: python zoo/compare.py --variants {args.algo}={args.algo} ppo=ppo "
+              (f"compare with PPO over seeds: emmarl compare --variants {args.algo}={args.algo} ppo=ppo "
                f"--seeds 0 1 2 -n {n_timesteps}" if args.env == ENV_ID else
                "compare with PPO, PPO told the mode and EM-PPO over seeds: python benchmarks/zone_patrol_value.py run "
                "--seeds 0 1 2 --folder zp"),
-              "the paper's experiments: python zoo/experiment.py --list"]
+              "the paper's experiments: emmarl experiment --list"]
     return "\n".join(lines)
 
 
