@@ -496,3 +496,41 @@ def test_the_zero_cost_environment_has_the_reserves_spaces_and_no_render_mode():
     reserve = make_vec_env(2, seed=0)
     assert (zero.num_envs, zero.observation_space, zero.action_space, zero.render_mode) == \
         (reserve.num_envs, reserve.observation_space, reserve.action_space, None)
+
+
+def test_a_users_parallel_env_without_a_render_mode_attribute_works():
+    """PettingZoo does not require ``render_mode``; SuperSuit reads it: an environment without one still vectorises."""
+    from gymnasium import spaces
+    from pettingzoo.utils.env import ParallelEnv
+
+    class TwoStep(ParallelEnv):
+        metadata = {"name": "two_step"}
+
+        def __init__(self, **_):
+            self.possible_agents = ["a", "b"]
+
+        def observation_space(self, agent):
+            return spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+        def action_space(self, agent):
+            return spaces.Discrete(2)
+
+        def reset(self, seed=None, options=None):
+            self.agents, self.t = list(self.possible_agents), 0
+            return {a: np.zeros(2, np.float32) for a in self.agents}, {a: {} for a in self.agents}
+
+        def step(self, actions):
+            self.t += 1
+            obs = {a: np.full(2, self.t / 2, np.float32) for a in self.agents}
+            done = {a: self.t >= 2 for a in self.agents}
+            if self.t >= 2:
+                self.agents = []
+            return obs, dict.fromkeys(obs, 1.0), done, dict.fromkeys(obs, False), {a: {} for a in obs}
+
+    assert not hasattr(TwoStep(), "render_mode")
+    venv = make_vec_env(2, seed=0, env_fn=TwoStep, vec_env_type="supersuit")
+    assert venv.reset().shape == (4, 2)
+    _, rewards, dones, _ = venv.step(np.zeros(4, dtype=int))
+    assert rewards.tolist() == [1.0] * 4 and not dones.any()
+    assert venv.step(np.zeros(4, dtype=int))[2].all()
+    venv.close()

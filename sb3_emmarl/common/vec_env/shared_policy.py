@@ -82,7 +82,10 @@ class _ReserveCopy(MarkovVectorEnv):
 
 
 def _build_copy(env_fn: Callable[[], ParallelEnv], copy_index: int, with_state: bool = False) -> _ReserveCopy:
-    return _ReserveCopy(env_fn(), copy_index, with_state)
+    env = env_fn()
+    if not hasattr(env.unwrapped, "render_mode"):  # PettingZoo does not require it; SuperSuit reads it
+        env.unwrapped.render_mode = None
+    return _ReserveCopy(env, copy_index, with_state)
 
 
 class SharedPolicyVecEnv(VecEnv):
