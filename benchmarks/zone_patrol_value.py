@@ -1,4 +1,10 @@
-"""What knowing the hidden mode pays a learned team on ZonePatrol, and how much of it EM-PPO recovers.
+"""What knowing the hidden mode pays a learned team on ZonePatrol (or the reserve's zone raids), and how much of it
+EM-PPO recovers.
+
+``--task zone_raids`` runs the same protocol on the reserve with ``scenario="zone_raids"`` (docs/zone_raids.md): its
+modes are numbered as ZonePatrol's (``2 * strategy + weather``, the strategy deciding the zone), so the told-wrong
+relabellings are the same; the settings are the zoo's ``WildlifeReserve-v1`` sections, EM-PPO's belief is scored at
+step 100 of 200.
 
 Four variants train with the same PPO settings (the zoo's, ``ppo.yml``'s ``ZonePatrol-v0`` section) on 8 copies of
 ZonePatrol through the batched vector environment, each run in its own process with one torch thread: PPO told the
@@ -32,6 +38,7 @@ import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -49,33 +56,67 @@ EVAL_SEED = 50_000
 BUDGET = 1_000_000
 
 
-def make_env(seed: int, n_copies: int | None = None, env_kwargs: dict | None = None):
-    """``n_copies`` ZonePatrol copies (default: the zoo YAML's ``n_envs``) with ZonePatrol's arguments ``env_kwargs``,
+@dataclass(frozen=True)
+class Task:
+    """A task the protocol runs on.
+
+    :param name: the name in the report's heading
+    :param env_id: its zoo id (the YAML sections the variants read)
+    :param module: the module whose ``parallel_env`` builds it
+    :param base_kwargs: its arguments before ``--env-kwargs``
+    :param mid_episode: the step at which EM-PPO's belief is scored
+    """
+
+    name: str
+    env_id: str
+    module: str
+    base_kwargs: tuple[tuple[str, object], ...]
+    mid_episode: int
+
+    def kwargs(self, env_kwargs: dict | None) -> dict:
+        """The task's arguments with ``env_kwargs`` over them."""
+        return {**dict(self.base_kwargs), **(env_kwargs or {})}
+
+    def check(self, env_kwargs: dict) -> None:
+        """Build the task once with ``env_kwargs`` (ValueError naming a bad argument)."""
+        import importlib
+
+        importlib.import_module(self.module).parallel_env(**self.kwargs(env_kwargs)).close()
+
+
+#: The tasks: ZonePatrol (60 steps) and the reserve's zone raids (200 steps).
+TASKS = {"zone_patrol": Task("ZonePatrol", "ZonePatrol-v0", "wildlife_reserve.zone_patrol_v0", (), 30),
+         "zone_raids": Task("the reserve's zone raids", "WildlifeReserve-v1", "wildlife_reserve.reserve_v1",
+                            (("scenario", "zone_raids"),), 100)}
+
+
+def make_env(seed: int, n_copies: int | None = None, env_kwargs: dict | None = None, task: str = "zone_patrol"):
+    """``n_copies`` copies of the task (default: the zoo YAML's ``n_envs``) with its arguments ``env_kwargs``,
     through the batched vector environment."""
-    from sb3_emmarl.common.environments import ZONE_PATROL_ID
+    import importlib
+
     from sb3_emmarl.common.vec_env import make_vec_env
     from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
-    from wildlife_reserve import zone_patrol_v0
 
-    n_copies = n_copies or int(zoo_hyperparams("ppo", ZONE_PATROL_ID)["n_envs"])
-    return make_vec_env(n_copies, seed=seed, env_fn=zone_patrol_v0.parallel_env, env_kwargs=env_kwargs,
-                        vec_env_type="batched")
+    spec = TASKS[task]
+    n_copies = n_copies or int(zoo_hyperparams("ppo", spec.env_id)["n_envs"])
+    return make_vec_env(n_copies, seed=seed, env_fn=importlib.import_module(spec.module).parallel_env,
+                        env_kwargs=spec.kwargs(env_kwargs), vec_env_type="batched")
 
 
-def build(variant: str, seed: int, env_kwargs: dict | None = None):
-    """The variant's model with its zoo YAML's settings on ZonePatrol (with ``env_kwargs``)."""
-    from sb3_emmarl.common.environments import ZONE_PATROL_ID
+def build(variant: str, seed: int, env_kwargs: dict | None = None, task: str = "zone_patrol"):
+    """The variant's model with its zoo YAML's settings on the task (with ``env_kwargs``)."""
     from sb3_emmarl.zoo.exp_manager import zoo_model
 
     algo, overrides = ALGOS[variant]
-    return zoo_model(algo, make_env(seed, env_kwargs=env_kwargs), seed, ZONE_PATROL_ID, **overrides)
+    return zoo_model(algo, make_env(seed, env_kwargs=env_kwargs, task=task), seed, TASKS[task].env_id, **overrides)
 
 
-def play(model, venv, episodes: int, seed: int, random: bool = False,
-         beliefs: list | None = None) -> tuple[list[float], np.ndarray]:
+def play(model, venv, episodes: int, seed: int, random: bool = False, beliefs: list | None = None,
+         mid_episode: int = 30) -> tuple[list[float], np.ndarray]:
     """Team rewards of ``episodes`` team episodes (the first agent of each copy reports its copy's), and one visited
     observation per step (as the model saw it); ``random`` plays uniformly random actions instead. ``beliefs``, if
-    given, receives ``(belief, mode)`` of every UAV at mid-episode (the observations' last 8 values)."""
+    given, receives ``(belief, mode)`` of every UAV at step ``mid_episode`` (the observations' last 8 values)."""
     import torch as th
 
     per_copy = int(getattr(venv, "agents_per_copy", 1))
@@ -97,7 +138,7 @@ def play(model, venv, episodes: int, seed: int, random: bool = False,
             obs, _, starts, infos = venv.step(actions)
             steps = np.where(starts, 0, steps + 1)
             if beliefs is not None:
-                beliefs.extend((obs[i, -8:], infos[i]["mode"]) for i in np.flatnonzero(steps == MID_EPISODE))
+                beliefs.extend((obs[i, -8:], infos[i]["mode"]) for i in np.flatnonzero(steps == mid_episode))
             for i in np.flatnonzero(starts):
                 if i % per_copy == 0:
                     rewards.append(float(infos[i]["metrics"]["team_reward"]))
@@ -105,37 +146,38 @@ def play(model, venv, episodes: int, seed: int, random: bool = False,
     return rewards[:episodes], np.stack(visited)
 
 
-def wrong(relabel: list[int], env_kwargs: dict | None = None):
+def wrong(relabel: list[int], env_kwargs: dict | None = None, task: str = "zone_patrol"):
     """A vector environment maker whose observations end with the one-hot of ``relabel[mode]``."""
     from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 
-    return lambda: ModeObservationWrapper(make_env(EVAL_SEED, env_kwargs=env_kwargs), relabel=relabel)
+    return lambda: ModeObservationWrapper(make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task), relabel=relabel)
 
 
 #: Told each wrong zone (``shift`` zones on, the same weather) and the wrong weather (the same zone); modes are
 #: 2 * zone + weather.
 WRONG = {**{f"wrong_zone_{shift}": [(2 * ((m // 2 + shift) % 4)) + m % 2 for m in range(8)] for shift in (1, 2, 3)},
          "wrong_weather": [2 * (m // 2) + 1 - m % 2 for m in range(8)]}
-#: The step of an episode at which EM-PPO's belief is scored (ZonePatrol's default episodes last 60 steps).
-MID_EPISODE = 30
 
 
-def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None) -> dict:
+def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None,
+        task: str = "zone_patrol") -> dict:
     import torch as th
 
     from sb3_emmarl.common.latent.diagnostics import belief_use, permute_beliefs
 
     th.set_num_threads(1)
     env_kwargs = dict(env_kwargs or {})
-    model = build(variant, seed, env_kwargs)
+    model = build(variant, seed, env_kwargs, task)
     start = time.perf_counter()
     model.learn(budget)
-    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs,
+    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task,
               "seconds": time.perf_counter() - start}
     wrap = getattr(model, "wrap_env", lambda v: v)
     beliefs: list = []
-    record["team_reward"], visited = play(model, wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs)), episodes, EVAL_SEED,
-                                          beliefs=beliefs if variant.startswith("em_ppo") else None)
+    evaluation = make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task)
+    record["team_reward"], visited = play(model, wrap(evaluation), episodes, EVAL_SEED,
+                                          beliefs=beliefs if variant.startswith("em_ppo") else None,
+                                          mid_episode=TASKS[task].mid_episode)
     if beliefs:
         from sb3_emmarl.common.latent.metrics import align_components, latent_accuracy
 
@@ -145,7 +187,7 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
         record["swap_kl"] = belief_use(model.policy, visited, 8)
     if variant == "told":
         for name, relabel in WRONG.items():
-            record[name] = play(model, wrong(relabel, env_kwargs)(), episodes, EVAL_SEED)[0]
+            record[name] = play(model, wrong(relabel, env_kwargs, task)(), episodes, EVAL_SEED)[0]
     if variant.startswith("em_ppo"):
         from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -157,16 +199,17 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
                 obs, rewards, dones, infos = self.venv.step_wait()
                 return permute_beliefs(obs, 8), rewards, dones, infos
 
-        record["permuted"] = play(model, Permuted(wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs))), episodes,
-                                  EVAL_SEED)[0]
+        record["permuted"] = play(model, Permuted(wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task))),
+                                  episodes, EVAL_SEED)[0]
     return record
 
 
-def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None) -> str:
+def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None,
+                 task: str = "zone_patrol") -> str:
     path = Path(folder) / f"{variant}_{seed}.json"
     if path.exists():
         return f"{path.name}: kept"
-    record = run(variant, seed, budget, episodes, env_kwargs)
+    record = run(variant, seed, budget, episodes, env_kwargs, task)
     from sb3_emmarl.common.checkpoints import write_text
     from sb3_emmarl.version import __version__
 
@@ -249,11 +292,15 @@ def heading(runs: list[dict]) -> str:
     budgets = {r["budget"] for r in runs}
     if len(budgets) != 1:
         raise SystemExit(f"runs of different budgets {sorted(budgets)}: report one budget at a time")
+    tasks = {r.get("task", "zone_patrol") for r in runs}
+    if len(tasks) != 1:
+        raise SystemExit(f"runs of different tasks {sorted(tasks)}: report one task at a time")
+    name = TASKS[tasks.pop()].name
     kwargs = {json.dumps(r.get("env_kwargs") or {}, sort_keys=True) for r in runs}
     if len(kwargs) != 1:
-        raise SystemExit(f"runs of different ZonePatrol arguments {sorted(kwargs)}: report one task at a time")
+        raise SystemExit(f"runs of different {name} arguments {sorted(kwargs)}: report one task at a time")
     task = kwargs.pop()
-    return (f"ZonePatrol{'' if task == '{}' else ' ' + task}, {budgets.pop():,} agent-steps per run; mean team reward "
+    return (f"{name}{'' if task == '{}' else ' ' + task}, {budgets.pop():,} agent-steps per run; mean team reward "
             f"over each run's evaluation episodes")
 
 
@@ -323,7 +370,10 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("--eval-episodes", type=int, default=200)
     run_parser.add_argument("--n-jobs", type=int, default=2, help="runs at once, each in its own process (1: here)")
     run_parser.add_argument("--folder", required=True)
-    run_parser.add_argument("--env-kwargs", default="{}", help="ZonePatrol's arguments as JSON, e.g. '{\"zone_cue\": 0.2}'")
+    run_parser.add_argument("--task", choices=sorted(TASKS), default="zone_patrol",
+                            help="ZonePatrol or the reserve with scenario='zone_raids'")
+    run_parser.add_argument("--env-kwargs", default="{}",
+                            help="the task's arguments as JSON, e.g. '{\"zone_cue\": 0.2}' (ZonePatrol)")
     report_parser = commands.add_parser("report", help="the tables of the runs in --folder")
     report_parser.add_argument("--folder", required=True)
     args = parser.parse_args(argv)
@@ -333,23 +383,23 @@ def main(argv: list[str] | None = None) -> int:
         if not runs:
             raise SystemExit(f"no runs in {folder}: run `zone_patrol_value.py run --folder {folder}` first")
         episodes = len(runs[0]["team_reward"])
-        random_team = float(np.mean(play(None, make_env(EVAL_SEED, env_kwargs=runs[0].get("env_kwargs")), episodes,
-                                         EVAL_SEED, random=True)[0]))
+        task = runs[0].get("task", "zone_patrol")
+        random_team = float(np.mean(play(None, make_env(EVAL_SEED, env_kwargs=runs[0].get("env_kwargs"), task=task),
+                                         episodes, EVAL_SEED, random=True)[0]))
         print(report(runs, random_team))
         return 0
     if args.n < 1 or args.eval_episodes < 2 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds):
         parser.error("-n and --n-jobs must be >= 1, --eval-episodes >= 2 and --seeds distinct")
-    from wildlife_reserve.zone_patrol.world import ZonePatrolConfig
-
     try:
         env_kwargs = json.loads(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
             raise ValueError(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
-        ZonePatrolConfig.from_kwargs(**env_kwargs)
+        TASKS[args.task].check(env_kwargs)
     except ValueError as error:  # (json's JSONDecodeError is one)
         parser.error(f"--env-kwargs: {error}")
     folder.mkdir(parents=True, exist_ok=True)
-    jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs) for s in args.seeds for v in args.variants]
+    jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs, args.task) for s in args.seeds
+            for v in args.variants]
     if args.n_jobs == 1:  # in this process (each run sets torch to one thread, as the workers do)
         for job in jobs:
             print(run_and_save(*job), flush=True)

@@ -290,6 +290,11 @@ VALUES: dict[str, list[tuple[Any, bool]]] = {
     "agent_ids": _bools(),
     "compass": _bools(),
     "coverage_sectors": _bools(),
+    # True needs a leopard per zone (4): invalid with the base's 3 leopards; valid ones with 4+ in COMBINED.
+    "strategy_zones": [(v, True) for v in (False, np.False_)] + [(v, False) for v in (True, np.True_, *BOOL_JUNK)],
+    "scenario": [(v, True) for v in (None, "zone_raids", np.str_("zone_raids"))]
+    + [(v, False) for v in ("Zone_raids", "zone raids", "", "default", 0, True, ["zone_raids"], {"zone_raids"},
+                            b"zone_raids", {"scenario": "zone_raids"}, _OBJECT)],
     "region": _region(),
     "terrain": _terrain(),
     "risk": _risk(),
@@ -319,6 +324,11 @@ UNKNOWN = [{"n_drones": 3}, {"gridsize": 20}, {"N_UAVS": 2}, {"seed": 0}, {"rend
 
 #: Mutations whose validity depends on several arguments, each setting all of them.
 COMBINED: list[tuple[dict[str, Any], bool]] = [
+    ({"strategy_zones": True, "n_leopards": 4}, True),  # a leopard per zone
+    ({"strategy_zones": True, "n_leopards": 9, "compass": True}, True),
+    ({"scenario": "zone_raids", "n_leopards": 3}, False),  # the explicit argument overrides the scenario's 8
+    ({"scenario": "zone_raids", "strategy_zones": False, "n_leopards": 3}, True),
+    ({"scenario": "zone_raids", "reward_weights": {"coverage": -1.0}}, False),
     ({"grid_size": 7, "sensor_radius": 3, "belief_size": None}, True),  # the documented minimum with the default radius
     ({"grid_size": 3, "sensor_radius": 1, "belief_size": None}, True),  # the smallest grid
     ({"grid_size": (7, 40), "sensor_radius": 3, "belief_size": 7}, True),

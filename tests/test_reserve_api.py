@@ -19,6 +19,9 @@ COMBINATIONS = {
     "sensor_noise": {"sensor_noise": 0.5},
     "comm_loss": {"comm_loss": 0.5},
     "adversarial": {"adversarial": True},
+    "zone_raids": {"scenario": "zone_raids"},
+    "zone_raids_continuous_new_maps": {"scenario": "zone_raids", "continuous_actions": True, "terrain_seed": None,
+                                       "agent_ids": True},
     **{f"region_{name}": {"region": name} for name in REGIONS},
 }
 # Long enough to cross an episode end at the default max_cycles (200); shorter for the big reserve.

@@ -20,6 +20,10 @@ LEOPARD_MOVE_PROB = 0.4
 POACHER_SIGHT = 8
 #: Nominal radius (clear weather) within which a poacher notices a UAV.
 NOTICE_RADIUS = 5
+#: With strategy zones, how far along the side nearest to its zone each strategy's poachers spread their entries (a
+#: fraction of the side, either way): a group comes in at one point, a hotspot raid straight in, infiltrators and
+#: dispersed poachers along more of the side.
+ZONE_ENTRY_SPREAD: dict[str, float] = {"group": 0.015, "near_den": 0.05, "one_side": 0.15, "perimeter": 0.25}
 
 
 def plan_poachers(
@@ -30,12 +34,15 @@ def plan_poachers(
     shape: tuple[int, int],
     dens: np.ndarray,
     road_entries: np.ndarray | None = None,
+    zone: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Draw when and where each poacher enters and which den it heads for.
 
     Infiltrators and groups come by road: an edge infiltration enters along the side where one of the
     reserve's roads enters it, a coordinated group at a road's entry point (one road drawn per episode;
-    with no roads, any side and any point).
+    with no roads, any side and any point). With a ``zone`` (the reserve's ``strategy_zones``), every poacher heads
+    for that den and enters from the side nearest to it, spread along the side as :data:`ZONE_ENTRY_SPREAD` says,
+    at the strategy's times (a group all at once).
 
     :param rng: random generator
     :param strategy: the episode's poacher strategy
@@ -44,6 +51,7 @@ def plan_poachers(
     :param shape: ``(height, width)``
     :param dens: ``(k, 2)`` den cells
     :param road_entries: ``(r, 2)`` edge cells where the roads enter the reserve
+    :param zone: the den ``(2,)`` of the strategy's zone, or None
     :return: entry times ``(P,)``, entry cells ``(P, 2)``, target cells ``(P, 2)``
     """
     lo = max(1, int(strategy.entry_window[0] * max_cycles))
@@ -59,6 +67,15 @@ def plan_poachers(
         road_side, road_frac = nearest_edge(roads[rng.integers(len(roads))][None], shape)
         return int(road_side[0]), float(road_frac[0])
 
+    if zone is not None:
+        zone_side, zone_frac = nearest_edge(np.asarray(zone, dtype=np.int64)[None], shape)
+        if strategy.entry == "group":
+            times = np.full(n, rng.integers(lo, hi))
+        else:
+            times = rng.integers(lo, hi, size=n)
+        spread = rng.uniform(-1.0, 1.0, size=n) * ZONE_ENTRY_SPREAD[strategy.entry]
+        entry = edge_points(np.full(n, zone_side[0]), np.clip(zone_frac[0] + spread, 0.0, 1.0), shape)
+        return times.astype(np.int64), entry, np.repeat(np.asarray(zone, dtype=np.int64)[None], n, axis=0)
     if strategy.entry == "group":
         times = np.full(n, rng.integers(lo, hi))
         group_side, group_frac = by_road()

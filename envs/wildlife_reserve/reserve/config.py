@@ -23,8 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from wildlife_reserve.reserve.modes import N_MODES
+from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES
 from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES, as_risk
+
+N_STRATEGIES = len(STRATEGIES)
 
 #: Default weights of the team reward terms (see the environment card).
 DEFAULT_REWARD_WEIGHTS: dict[str, float] = {
@@ -34,6 +36,15 @@ DEFAULT_REWARD_WEIGHTS: dict[str, float] = {
     "poaching": 20.0,  # penalty per poaching event
     "collision": 1.0,  # penalty per pair of UAVs in one cell
     "energy": 1.0,  # penalty per unit of battery spent (a full battery is 1)
+}
+
+#: Named scenarios: each is a set of the arguments below, which explicit arguments override (``reward_weights`` merged
+#: key by key). ``zone_raids``: each poacher strategy strikes its own zone (``strategy_zones``) with two leopards, 16
+#: poachers an episode, the ranger's map of the zones (``compass``); detections and poaching weigh, coverage and signs
+#: (which pay the same in every mode) nothing. See the environment card, "Zone raids".
+SCENARIOS: dict[str, dict[str, Any]] = {
+    "zone_raids": {"strategy_zones": True, "compass": True, "n_leopards": 8, "n_poachers": 16,
+                   "reward_weights": {"coverage": 0.0, "sign": 0.0}},
 }
 
 #: Battery spent per step: hovering, flying a full ``uav_speed``, broadcasting, querying a neighbour.
@@ -196,6 +207,15 @@ class ReserveConfig:
         count, by angle around the map's centre: :func:`~wildlife_reserve.reserve.terrain.sectors`); nothing a UAV
         observes marks the sectors, so where that reward lies follows from the strategy alone: a diagnostic of whether
         a learner acts on the mode it is told or infers; a bool
+    :param strategy_zones: each poacher strategy strikes its own zone: the dens are the centres of the map's quarters
+        (:func:`~wildlife_reserve.reserve.terrain.strategy_zones`, zone ``k`` for strategy ``k`` of
+        :data:`~wildlife_reserve.reserve.modes.STRATEGIES`), the leopards live around them in turn, and every poacher
+        of the episode heads for its strategy's zone from the side nearest to it
+        (:func:`~wildlife_reserve.reserve.actors.plan_poachers`), keeping the strategy's timing, evasion and use of
+        cover; with ``compass``, every UAV also observes its offset to each zone's centre (``zones``, the same in
+        every mode); needs at least one leopard per zone; a bool
+    :param scenario: ``None`` or the name of a set of arguments in :data:`SCENARIOS` (``"zone_raids"``), which
+        explicit arguments override
     :param region: terrain preset, one of :data:`~wildlife_reserve.reserve.terrain.REGIONS` (a str)
     :param terrain: int array ``(height, width)`` with values 0 (open), 1 (forest), 2 (mountain) (float arrays of
         whole numbers are accepted; bool, complex, str and object arrays are not); overrides the generated terrain
@@ -237,6 +257,8 @@ class ReserveConfig:
     agent_ids: bool = False
     compass: bool = False
     coverage_sectors: bool = False
+    strategy_zones: bool = False
+    scenario: str | None = None
     region: str = "mixed"
     terrain: np.ndarray | None = None
     risk: np.ndarray | None = None
@@ -272,6 +294,16 @@ class ReserveConfig:
                 described.append(f"{text} (did you mean {lowered[close[0]]!r}?)" if close else text)
             raise UnknownArgumentError(f"unknown argument{'s' if len(unknown) > 1 else ''} {', '.join(described)} of the "
                                        f"reserve; the arguments are: {', '.join(allowed)}")
+        scenario = kwargs.get("scenario")
+        if scenario is not None:
+            if not isinstance(scenario, str) or scenario not in SCENARIOS:
+                raise ValueError(f"scenario must be None or one of {sorted(SCENARIOS)}, got "
+                                 f"{show(scenario, with_type=True)}")
+            preset = SCENARIOS[scenario]
+            weights = kwargs.get("reward_weights")
+            if "reward_weights" in preset and (weights is None or isinstance(weights, Mapping)):
+                kwargs = {**kwargs, "reward_weights": {**preset["reward_weights"], **(weights or {})}}
+            kwargs = {**preset, **kwargs}
         return cls(**kwargs)
 
     def __post_init__(self) -> None:  # noqa: C901
@@ -321,6 +353,13 @@ class ReserveConfig:
         self.agent_ids = check_bool("agent_ids", self.agent_ids)
         self.compass = check_bool("compass", self.compass)
         self.coverage_sectors = check_bool("coverage_sectors", self.coverage_sectors)
+        self.strategy_zones = check_bool("strategy_zones", self.strategy_zones)
+        if self.strategy_zones and self.n_leopards < N_STRATEGIES:
+            raise ValueError(f"strategy_zones needs a leopard in each of the {N_STRATEGIES} zones: n_leopards must be "
+                             f">= {N_STRATEGIES}, got {self.n_leopards}")
+        if self.scenario is not None and (not isinstance(self.scenario, str) or self.scenario not in SCENARIOS):
+            raise ValueError(f"scenario must be None or one of {sorted(SCENARIOS)}, got "
+                             f"{show(self.scenario, with_type=True)}")
         if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValueError(f"region must be one of {sorted(REGIONS)}, got {show(self.region, with_type=True)}")
         self.region = str(self.region)

@@ -14,6 +14,9 @@ strategy, which is told the hidden mode. All return PettingZoo action dicts for 
   (``benchmarks/mode_value.py``).
 - :class:`ToldModePatrol`: the station patrol told the strategy, guarding where its poachers come from until
   their entry window closes (:data:`TOLD_PLANS`).
+- :class:`ZoneRaidPatrol`: for the strategy zones (``strategy_zones``), rings of stations around the zones; told the
+  strategy, around its zone; blind, around every zone (or a guessed one) until the team's first catch,
+  then around the zone of that catch.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wildlife_reserve.reserve.actors import STEPS
-from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES
+from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES, POACHER_CAUGHT
 from wildlife_reserve.reserve.modes import STRATEGIES
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv, parallel_env
 
@@ -165,11 +168,27 @@ class StationPatrol(StalestBlockPatrol):
         if not len(spots) or env.t >= plan.until * env.max_cycles:
             return actions
         index = np.array([env.possible_agents.index(agent) for agent in observations])
-        spot, place = index % len(spots), index // len(spots)
-        around = -(-env.n // len(spots))  # UAVs per spot
+        return self.hold_stations(observations, actions, spots[index % len(spots)], index // len(spots),
+                                  -(-env.n // len(spots)), index % len(spots))
+
+    def hold_stations(self, observations: dict[str, np.ndarray], actions: dict[str, int], centres: np.ndarray,
+                      place: np.ndarray, around: int, spot: np.ndarray) -> dict[str, int]:
+        """``actions`` with the moves replaced by the way to each UAV's station (its communication kept): UAV ``i``
+        (of ``observations``' order) holds place ``place[i]`` of ``around`` on a ring of radius ``spread`` around
+        ``centres[i]`` (rings of odd ``spot`` turned by half a place).
+
+        :param observations: the UAVs' observations (their keys and order)
+        :param actions: what the patrol would do otherwise
+        :param centres: ``(k, 2)`` each UAV's ring centre
+        :param place: ``(k,)`` each UAV's place on its ring
+        :param around: places per ring
+        :param spot: ``(k,)`` each UAV's ring's index
+        """
+        env = self.env
+        index = np.array([env.possible_agents.index(agent) for agent in observations])
         angle = 2 * np.pi * (place + 0.5 * (spot % 2)) / around
         ring = self.spread * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
-        centre = np.clip(spots[spot], self.spread, [env.height - 1 - self.spread, env.width - 1 - self.spread])
+        centre = np.clip(centres, self.spread, [env.height - 1 - self.spread, env.width - 1 - self.spread])
         stations = np.clip(np.rint(centre + ring), 0, [env.height - 1, env.width - 1])  # the ring inside the map
         heading = stations + 0.5 - env.uav_pos[index]
         near = max(env.config.uav_speed / 2, 0.5)  # an axis is done once a move would overshoot its station
@@ -193,6 +212,63 @@ class ToldModePatrol(StationPatrol):
 
     def __init__(self, env: ReserveParallelEnv, spread: int = 6, **kwargs) -> None:
         super().__init__(env, TOLD_PLANS, spread=spread, **kwargs)
+
+
+#: Where a zone-raid patrol (:class:`ZoneRaidPatrol`) holds its rings before it knows the zone: one ring per zone
+#: (``split``) or every UAV around one zone (``zone<k>``, a guess).
+ZONE_RAID_PLANS: tuple[str, ...] = ("split",) + tuple(f"zone{k}" for k in range(len(STRATEGIES)))
+
+
+class ZoneRaidPatrol(StationPatrol):
+    """A team for the reserve's strategy zones (``strategy_zones``: each poacher strategy strikes its own zone): the UAVs
+    hold rings of stations around the zones, the whole episode.
+
+    Told the episode's strategy (an oracle, read from the environment), every UAV holds a station around its zone.
+    Blind, the team holds the rings of ``plan`` (one per zone, or every UAV around one guessed zone) and, with
+    ``converge``, once the team has caught a poacher, every UAV moves to the rings of the zone nearest to where it was
+    caught. The blind team learns of every catch at once, wherever it happens (from the reserve's poachers, as the team
+    reward's detection term would tell a team), which no decentralised team can: it is a strong blind team, and what
+    the told one gains over it is what knowing the mode pays.
+
+    :param env: the (parallel) reserve with ``strategy_zones``, discrete actions
+    :param told: read the strategy and hold stations around its zone
+    :param plan: the blind team's rings before its first catch, one of :data:`ZONE_RAID_PLANS`
+    :param converge: after the team's first catch, every UAV holds a station around the zone of that catch
+    :param spread: radius in cells of the rings of stations
+    :param kwargs: see :class:`StalestBlockPatrol`
+    """
+
+    def __init__(self, env: ReserveParallelEnv, told: bool = False, plan: str = "split", converge: bool = True,
+                 spread: int = 6, **kwargs) -> None:
+        super().__init__(env, StationPlan("dens", 1.0), spread=spread, **kwargs)
+        if not self.env.config.strategy_zones:
+            raise ValueError("ZoneRaidPatrol needs the reserve's strategy_zones=True (for example scenario='zone_raids')")
+        if plan not in ZONE_RAID_PLANS:
+            raise ValueError(f"plan must be one of {ZONE_RAID_PLANS}, got {plan!r}")
+        self.told, self.zone_plan, self.converge = bool(told), plan, bool(converge)
+        self._zone: int | None = None  # the zone every UAV holds (told, or converged on a catch), this episode
+
+    @property
+    def name(self) -> str:
+        """Short label for tables, for example ``told``, ``split+converge`` or ``zone2``."""
+        return "told" if self.told else self.zone_plan + ("+converge" if self.converge else "")
+
+    def __call__(self, observations: dict[str, np.ndarray]) -> dict[str, int]:
+        env = self.env
+        actions = StalestBlockPatrol.__call__(self, observations)
+        zones = env.hotspots.dens  # the zones' centres, in the strategies' order
+        if env.t == 0:  # a new episode
+            self._zone = STRATEGIES.index(env.strategy) if self.told else None
+        caught = env.poacher_status == POACHER_CAUGHT
+        if self._zone is None and self.converge and caught.any():  # (a catch, not a false alarm: the reward says so)
+            self._zone = int(np.abs(zones - env.poacher_pos[caught][0]).max(axis=1).argmin())
+        index = np.array([env.possible_agents.index(agent) for agent in observations])
+        if self._zone is not None or self.zone_plan != "split":
+            zone = self._zone if self._zone is not None else int(self.zone_plan[len("zone"):])
+            return self.hold_stations(observations, actions, np.repeat(zones[zone][None], len(index), axis=0), index,
+                                      env.n, np.zeros_like(index))
+        return self.hold_stations(observations, actions, zones[index % len(zones)], index // len(zones),
+                                  -(-env.n // len(zones)), index % len(zones))
 
 
 SCRIPTED_PATROLS = {"random": RandomPatrol, "stalest_block": StalestBlockPatrol, "told_mode": ToldModePatrol}

@@ -206,6 +206,21 @@ def sectors(cells: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def strategy_zones(shape: tuple[int, int], n: int) -> np.ndarray:
+    """The centres of ``n`` strategy zones (``strategy_zones``: each poacher strategy strikes its own): the centres of
+    the map's quarters, row-major (north-west, north-east, south-west, south-east), cycled when ``n > 4``. On a 100 x 100
+    map they lie 50 cells apart (Chebyshev), 25 from the two nearest sides.
+
+    :param shape: ``(height, width)``
+    :param n: number of zones, >= 1
+    :return: int array ``(n, 2)``
+    """
+    height, width = shape
+    quarters = np.array([[height // 4, width // 4], [height // 4, (3 * width) // 4],
+                         [(3 * height) // 4, width // 4], [(3 * height) // 4, (3 * width) // 4]], dtype=np.int64)
+    return quarters[np.arange(n) % len(quarters)]
+
+
 def as_risk(values: np.ndarray) -> np.ndarray:
     """A risk map as the reserve keeps it: float32, values below :data:`RISK_FLOOR` set to 0."""
     risk = np.asarray(values, dtype=np.float32).copy()
