@@ -42,9 +42,10 @@ from scipy.special import softmax
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_emmarl.common.latent.belief import find_belief_wrapper
-from sb3_emmarl.common.latent.counts import PoissonMixture, ReadingCounter
+from sb3_emmarl.common.latent.counts import PoissonMixture
 from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
+from sb3_emmarl.common.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
 
@@ -197,7 +198,7 @@ def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> BaseAlgorithm:
     if told and latent.n_components < N_MODES:
         raise ValueError(f"told needs n_components >= {N_MODES}, em_ppo.yml has {latent.n_components}")
     kwargs = {**model.e_step_kwargs, "window": 1, "likelihood_temperature": model.likelihood_temperature,
-              "estimator": model.estimator, "seed": seed}
+              "estimator": model.estimator, "seed": seed, "count_weight": COUNT_EVIDENCE_WEIGHT}
     if told:
         modes = dict(zip(train.team_episode.tolist(), train.mode.tolist()))
         e_step = ToldEStep(modes, latent_model=latent, **kwargs)

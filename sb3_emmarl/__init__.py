@@ -1,5 +1,7 @@
 """sb3-emmarl: latent-variable multi-agent reinforcement learning on Stable-Baselines3."""
 
+# The environments' evidence plug-ins of the latent model (common/latent/evidence.py), registered on import.
+from sb3_emmarl.common import reserve_evidence, zone_evidence  # noqa: F401
 from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.evaluation import evaluate_policy
 from sb3_emmarl.common.latent.callback import EMCallback

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.stats import poisson
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, PoissonMixture, ReadingCounter
+from sb3_emmarl.common.latent.counts import PoissonMixture
+from sb3_emmarl.common.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_SIGN
 
@@ -189,7 +190,8 @@ def counted_e_step(window: int = 2):
     th.manual_seed(0)
     layout = LatentLayout(obs_dim=2, feature_dim=2, action_dim=1, n_components=2, count_channels=1, count_bins=3)
     # the transitions tell nothing here: only the counts weigh in the responsibilities
-    return EStep(LatentModel(layout), n_epochs=1, window=window, starved_share=0.0, likelihood_temperature=1e-6)
+    return EStep(LatentModel(layout), n_epochs=1, window=window, starved_share=0.0, likelihood_temperature=1e-6,
+                 count_weight=COUNT_EVIDENCE_WEIGHT)
 
 
 def rollout(episodes: list[int], rng: np.random.Generator, steps: int = 20):
@@ -249,7 +251,7 @@ def test_the_count_rates_are_batch_em_over_every_remembered_episode(monkeypatch)
     import torch as th
 
     import sb3_emmarl.common.latent.em as em
-    from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, PRIOR_EXPOSURE
+    from sb3_emmarl.common.latent.counts import PRIOR_EXPOSURE
 
     monkeypatch.setattr(em, "COUNT_ITERATIONS", 200)  # run EM to its fixed point
     e_step, rng = counted_e_step(window=1), np.random.default_rng(3)

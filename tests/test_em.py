@@ -98,6 +98,7 @@ def test_the_beliefs_lean_decoder_follows_the_model_through_every_change():
 
     check()
     optimizer = th.optim.Adam(model.parameters(), lr=0.1)
+    model.watch(optimizer)  # (as the E-step does: its steps announce their writes)
     loss = -model.transition_log_likelihood(x, a, y).mean()
     optimizer.zero_grad()
     loss.backward()

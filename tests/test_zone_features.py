@@ -1,11 +1,13 @@
-"""EM's zone features: what the latent model reads of ZonePatrol's observations (``features.zone_features``)."""
+"""EM's zone features: what the latent model reads of ZonePatrol's observations (its evidence plug-in,
+``zone_evidence.zone_features``)."""
 
 import numpy as np
 import pytest
 
 from sb3_emmarl import EMPPO
-from sb3_emmarl.common.latent.features import default_features, features_from_spec, zone_features
+from sb3_emmarl.common.latent.evidence import evidence_from_spec, evidence_of
 from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.zone_evidence import zone_features
 from wildlife_reserve import zone_patrol_v0
 
 
@@ -63,12 +65,13 @@ def test_detections_in_the_window_are_counted():
 
 def test_the_latent_model_reads_zone_features_on_zone_patrol_and_keeps_them_when_loaded(tmp_path):
     venv = make_vec_env(2, seed=0, env_fn=zone_patrol_v0.parallel_env, vec_env_type="batched")
-    fn, spec, dim = default_features(venv)
-    assert spec["kind"] == "zones" and dim == 10
+    evidence = evidence_of(venv)
+    spec, dim = evidence.spec, evidence.feature_dim
+    assert spec["kind"] == "zones" and dim == 10 and evidence.counts is None
     obs = venv.reset()
-    rebuilt, rebuilt_dim = features_from_spec(spec)
-    np.testing.assert_array_equal(rebuilt(obs), fn(obs))
-    assert rebuilt_dim == dim
+    rebuilt = evidence_from_spec(spec)
+    np.testing.assert_array_equal(rebuilt.features(obs), evidence.features(obs))
+    assert rebuilt.feature_dim == dim
     model = EMPPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, n_components=8, seed=0)
     assert model.latent_layout.feature_dim == 10 and model.feature_spec["kind"] == "zones"
     model.learn(64)
@@ -84,10 +87,9 @@ def test_an_environment_without_a_zone_map_gets_the_generic_features():
 
     from sb3_emmarl.common.envs import ModeCueEnv
 
-    _, spec, _ = default_features(sb3_make_vec_env(ModeCueEnv, n_envs=2))
-    assert spec["kind"] == "generic"
+    assert evidence_of(sb3_make_vec_env(ModeCueEnv, n_envs=2)).spec["kind"] == "generic"
 
 
 def test_an_unknown_feature_kind_is_refused_naming_the_kinds():
     with pytest.raises(ValueError, match="'reserve', 'zones' or 'generic'"):
-        features_from_spec({"kind": "maps", "obs_dim": 3})
+        evidence_from_spec({"kind": "maps", "obs_dim": 3})

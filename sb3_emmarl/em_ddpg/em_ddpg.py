@@ -45,8 +45,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param fusion: fuse teammates' evidence along the links
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
-    :param reading_counts: on the reserve, add the reading-count model (where signs, leopards and poachers were
-        read; ``counts.py``) to the latent model; ignored elsewhere
+    :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
+        plug-in counts readings (the reserve's: where signs, leopards and poachers were read); ignored elsewhere
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
         readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own

@@ -21,7 +21,8 @@ from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.counts import check_factors
 from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
-from sb3_emmarl.common.latent.features import counter_from_spec, encode_actions, features_from_spec
+from sb3_emmarl.common.latent.evidence import evidence_from_spec
+from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.wrapping import WrapsEnv
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
     from stable_baselines3.common.logger import Logger
 
-    from sb3_emmarl.common.latent.counts import ReadingCounter
+    from sb3_emmarl.common.latent.evidence import CountEvidence
     from sb3_emmarl.common.latent.policies import LatentPolicyMixin
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
@@ -56,15 +57,16 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
 
 
 def make_e_step(latent_model: LatentModel, estimator: str, likelihood_temperature: float,
-                count_factors: tuple[int, int] | None, counter: ReadingCounter | None, seed: int,
+                count_factors: tuple[int, int] | None, counter: CountEvidence | None, seed: int,
                 e_step_kwargs: dict[str, Any]) -> EStep:
     """The E-step of ``latent_model`` (its arguments: see :class:`~sb3_emmarl.common.latent.em.EStep`); the count
-    factors apply only with a ``counter`` (the reserve's count model). A bad value in ``e_step_kwargs``
-    (:data:`E_STEP_DEFAULTS` filled in) raises one ``ValueError`` naming ``e_step_kwargs``."""
+    factors, rings and weight come with a ``counter`` (the environment's count evidence). A bad value in
+    ``e_step_kwargs`` (:data:`E_STEP_DEFAULTS` filled in) raises one ``ValueError`` naming ``e_step_kwargs``."""
     try:
         return EStep(latent_model, estimator=estimator, likelihood_temperature=likelihood_temperature, seed=seed,
                      count_factors=count_factors if counter is not None else None,
-                     count_rings=counter.n_rings if counter is not None else 1, **e_step_kwargs)
+                     count_rings=counter.n_rings if counter is not None else 1,
+                     count_weight=counter.weight if counter is not None else 1.0, **e_step_kwargs)
     except ValueError as error:
         raise ValueError(f"e_step_kwargs: {error}") from None
 
@@ -79,13 +81,13 @@ def augmented_features(feature_fn: Callable[[np.ndarray], np.ndarray], observati
 
 def make_transitions(features: np.ndarray, actions: np.ndarray, next_features: np.ndarray, new_episode: np.ndarray,
                      valid: np.ndarray, episode_counters: np.ndarray, encode_action: Callable[[np.ndarray], np.ndarray],
-                     agents_per_copy: int = 1, team_pooling: bool = False, counter: ReadingCounter | None = None,
+                     *, agents_per_copy: int = 1, team_pooling: bool = False, counter: CountEvidence | None = None,
                      next_observations: np.ndarray | Sequence[np.ndarray] | None = None,
                      device: th.device | str = "cpu") -> tuple[Transitions, EpisodeCounts | None]:
     """E-step data from ``(T, n, ...)`` arrays of features, actions taken, the features that followed, flags of steps
-    that begin an episode, and flags of the transitions to keep; with a ``counter`` (the reserve's count model), also the
-    reading counts of the observations that followed (augmented ``(T, n, total_dim)``, or blocks ``(T_i, n, total_dim)``
-    that stack to it along time: read in place, not copied), summed per episode.
+    that begin an episode, and flags of the transitions to keep; with a ``counter`` (the environment's count evidence),
+    also the reading counts of the observations that followed (augmented ``(T, n, total_dim)``, or blocks
+    ``(T_i, n, total_dim)`` that stack to it along time: read in place, not copied), summed per episode.
 
     :param episode_counters: episodes begun so far per vector entry ``(n,)``, continued in place (episode ids run on
         across calls, so that an episode spanning two rollouts is one episode)
@@ -179,7 +181,7 @@ class LatentAlgorithmMixin(WrapsEnv):
     e_step: EStep | None
     latent_layout: LatentLayout
     _feature_fn: Callable[[np.ndarray], np.ndarray]
-    _counter: ReadingCounter | None
+    _counter: CountEvidence | None
     _encode_action: Callable[[np.ndarray], np.ndarray]
     _episode_counters: np.ndarray
     _n_rollouts: int
@@ -230,8 +232,9 @@ class LatentAlgorithmMixin(WrapsEnv):
     def _setup_latent(self) -> None:
         """After the policy exists: the layout, the E-step, the feature function and the belief wrapper's model."""
         self.latent_layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
-        self._feature_fn = features_from_spec(self.feature_spec)[0]
-        self._counter = counter_from_spec(self.feature_spec) if self.latent_layout.count_bins else None
+        evidence = evidence_from_spec(self.feature_spec)
+        self._feature_fn = evidence.features
+        self._counter = evidence.counts if self.latent_layout.count_bins else None
         self._encode_action = encode_actions(self.action_space)[0]
         # (a loaded model's count_factors come back from SB3's JSON as a list)
         self.count_factors = check_factors(getattr(self, "count_factors", None), self.latent_layout.n_components)
@@ -292,8 +295,9 @@ class LatentAlgorithmMixin(WrapsEnv):
         counts of the observations that followed (augmented ``(T, n, total_dim)``, or blocks ``(T_i, n, total_dim)``
         that stack to it along time: read in place, not copied), summed per episode."""
         return make_transitions(features, actions, next_features, new_episode, valid, self._episode_counters,
-                                self._encode_action, self.agents_per_copy, self.team_pooling, self._counter,
-                                next_observations, self.device)
+                                self._encode_action, agents_per_copy=self.agents_per_copy,
+                                team_pooling=self.team_pooling, counter=self._counter,
+                                next_observations=next_observations, device=self.device)
 
     def _init_replay_e_step(self) -> None:
         """Off-policy EM algorithms: the E-step reads the replay buffer's rows added since its last handover (a loaded

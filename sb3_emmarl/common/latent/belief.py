@@ -2,9 +2,9 @@
 
 :class:`BeliefTracker` keeps, per vector entry, the evidence ``e_k = beta * sum_{j < t} log p(x_{j+1} | x_j, a_j,
 z = k)`` that the entry's own transitions since its episode began give each component (one decoder call per
-step: constant cost, no history re-read), plus, on the reserve, ``COUNT_EVIDENCE_WEIGHT`` times the
-log-likelihood of each new observation's reading counts under the component's count model
-(:mod:`~sb3_emmarl.common.latent.counts`: where on the map signs, leopards and poachers were read), and the
+step: constant cost, no history re-read), plus, when the environment's plug-in counts readings (on the reserve:
+where on the map signs, leopards and poachers were read), the plug-in's ``weight`` times the log-likelihood of each
+new observation's counts under the component's count model (:mod:`~sb3_emmarl.common.latent.counts`), and the
 belief ``q(z) = softmax(log pi + e + sum over teammates m of the newest own evidence of m known)``. Fusion follows
 the links the environment reports: the reserve lists in ``infos[i]["heard_from"]`` the teammates whose messages
 reached UAV ``i`` this step (after range, loss and jamming). A message carries what its sender knows, as the
@@ -32,8 +32,8 @@ from numba import njit
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter
-from sb3_emmarl.common.latent.features import counter_from_spec, default_features, encode_actions
+from sb3_emmarl.common.latent.evidence import CountEvidence, evidence_of
+from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
@@ -85,12 +85,13 @@ class BeliefTracker:
     :param model: the latent model (None: every belief is uniform, as in the no-latent ablation)
     :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood
     :param fusion: combine the evidence of teammates heard from (else each belief is the agent's own)
-    :param counter: the reading counter of the observations (the reserve's), used when the model has a count model
+    :param counter: the count evidence of the observations (the environment's plug-in's), used when the model has a
+        count model
     """
 
-    def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, agents_per_copy: int = 1,
+    def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, *, agents_per_copy: int = 1,
                  model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True,
-                 counter: ReadingCounter | None = None) -> None:
+                 counter: CountEvidence | None = None) -> None:
         self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
         self.counter = counter
         self.likelihood_temperature, self.fusion = float(likelihood_temperature), bool(fusion)
@@ -139,7 +140,7 @@ class BeliefTracker:
             self.evidence[indices] += self.likelihood_temperature * log_lik
             if next_observations is not None and self.counter is not None and self._likelihood.model.has_counts:
                 counts = self._likelihood.count_log_likelihood(self.counter, next_observations, refresh=False)
-                self.evidence[indices] += COUNT_EVIDENCE_WEIGHT * counts
+                self.evidence[indices] += self.counter.weight * counts
         self.features[indices] = next_features
 
     def fuse(self, infos: Sequence[dict[str, Any]]) -> None:
@@ -231,15 +232,18 @@ class BeliefWrapper(VecEnvWrapper):
         space = venv.observation_space
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:
             raise ValueError(f"the latent algorithms need flat Box observations, got {space}")
-        self.feature_fn, self.feature_spec, self.feature_dim = default_features(venv)
-        self.counter = counter_from_spec(self.feature_spec)
+        #: the environment's evidence (:func:`~sb3_emmarl.common.latent.evidence.evidence_of`): its features, the
+        #: specification saved with a model, and its count evidence (None: the transition mixture alone)
+        self.evidence = evidence_of(venv)
+        self.feature_fn, self.feature_spec = self.evidence.features, self.evidence.spec
+        self.feature_dim, self.counter = self.evidence.feature_dim, self.evidence.counts
         self.encode_action, self.action_dim = encode_actions(venv.action_space)
         self.obs_dim, self.n_components = int(space.shape[0]), int(n_components)
         low = np.concatenate([space.low, np.zeros(n_components, np.float32)]).astype(np.float32)
         high = np.concatenate([space.high, np.ones(n_components, np.float32)]).astype(np.float32)
         super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
-        self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim, agents_per_copy(venv),
-                                     counter=self.counter)
+        self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim,
+                                     agents_per_copy=agents_per_copy(venv), counter=self.counter)
 
     def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
         """Compute beliefs with ``model`` from now on (evidence gathered so far is kept)."""

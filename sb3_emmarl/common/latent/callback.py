@@ -73,7 +73,8 @@ class EMCallback(BaseCallback):
     :param fusion: fuse the evidence of teammates heard from (the reserve's ``infos[i]["heard_from"]``)
     :param estimator: the E-step's estimator, ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
-    :param reading_counts: on the reserve, the reading-count model beside the transition model; ignored elsewhere
+    :param reading_counts: the count model beside the transition model when the environment's evidence plug-in counts
+        readings (the reserve's does); ignored elsewhere
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factored (EM-PPO's)
     :param belief_input: how the networks read the belief (:attr:`policy_kwargs`): ``"probabilities"``, ``"map"``
         (the most likely component's one-hot) or ``"both"``
@@ -86,7 +87,7 @@ class EMCallback(BaseCallback):
     :param verbose: SB3's callback verbosity
     """
 
-    def __init__(self, n_components: int = 4, e_step_every: int = 2000, decoder_hidden: tuple[int, ...] = (64, 64),
+    def __init__(self, n_components: int = 4, e_step_every: int = 2000, *, decoder_hidden: tuple[int, ...] = (64, 64),
                  likelihood_temperature: float = 1.0, fusion: bool = True, estimator: str = "enumerate",
                  team_pooling: bool = False, reading_counts: bool = True, count_factors: tuple[int, int] | None = None,
                  belief_input: str = "probabilities", e_step_kwargs: dict[str, Any] | None = None,
@@ -259,8 +260,9 @@ class EMCallback(BaseCallback):
         env = self.model.get_env()
         counter = self._wrapper.counter if self.layout.count_bins else None
         return make_transitions(features, actions, next_features, new_episode, valid, self._episode_counters,
-                                self._wrapper.encode_action, agents_per_copy(env) if env is not None else 1,
-                                self.config.team_pooling, counter, next_observations)
+                                self._wrapper.encode_action, agents_per_copy=agents_per_copy(env) if env is not None else 1,
+                                team_pooling=self.config.team_pooling, counter=counter,
+                                next_observations=next_observations)
 
     def _rollout_data(self) -> tuple[Transitions, EpisodeCounts | None]:
         """The transitions collected since the last rollout end: the rollout buffer (on-policy) or the rows the replay

@@ -1,55 +1,38 @@
-"""Reading counts: a mixture of Poisson models of what the UAVs read *where*, fitted by EM in closed form.
+"""The count model: a mixture of Poisson models of what is read *where*, fitted by EM in closed form.
 
-The reserve's poacher strategy shows in where its signs lie (snares around the dens, vehicles along the road's
-side, one camp, scattered traces) and the weather in how far the sensors read (see the environment's
-documentation of signs). EM-PPO's transition mixture (:mod:`~sb3_emmarl.common.latent.model`) reads compact
-features that count readings in the window but cannot say where on the map they were made; fitted even *told*
-the mode, it tells the mode about half of the time from a whole team's evidence at mid-episode
-(``benchmarks/mixture_ceiling.py``). This model says where, and nothing else.
+An environment's plug-in may count its readings by *bin* (:class:`~sb3_emmarl.common.latent.evidence.CountEvidence`:
+on the reserve, three window channels by map block and window ring, :mod:`sb3_emmarl.common.reserve_evidence`), with
+each bin's *exposure* (how much of the bin was looked at). Under component ``k`` a bin's count of channel ``c`` is
+Poisson with mean ``exposure * rate[k, c, bin]``, independently over bins and steps.
 
-For each step of a UAV, :class:`ReadingCounter` counts the readings of three window channels (signs, leopards,
-poachers) by *bin*: the block of the coarse ``belief_size x belief_size`` map the cell lies in, times the cell's
-ring (Chebyshev distance from the UAV, ``0..r``); and each bin's *exposure*: the window cells of the bin inside
-the map, each weighted by its visual transparency (``1 -`` the occlusion channel). Under component ``k`` a bin's
-count is Poisson with mean ``exposure * rate[k, channel, bin]``, independently over bins and steps.
+Counts and exposures add over steps, so a unit's (an agent's or a team's) evidence up to any step is the sum of its
+steps', and the log-likelihood is linear in it: ``sum counts * log(rate) - exposure * rate`` (the ``log(count!)`` term
+is the same for every component and left out). The exact posterior of a per-episode ``z`` is therefore a softmax of a
+product of the summed statistics with ``log(rate)`` and ``rate``, at constant cost per step.
 
-Counts and exposures add over steps, so a UAV's (or a team's) evidence up to any step is the sum of its steps',
-and the log-likelihood is linear in it: ``sum counts * log(rate) - exposure * rate`` (the ``log(count!)`` term
-is the same for every component and left out). The exact posterior of a per-episode ``z`` is therefore a
-softmax of a product of the summed statistics with ``log(rate)`` and ``rate``, at constant cost per step.
-
-A sign read from consecutive steps is counted each time (the UAV moves at most ``uav_speed`` cells), so the
-independence assumption overstates the evidence; ``temperature`` divides the log-likelihood, as EM-PPO's
-``likelihood_temperature`` does for the transition model. The posterior's argmax does not depend on it; EM's fit
-does, and EM-PPO weighs the count evidence by :data:`COUNT_EVIDENCE_WEIGHT` in its beliefs and responsibilities.
+A reading seen at several steps is counted each time, so the independence assumption overstates the evidence; the
+plug-in's ``weight`` multiplies the log-likelihood (``1 / temperature``), as EM-PPO's ``likelihood_temperature`` does
+for the transition model. The posterior's argmax does not depend on it; EM's fit does.
 
 EM (:meth:`PoissonMixture.fit`): responsibilities are the posterior of each training unit (an episode's team or
-UAV), the rates ``(sum_n r_nk counts_n + a * pooled) / (sum_n r_nk exposure_n + a)`` (a Gamma prior worth ``a``
+agent), the rates ``(sum_n r_nk counts_n + a * pooled) / (sum_n r_nk exposure_n + a)`` (a Gamma prior worth ``a``
 cells of exposure at the channel's pooled rate keeps bins never seen finite) and the prior the mean
 responsibilities, all in closed form. The counts of a whole episode run into the thousands, so plain EM makes
 its assignments hard at once and stops in a poor optimum; deterministic annealing (the log-likelihood divided
 by a temperature falling geometrically from ``anneal_from`` to ``temperature``) and restarts keep the best of
 several fits by their log-evidence.
 
-EM-PPO, EM-DDPG and VDN+EM add this model's evidence to their transition model's on the reserve: the belief
-(``belief.py``) adds each new observation's count log-likelihood, the E-step (``em.py``) reads each episode's
-counts in the responsibilities and sets the rates in closed form from running sums, as :meth:`PoissonMixture.m_step`
-does from a batch.
+EM-PPO, EM-DDPG and VDN+EM add this model's evidence to their transition model's when the environment's plug-in has
+counts (``reading_counts``): the belief (``belief.py``) adds each new observation's count log-likelihood, the E-step
+(``em.py``) reads each episode's counts in the responsibilities and sets the rates in closed form from running sums,
+as :meth:`PoissonMixture.m_step` does from a batch.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from scipy.special import logsumexp, softmax
 
-#: The window channels counted, in order: signs of poacher activity, leopards, poachers.
-COUNTED_CHANNELS = ("sign", "leopard", "poacher")
-#: The factor on the count log-likelihood in EM-PPO's beliefs and E-step responsibilities (the count model's
-#: ``1 / temperature``): a reading is counted from about three consecutive steps. With the model fitted online, as
-#: the E-step fits it, on 400 random-patrol episodes (benchmarks/mixture_ceiling.py's episodes; an ad-hoc script, not
-#: kept): a team's mid-episode accuracy 0.65 at 1/3, 0.63 at 1 and 0.48 at 1/10.
-COUNT_EVIDENCE_WEIGHT = 1.0 / 3.0
 #: ``a``: the Gamma prior on the rates, in cells of exposure at the channel's pooled rate.
 PRIOR_EXPOSURE = 1.0
 
@@ -136,216 +119,6 @@ def count_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarray, fa
     if factors is None:
         return closed_form_rates(counts, exposure, pooled, prior_exposure)
     return factored_rates(counts, exposure, pooled, factors, n_rings, prior_exposure)
-
-
-@njit(cache=True)
-def _window_bins(observations: np.ndarray, i: int, own: int, height: int, width: int, blocks: np.ndarray,
-                 width_padded: int, offsets: np.ndarray, ring: np.ndarray, n_rings: int,
-                 bins: np.ndarray) -> None:  # pragma: no cover (compiled)
-    """Each window cell's bin of observation ``i`` into ``bins`` ``(w * w,)``, -1 off the map (see
-    :meth:`ReadingCounter.cells`: the UAV's cell is its position floored, as the reserve places its window)."""
-    row = min(max(int(np.floor(np.float64(observations[i, own]) * (height - 1))), 0), height - 1)
-    col = min(max(int(np.floor(np.float64(observations[i, own + 1]) * (width - 1))), 0), width - 1)
-    corner = row * width_padded + col
-    for c in range(offsets.shape[0]):
-        block = blocks[corner + offsets[c]]
-        bins[c] = -1 if block < 0 else block * n_rings + ring[c]
-
-
-@njit(cache=True)
-def _count_log_likelihood(observations: np.ndarray, own: int, window: int, occlusion: int, channels: np.ndarray,
-                          height: int, width: int, blocks: np.ndarray, width_padded: int, offsets: np.ndarray,
-                          ring: np.ndarray, n_rings: int, table: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
-    """``ReadingCounter.binned(*cells(observations))`` times ``table`` ``(1 + channels, bins, K)`` summed over parts and
-    bins, row by row, without the binned arrays (the belief's one call per step)."""
-    n, k, cells = observations.shape[0], table.shape[2], offsets.shape[0]
-    out = np.zeros((n, k))
-    bins = np.empty(cells, dtype=np.int64)
-    for i in range(n):
-        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
-        for c in range(cells):
-            b = bins[c]
-            if b < 0:
-                continue
-            seen = 1.0 - observations[i, window + occlusion * cells + c]
-            for j in range(k):
-                out[i, j] += seen * table[0, b, j]
-            for p in range(channels.shape[0]):
-                if observations[i, window + channels[p] * cells + c] > 0.5:
-                    for j in range(k):
-                        out[i, j] += table[1 + p, b, j]
-    return out
-
-
-@njit(cache=True)
-def _grouped_counts(observations: np.ndarray, groups: np.ndarray, out: np.ndarray, own: int, window: int,
-                    occlusion: int, channels: np.ndarray, height: int, width: int, blocks: np.ndarray,
-                    width_padded: int, offsets: np.ndarray, ring: np.ndarray, n_rings: int,
-                    n_bins: int) -> np.ndarray:  # pragma: no cover (compiled)
-    """``ReadingCounter.binned(*cells(observations), groups)`` without the off-map bin, in one pass, added to ``out``
-    ``(n_groups, 1 + channels, n_bins)`` (returned); rows of a negative group are skipped."""
-    cells = offsets.shape[0]
-    bins = np.empty(cells, dtype=np.int64)
-    for i in range(observations.shape[0]):
-        g = groups[i]
-        if g < 0:
-            continue
-        _window_bins(observations, i, own, height, width, blocks, width_padded, offsets, ring, n_rings, bins)
-        for c in range(cells):
-            b = bins[c]
-            if b < 0:
-                continue
-            out[g, 0, b] += 1.0 - observations[i, window + occlusion * cells + c]
-            for p in range(channels.shape[0]):
-                if observations[i, window + channels[p] * cells + c] > 0.5:
-                    out[g, 1 + p, b] += 1.0
-    return out
-
-
-class ReadingCounter:
-    """Per-step reading counts and exposures by (block, ring) bin, from the reserve's flat observations.
-
-    :param observation_layout: the reserve's ``observation_layout`` (name -> (slice, shape)); it needs
-        ``window`` (channels, w, w) and ``own`` (row, col, ... scaled to [0, 1])
-    :param grid_shape: ``(height, width)`` of the reserve's grid
-    :param belief_size: side of the coarse maps (the blocks)
-    """
-
-    def __init__(self, observation_layout: dict, grid_shape: tuple[int, int], belief_size: int) -> None:
-        from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_SIGN
-
-        for name in ("window", "own"):
-            if name not in observation_layout:
-                raise ValueError(f"observation_layout must have a {name!r} part, got parts {sorted(observation_layout)}")
-        height, width = (int(side) for side in grid_shape)
-        if height < 1 or width < 1:
-            raise ValueError(f"grid_shape must be two sides >= 1, got {grid_shape}")
-        if isinstance(belief_size, bool) or not isinstance(belief_size, (int, np.integer)) or \
-                not 1 <= belief_size <= min(height, width):
-            raise ValueError(f"belief_size must be an int in [1, {min(height, width)}], got {belief_size!r}")
-        self.window_part, (n_channels, w, _) = observation_layout["window"]
-        self.own_part = observation_layout["own"][0]
-        self.height, self.width, self.belief_size, self.r = height, width, int(belief_size), w // 2
-        self.channels = tuple({"sign": CH_SIGN, "leopard": CH_LEOPARD, "poacher": CH_POACHER}[name]
-                              for name in COUNTED_CHANNELS)
-        if max(self.channels) >= n_channels:
-            raise ValueError(f"the window needs channels {self.channels}, it has {n_channels}")
-        self.occlusion = CH_OCCLUSION
-        self.n_rings = self.r + 1
-        self.n_bins = self.belief_size**2 * self.n_rings
-        # Every window cell's bin as one table lookup: table[row + r + d_row, col + r + d_col] for the UAV at (row,
-        # col) is the block of the cell (as the reserve's coarse maps place it) times its ring, -1 off the map.
-        rows = np.arange(height) * self.belief_size // height
-        cols = np.arange(width) * self.belief_size // width
-        blocks = np.full((height + 2 * self.r, width + 2 * self.r), -1, dtype=np.int64)
-        blocks[self.r:self.r + height, self.r:self.r + width] = rows[:, None] * self.belief_size + cols[None, :]
-        offsets = np.indices((w, w)).reshape(2, -1)  # (2, w * w): a window cell's place in the padded table
-        ring = np.abs(offsets - self.r).max(axis=0)
-        self._blocks, self._ring = blocks, ring
-        self._width_padded = blocks.shape[1]
-        self._flat_offsets = offsets[0] * blocks.shape[1] + offsets[1]  # (w * w,)
-        # What the compiled kernels need to place and read every window cell, in their argument order.
-        self._geometry = (self.own_part.start, self.window_part.start, self.occlusion,
-                          np.array(self.channels, dtype=np.int64), height, width, blocks.ravel(), self._width_padded,
-                          self._flat_offsets, ring, self.n_rings)
-
-    @classmethod
-    def from_env(cls, env) -> ReadingCounter:
-        """The counter of a reserve (``ReserveParallelEnv``, or anything with its ``observation_layout``, ``height``,
-        ``width`` and ``config.belief_size``)."""
-        return cls(env.observation_layout, (env.height, env.width), env.config.belief_size)
-
-    @property
-    def n_channels(self) -> int:
-        return len(self.channels)
-
-    def _checked(self, observations: np.ndarray) -> np.ndarray:
-        observations = np.asarray(observations)
-        if observations.ndim != 2 or observations.shape[1] < self.own_part.stop:
-            raise ValueError(f"observations must be (n, obs_dim >= {self.own_part.stop}), got shape {observations.shape}")
-        return observations
-
-    def cells(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Each window cell's bin (``n_bins`` off the map) ``(n, w * w)``, its exposure ``(n, w * w)`` (transparency, 0
-        off the map) and its readings ``(n, n_channels, w * w)`` (bool: the channel above 0.5; the channels are 0/1
-        without sensor noise).
-
-        :param observations: ``(n, obs_dim)`` flat observations of the reserve
-        """
-        observations = self._checked(observations)
-        n = len(observations)
-        # The UAV's cell is its position floored, as the reserve places its window. The observation holds the
-        # position scaled to [0, 1] in float32, which cannot tell a position on a cell's edge from one a hair below
-        # (where the reserve's bounds hold UAVs): on random patrols 7% of the cells found are one off, the bins of
-        # their windows shifted by a cell; the fit and the beliefs read them alike.
-        own = observations[:, self.own_part.start:self.own_part.start + 2].astype(np.float64)
-        row = np.clip(np.floor(own[:, 0] * (self.height - 1)), 0, self.height - 1).astype(np.int64)
-        col = np.clip(np.floor(own[:, 1] * (self.width - 1)), 0, self.width - 1).astype(np.int64)
-        corner = row * self._width_padded + col  # the window's top-left cell in the padded table
-        block = self._blocks.ravel()[corner[:, None] + self._flat_offsets[None]]
-        inside = block >= 0
-        bins = np.where(inside, block * self.n_rings + self._ring[None], self.n_bins)
-        window = observations[:, self.window_part].reshape(n, -1, self._ring.size)
-        exposure = np.where(inside, 1.0 - window[:, self.occlusion], 0.0)
-        readings = (window[:, list(self.channels)] > 0.5) & inside[:, None, :]
-        return bins, exposure, readings
-
-    def __call__(self, observations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Counts ``(n, n_channels, n_bins)`` and exposures ``(n, n_bins)`` of the readings in each observation.
-
-        :param observations: ``(n, obs_dim)`` flat observations of the reserve
-        """
-        summed = self.binned(*self.cells(observations))
-        return summed[:, 1:, :self.n_bins], summed[:, 0, :self.n_bins]
-
-    def log_likelihood(self, observations: np.ndarray, table: np.ndarray) -> np.ndarray:
-        """``(n, K)``: each observation's exposures and counts by bin (:meth:`binned`) times a ``(1 + n_channels,
-        n_bins, K)`` table (minus the rates, then each channel's log-rates), summed: the count log-likelihood of one
-        step, in one compiled call."""
-        observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
-        return _count_log_likelihood(observations, *self._geometry, np.ascontiguousarray(table, dtype=np.float64))
-
-    def grouped(self, observations: np.ndarray, groups: np.ndarray, n_groups: int | None = None,
-                out: np.ndarray | None = None) -> np.ndarray:
-        """The exposures and counts of the observations in each group, by bin: ``(G, 1 + n_channels, n_bins)``, what
-        :meth:`binned` of :meth:`cells` gives with ``groups`` (without the off-map bin), in one compiled pass (the
-        E-step's per-episode sums of a rollout).
-
-        :param observations: ``(n, d)`` flat observations of the reserve (``d >= obs_dim``: columns after the
-            observation, as the beliefs of augmented observations, are not read, so no copy is made of them)
-        :param groups: ``(n,)`` ints in ``[0, n_groups)``, or -1 for a row to skip
-        :param n_groups: ``G`` (None: ``max(groups) + 1``, or ``len(out)``)
-        :param out: a float64 ``(G, 1 + n_channels, n_bins)`` array to add the sums to (returned), or None (zeros): the
-            sums of several blocks of rows, added in turn, equal those of the stacked blocks to the bit
-        """
-        observations = np.ascontiguousarray(self._checked(observations), dtype=np.float32)
-        groups = np.asarray(groups, dtype=np.int64).reshape(-1)
-        if len(groups) != len(observations):
-            raise ValueError(f"groups must have one entry per observation ({len(observations)}), got {len(groups)}")
-        if n_groups is None:
-            n_groups = len(out) if out is not None else (int(groups.max()) + 1 if len(groups) else 0)
-        n_groups = int(n_groups)
-        if len(groups) and (groups.min() < -1 or groups.max() >= n_groups):
-            raise ValueError(f"groups must lie in [0, {n_groups}) or be -1 (skipped), got [{groups.min()}, "
-                             f"{groups.max()}]")
-        shape = (n_groups, 1 + self.n_channels, self.n_bins)
-        if out is None:
-            out = np.zeros(shape)
-        elif out.shape != shape or out.dtype != np.float64:
-            raise ValueError(f"out must be a float64 array of shape {shape}, got {out.dtype} {out.shape}")
-        return _grouped_counts(observations, groups, out, *self._geometry, self.n_bins)
-
-    def binned(self, bins: np.ndarray, exposure: np.ndarray, readings: np.ndarray,
-               groups: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`cells` summed by bin: ``(n, 1 + n_channels, n_bins + 1)``, the exposures then each channel's counts,
-        the last bin holding what lay off the map; with ``groups`` (``(n,)`` ints in ``[0, G)``), summed by group too:
-        ``(G, 1 + n_channels, n_bins + 1)``."""
-        n, size, parts = len(bins), self.n_bins + 1, 1 + self.n_channels
-        weights = np.concatenate([exposure[:, None], readings], axis=1)  # (n, 1 + channels, w * w)
-        unit = np.arange(n) if groups is None else np.asarray(groups, dtype=np.int64)
-        n_units = n if groups is None else (int(unit.max()) + 1 if n else 0)
-        index = ((unit[:, None, None] * parts + np.arange(parts)[None, :, None]) * size + bins[:, None, :]).ravel()
-        return np.bincount(index, weights=weights.ravel(), minlength=n_units * parts * size).reshape(n_units, parts, size)
 
 
 def _check_statistics(counts: np.ndarray, exposure: np.ndarray, shape: tuple[int, int] | None = None) -> tuple[

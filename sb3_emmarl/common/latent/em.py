@@ -17,21 +17,21 @@ fell below ``starved_share / K`` is re-seeded by splitting the busiest one. With
 the ELBO equals the marginal log-likelihood ``sum_episodes log sum_k pi_k exp(L_k)``: that is what
 :meth:`EStep.step` reports as ``log_likelihood`` (per transition).
 
-On the reserve the responsibilities also read each episode's reading counts (:class:`EpisodeCounts`, the
-count model of :mod:`~sb3_emmarl.common.latent.counts`), weighed by ``COUNT_EVIDENCE_WEIGHT`` as in the
-beliefs, and each E-step fits the count model's rates by batch EM over every episode it remembers
-(:meth:`EStep._remember_counts`: each episode's counts and exposures summed over all its rollouts, the newest
-:data:`COUNT_TABLE_EPISODES` episodes, each weighted by :data:`COUNT_DECAY` per E-step since its last reading, as
-the policy and so the data drift), :data:`COUNT_ITERATIONS` rounds from the current rates: responsibilities of every
-remembered episode (its count evidence, plus its transition evidence while it is kept), then ``rates = (weighted
-sums of counts + a * pooled rate) / (weighted sums of exposures + a)``. Decaying running sums that each rollout's
-episodes joined once, weighted by the responsibilities of that moment, would keep the random start's assignments in
-the rates (0.99 ** 12 = 0.89 of their weight after the 12 E-steps of a 500k-step run); re-assigning every remembered
-episode at every E-step instead lifts EM-PPO's belief at mid-episode from 0.49 to 0.60 at 500k agent-steps (5 seeds;
-docs/lab/results-history.md). The first round of the first E-step weighs the episodes by random
-responsibilities (Dirichlet(1), from the E-step's generator): equal starting rates would give every component the
-same share of every episode, and the components' rates would never part (EM's usual random start; annealing
-instead did worse online: 0.55 against 0.64 in the measurement that ``counts.COUNT_EVIDENCE_WEIGHT`` cites).
+When the environment's plug-in counts readings (on the reserve), the responsibilities also read each episode's counts
+(:class:`EpisodeCounts`, the count model of :mod:`~sb3_emmarl.common.latent.counts`), weighed by the plug-in's
+``weight`` (``count_weight``) as in the beliefs, and each E-step fits the count model's rates by batch EM over every
+episode it remembers (:meth:`EStep._remember_counts`: each episode's counts and exposures summed over all its rollouts,
+the newest :data:`COUNT_TABLE_EPISODES` episodes, each weighted by :data:`COUNT_DECAY` per E-step since its last
+reading, as the policy and so the data drift), :data:`COUNT_ITERATIONS` rounds from the current rates: responsibilities
+of every remembered episode (its count evidence, plus its transition evidence while it is kept), then ``rates =
+(weighted sums of counts + a * pooled rate) / (weighted sums of exposures + a)``. Decaying running sums that each
+rollout's episodes joined once, weighted by the responsibilities of that moment, would keep the random start's
+assignments in the rates (0.99 ** 12 = 0.89 of their weight after the 12 E-steps of a 500k-step run); re-assigning
+every remembered episode at every E-step instead lifts EM-PPO's belief at mid-episode from 0.49 to 0.60 at 500k
+agent-steps (5 seeds; docs/lab/results-history.md). The first round of the first E-step weighs the episodes by random
+responsibilities (Dirichlet(1), from the E-step's generator): equal starting rates would give every component the same
+share of every episode, and the components' rates would never part (EM's usual random start; annealing instead did
+worse online: 0.55 against 0.64 in the measurement that the reserve's ``COUNT_EVIDENCE_WEIGHT`` cites).
 """
 
 from __future__ import annotations
@@ -39,16 +39,19 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from sb3_emmarl.common.latent.counts import COUNT_EVIDENCE_WEIGHT, ReadingCounter, check_factors, check_rings, count_rates
+from sb3_emmarl.common.latent.counts import check_factors, check_rings, count_rates
 from sb3_emmarl.common.latent.diagnostics import assignment_agreement
 from sb3_emmarl.common.latent.model import LOG_STD_BOUNDS, LatentModel, StepLikelihood, sum_by_group
 from sb3_emmarl.common.latent.parts import PartsMemory
+
+if TYPE_CHECKING:
+    from sb3_emmarl.common.latent.evidence import CountEvidence
 
 FIELDS = ("features", "actions", "next_features", "episodes")
 #: Decay per E-step of the count model's running sums.
@@ -111,10 +114,11 @@ class EpisodeCounts:
         return EpisodeCounts(th.as_tensor(ids, device=device), summed(counts), summed(exposure))
 
     @staticmethod
-    def from_observations(counter: ReadingCounter, observations: np.ndarray | Sequence[np.ndarray],
+    def from_observations(counter: CountEvidence, observations: np.ndarray | Sequence[np.ndarray],
                           episodes: np.ndarray, device: th.device | str = "cpu") -> EpisodeCounts:
         """The reading counts of ``observations`` summed by their ``episodes``.
 
+        :param counter: the environment's count evidence (its plug-in's)
         :param observations: ``(N, d)`` flat observations (``d >= obs_dim``: augmented ones are read in place), or
             blocks ``(..., d)`` that stack to them row by row (a rollout's observations and the last ones, without
             the copy that stacking them would make)
@@ -201,14 +205,15 @@ class EStep:
     :param seed: seed of the minibatch order and of the re-seeding noise
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = K``: the count model's rates factor as where x how far
         (:func:`~sb3_emmarl.common.latent.counts.factored_rates`); None: every component's every bin its own
-    :param count_rings: rings per block of the count model's bins (with ``count_factors``)
+    :param count_rings: rings per block of the count model's bins (with ``count_factors``; the plug-in's ``n_rings``)
+    :param count_weight: the factor on the count log-likelihood in the responsibilities (the plug-in's ``weight``)
     """
 
-    def __init__(self, latent_model: LatentModel, learning_rate: float = 1e-3, n_epochs: int = 5, batch_size: int = 256,
-                 window: int = 2, max_transitions: int = 16384, estimator: str = "enumerate", temperature: float = 1.0,
-                 min_temperature: float = 0.1, anneal_rate: float = 0.05, likelihood_temperature: float = 1.0,
-                 starved_share: float = 0.1, seed: int = 0, count_factors: tuple[int, int] | None = None,
-                 count_rings: int = 1) -> None:
+    def __init__(self, latent_model: LatentModel, *, learning_rate: float = 1e-3, n_epochs: int = 5,
+                 batch_size: int = 256, window: int = 2, max_transitions: int = 16384, estimator: str = "enumerate",
+                 temperature: float = 1.0, min_temperature: float = 0.1, anneal_rate: float = 0.05,
+                 likelihood_temperature: float = 1.0, starved_share: float = 0.1, seed: int = 0,
+                 count_factors: tuple[int, int] | None = None, count_rings: int = 1, count_weight: float = 1.0) -> None:
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
         for name, value in (("n_epochs", n_epochs), ("batch_size", batch_size), ("window", window),
@@ -223,8 +228,12 @@ class EStep:
         self.count_factors = check_factors(count_factors, latent_model.n_components)
         self.count_rings = check_rings(count_rings, latent_model.count_log_rates.shape[-1]
                                        if latent_model.count_log_rates is not None else 1, "count_rings")
+        if isinstance(count_weight, bool) or not (isinstance(count_weight, (int, float)) and 0 < count_weight < math.inf):
+            raise ValueError(f"count_weight must be a finite number > 0, got {count_weight!r}")
+        self.count_weight = count_weight
         self.model = latent_model
         self.optimizer = th.optim.Adam(latent_model.parameters(), lr=learning_rate)
+        latent_model.watch(self.optimizer)  # (its steps write the model: the beliefs' copy follows)
         self.n_epochs, self.batch_size, self.max_transitions = int(n_epochs), int(batch_size), int(max_transitions)
         # The kept rollouts' transitions and reading counts, back to back in a few large tensors (see parts.py).
         self.memory: PartsMemory[Transitions] = PartsMemory(Transitions, int(window))
@@ -324,7 +333,7 @@ class EStep:
             if self.model.has_counts and any(part is not None for part in self.count_memory):
                 counts, exposure, _ = self._episode_counts(th.unique(data.episodes), list(self.count_memory))
                 count_evidence = self.model.count_log_likelihood(counts, exposure)
-                evidence = evidence + COUNT_EVIDENCE_WEIGHT * count_evidence
+                evidence = evidence + self.count_weight * count_evidence
             return self.model.posterior_from(evidence), index, evidence
 
     def _remember_counts(self, ids: th.Tensor) -> None:
@@ -383,7 +392,7 @@ class EStep:
 
         def count_evidence(counts: th.Tensor, exposure: th.Tensor) -> th.Tensor:
             with th.no_grad():
-                return COUNT_EVIDENCE_WEIGHT * self.model.count_log_likelihood(counts.float(), exposure.float()).double()
+                return self.count_weight * self.model.count_log_likelihood(counts.float(), exposure.float()).double()
 
         # What the transitions say of the kept episodes (their evidence without its count part); 0 for the others.
         window_counts, window_exposure, _ = self._episode_counts(ids, list(self.count_memory))
@@ -420,6 +429,7 @@ class EStep:
             with th.no_grad():
                 change = (data.next_features - data.features).std(dim=0) + 1e-3
                 self.model.decoder_log_std.copy_(change.log().clamp(*LOG_STD_BOUNDS))
+            self.model.mark_changed()
         self.model.train(train)
         log_r, index, evidence = self.responsibilities(data)
         first_assignment = log_r.argmax(-1)

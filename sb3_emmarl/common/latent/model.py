@@ -19,6 +19,8 @@ to the mean responsibilities.
 from __future__ import annotations
 
 import math
+from functools import partial
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
@@ -26,8 +28,10 @@ import torch.nn.functional as F
 from numba import njit
 from torch import nn
 
-from sb3_emmarl.common.latent.counts import ReadingCounter
 from sb3_emmarl.common.latent.layout import LatentLayout
+
+if TYPE_CHECKING:
+    from sb3_emmarl.common.latent.evidence import CountEvidence
 
 #: Bounds of the decoder's log standard deviations: a feature that never changes would otherwise drive its
 #: deviation to zero and its log-likelihood, hence every belief, to infinity.
@@ -61,6 +65,17 @@ def sum_by_group(values: th.Tensor, groups: th.Tensor) -> tuple[th.Tensor, th.Te
     return summed, index
 
 
+def _changed_on_load(module: nn.Module, incompatible_keys: Any) -> None:
+    """``load_state_dict``'s post-hook: a load writes the parameters (a module-level function, so the model pickles)."""
+    assert isinstance(module, LatentModel)
+    module.mark_changed()
+
+
+def _changed_after_step(model: LatentModel, optimizer: th.optim.Optimizer, args: Any, kwargs: Any) -> None:
+    """An optimizer's step post-hook (:meth:`LatentModel.watch`): the step wrote the model's parameters."""
+    model.mark_changed()
+
+
 class LatentModel(nn.Module):
     """The transition models ``p(x_{t+1} | x_t, a_t, z)`` of the components and the prior ``pi``, shared by all agents.
 
@@ -69,6 +84,10 @@ class LatentModel(nn.Module):
     deviations are shared. What every mode has in common is thus learnt once, from all the data, and the
     components differ only in how the modes differ: otherwise the component that happens to be fitted on most
     data models the common part best and wins every episode (observed on the reserve).
+
+    Whatever writes the model's parameters or buffers announces it (:meth:`mark_changed`), so that the beliefs'
+    compiled copy (:class:`StepLikelihood`) follows: the closed-form updates here, ``load_state_dict`` (a post-hook)
+    and the steps of every optimizer :meth:`watch` was given (the E-step's) do; a write elsewhere must call it.
 
     :param layout: the latent layout (feature and action sizes, ``K``, decoder sizes)
     """
@@ -100,6 +119,10 @@ class LatentModel(nn.Module):
             self.register_buffer("count_log_rates", COUNT_START_NOISE * th.randn(shape))
         else:
             self.count_log_rates = None
+        #: bumped by :meth:`mark_changed` whenever the parameters or buffers are written (see :meth:`version`)
+        self.revision = 0
+        self._tensors: list[th.Tensor] | None = None
+        self.register_load_state_dict_post_hook(_changed_on_load)
 
     def component_means(self, features: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """Each component's predicted mean of ``x_{t+1}``: ``(B, K, d_x)``, as ``x_t`` plus a predicted change
@@ -135,7 +158,7 @@ class LatentModel(nn.Module):
 
     @property
     def has_counts(self) -> bool:
-        """Whether the model has the reading-count term (on the reserve)."""
+        """Whether the model has the count term (the environment's plug-in counts readings: on the reserve)."""
         return self.count_log_rates is not None
 
     def count_log_likelihood(self, counts: th.Tensor, exposure: th.Tensor) -> th.Tensor:
@@ -150,6 +173,7 @@ class LatentModel(nn.Module):
         """The E-step's closed-form update of the reading-count rates ``(K, channels, bins)`` (all > 0)."""
         assert self.count_log_rates is not None, "the model has no reading-count term"
         self.count_log_rates.copy_(rates.log())
+        self.mark_changed()
 
     def posterior_from(self, evidence: th.Tensor) -> th.Tensor:
         """``log q(z)`` from summed (tempered) log-likelihoods ``(B, K)``: ``log_softmax(log pi + evidence)``."""
@@ -161,27 +185,28 @@ class LatentModel(nn.Module):
         """The E-step's closed-form update of the mixture weights: ``pi = mean responsibilities`` (floored)."""
         pi = responsibilities.mean(dim=0).clamp_min(floor)
         self.log_prior.copy_((pi / pi.sum()).log())
+        self.mark_changed()
 
     def prior(self) -> th.Tensor:
         return self.log_prior.exp()
 
+    def mark_changed(self) -> None:
+        """Announce a write to the parameters or buffers: :meth:`version` changes."""
+        self.revision += 1
+        self._tensors = None
+
+    def watch(self, optimizer: th.optim.Optimizer) -> None:
+        """Call :meth:`mark_changed` after every step of ``optimizer`` (one that updates this model's parameters)."""
+        optimizer.register_step_post_hook(partial(_changed_after_step, self))
+
     def version(self) -> tuple[int, ...]:
-        """Changes whenever a parameter or the prior is written (optimizer steps, ``load_state_dict``, splits, a
-        tensor replaced): each tensor's storage and torch's version counter of in-place writes. What
-        :class:`StepLikelihood` checks to stay in step with the model."""
-        # The module tree walked by hand: ``parameters()`` builds every name on the way, 5x the cost (this runs at
-        # every step of the beliefs).
-        version: list[int] = []
-        modules: list[nn.Module | None] = [self]
-        while modules:
-            module = modules.pop()
-            if module is None:  # (a submodule registered as None holds no tensors)
-                continue
-            modules.extend(module._modules.values())
-            for tensor in (*module._parameters.values(), *module._buffers.values()):
-                if tensor is not None:
-                    version += (tensor.data_ptr(), tensor._version)
-        return tuple(version)
+        """Changes whenever the parameters or buffers are written (:meth:`mark_changed`) or a tensor is replaced
+        (``param.data = ...``, a move to another device: its storage's address changes). What :class:`StepLikelihood`
+        checks at every step of the beliefs to stay in step with the model: a few microseconds (the tensors are listed
+        once per revision; walking the module tree each time would cost ten times as much)."""
+        if self._tensors is None:
+            self._tensors = [*self.parameters(), *self.buffers()]
+        return (self.revision, *(tensor.data_ptr() for tensor in self._tensors))
 
     @th.no_grad()
     def split_component(self, dead: int, source: int, noise: float = 0.05, generator: th.Generator | None = None) -> None:
@@ -206,6 +231,7 @@ class LatentModel(nn.Module):
         prior = self.prior()
         prior[dead] = prior[source] = prior[source] / 2
         self.log_prior.copy_((prior / prior.sum()).log())
+        self.mark_changed()
 
 
 @njit(cache=True)
@@ -240,12 +266,12 @@ class StepLikelihood:
 
     def __init__(self, model: LatentModel) -> None:
         self.model = model
-        self._version: tuple[int, ...] | None = None
+        self._model_version: tuple[int, ...] | None = None
 
     def _refresh(self) -> None:
         model = self.model
         version = model.version()
-        if version == self._version:
+        if version == self._model_version:
             return
         with th.no_grad():
             copy = lambda t: t.detach().to("cpu", th.float32).clone()  # noqa: E731
@@ -265,7 +291,7 @@ class StepLikelihood:
                 log_rates = model.count_log_rates.detach().cpu().double()  # each channel's log-rates (K, channels, bins)
                 table = th.cat([-log_rates.exp().sum(1, keepdim=True), log_rates], dim=1)  # (K, 1 + channels, bins)
                 self.count_table = table.permute(1, 2, 0).contiguous().numpy()  # (1 + channels, bins, K)
-        self._version = version
+        self._model_version = version
 
     def log_likelihood(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray) -> np.ndarray:
         """``(B, K)`` float64 log-likelihoods of the transitions ``(features, actions) -> next_features``."""
@@ -284,11 +310,11 @@ class StepLikelihood:
                           self.inv_std, self.constant, out)
         return out
 
-    def count_log_likelihood(self, counter: ReadingCounter, observations: np.ndarray, refresh: bool = True) -> np.ndarray:
+    def count_log_likelihood(self, counter: CountEvidence, observations: np.ndarray, refresh: bool = True) -> np.ndarray:
         """``(B, K)`` float64 log-likelihoods of the reading counts of each observation ``(B, obs_dim)`` (what
         :meth:`LatentModel.count_log_likelihood` gives for the counts and exposures ``counter`` finds in them).
 
-        :param counter: the observations' reading counter
+        :param counter: the observations' count evidence (the environment's plug-in's)
         :param refresh: check the model's version first (False: the caller has just done so, with nothing written
             to the model since)
         """

@@ -1,0 +1,96 @@
+"""ZonePatrol's evidence for the latent model: where tracks lie relative to the zones (a plug-in).
+
+ZonePatrol (``wildlife_reserve.zone_patrol_v0``) hides a zone where intruders strike and a weather that decides
+which sensor works; its observation is an egocentric window and the UAV's cell. :class:`ZoneEvidence` gives the
+latent model (:mod:`~sb3_emmarl.common.latent.evidence`) :func:`zone_features` of any environment that exposes a
+``zone_map``; it has no count evidence. Registered when ``sb3_emmarl`` is imported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_emmarl.common.latent.evidence import LatentEvidence, observation_size, register_evidence
+
+
+def zone_features(zone_map: dict) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
+    """Compact features of an observation made of an egocentric window and the UAV's cell, on a map with zones where
+    the hidden mode puts its events (ZonePatrol's ``zone_map``): ``2 * zones + 2``, by default 10 (14 with
+    ZonePatrol's ``zone_cue``).
+
+    Per zone, the window cells of the zone that hold a track (capped at 5, over 5) and the window cells of the zone
+    (over the window's cells, the exposure); then the visibility reading as observed, the window's detection cells
+    this step and, when the observation has them (``zone_cue``), the zone readings as observed. The zone is where the
+    mode shows, so the features say *where* the tracks were seen, which an egocentric window alone does not; the
+    visibility is where the weather shows. On ZonePatrol's episodes of the best scripted blind team, EM fitted with
+    team pooling tells the mode at mid-episode 0.75 of the time from these features against 0.56 from
+    :func:`generic_features` (``docs/lab/2026-12-05/zone_patrol_latent_ceiling.py``, one seed).
+
+    :param zone_map: plain values: ``grid_size``, ``zone_size``, ``window_radius``, ``zone_origins`` (top-left cells),
+        the observation's ``tracks``, ``detections`` and ``own`` parts as ``[start, stop]`` (``own``: row and column
+        scaled to [-1, 1]), the index of its ``visibility`` and its ``cues`` as ``[start, stop]`` or None
+    """
+    g, size, r = int(zone_map["grid_size"]), int(zone_map["zone_size"]), int(zone_map["window_radius"])
+    origins = np.asarray(zone_map["zone_origins"], dtype=np.int64).reshape(-1, 2)
+    n_zones, side = len(origins), 2 * r + 1
+    zone_of = np.full((g, g), -1, dtype=np.int64)
+    for z, (top, left) in enumerate(origins):
+        zone_of[top:top + size, left:left + size] = z
+    # The zone of each window cell, for each cell the UAV can be in: (g, g, side * side), -1 off the zones or the map.
+    rows, cols = np.indices((g, g))
+    da, db = (np.indices((side, side)).reshape(2, -1) - r)
+    at_rows, at_cols = rows[..., None] + da, cols[..., None] + db
+    inside = (at_rows >= 0) & (at_rows < g) & (at_cols >= 0) & (at_cols < g)
+    window_zones = np.where(inside, zone_of[np.clip(at_rows, 0, g - 1), np.clip(at_cols, 0, g - 1)], -1)
+    tracks, detections, own = (slice(*zone_map[part]) for part in ("tracks", "detections", "own"))
+    cues = slice(*zone_map["cues"]) if zone_map.get("cues") else slice(0, 0)
+    visibility, n_cues = int(zone_map["visibility"]), cues.stop - cues.start
+    dim = 2 * n_zones + 2 + n_cues
+
+    def features(obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        cell = np.clip(np.rint((obs[:, own] + 1.0) / 2.0 * (g - 1)).astype(np.int64), 0, g - 1)
+        zones = window_zones[cell[:, 0], cell[:, 1]]  # (N, side * side)
+        marked = obs[:, tracks] > 0
+        out = np.empty((len(obs), dim), dtype=np.float32)
+        for z in range(n_zones):
+            here = zones == z
+            out[:, z] = np.minimum((marked & here).sum(1), 5) / 5.0
+            out[:, n_zones + z] = here.sum(1) / (side * side)
+        out[:, 2 * n_zones] = obs[:, visibility]
+        out[:, 2 * n_zones + 1] = (obs[:, detections] > 0).sum(1)
+        out[:, 2 * n_zones + 2:] = obs[:, cues]
+        return out
+
+    return features, dim
+
+
+@register_evidence
+class ZoneEvidence(LatentEvidence):
+    """:func:`zone_features` of an environment with a ``zone_map`` (ZonePatrol); no counts.
+
+    :param spec: ``kind`` ``"zones"``, ``obs_dim`` and the environment's ``zone_map``
+    """
+
+    kind = "zones"
+
+    def __init__(self, spec: dict[str, Any]) -> None:
+        super().__init__(spec)
+        self._fn, self.feature_dim = zone_features(spec["zone_map"])
+
+    @classmethod
+    def from_env(cls, venv: VecEnv) -> ZoneEvidence | None:
+        """ZonePatrol's (an environment whose ``zone_map`` is a dict)."""
+        try:
+            zone_map = venv.get_attr("zone_map", indices=[0])[0]
+        except (AttributeError, NotImplementedError):
+            return None
+        return cls({"kind": cls.kind, "obs_dim": observation_size(venv), "zone_map": zone_map}) \
+            if isinstance(zone_map, dict) else None
+
+    def features(self, observations: np.ndarray) -> np.ndarray:
+        return self._fn(observations)
