@@ -61,7 +61,7 @@ def rows(tmp_path):
     store = ResultStore(tmp_path / "results.sqlite")
     for (algorithm, condition), by_seed in RESULTS.items():
         for seed, metrics in by_seed.items():
-            store.record("tiny", "quick", algorithm, condition, seed, metrics, [metrics],
+            store.record("tiny", "quick", (algorithm, condition, seed), metrics, [metrics],
                          str(tmp_path / "runs" / f"{algorithm}_{condition}_{seed}"), "test machine")
     return store.rows("tiny", "quick")
 

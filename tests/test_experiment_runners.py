@@ -52,7 +52,7 @@ def test_a_claim_holds_its_cell_while_its_runner_lives_and_is_taken_over_after(t
     # The first runner's process lives: the second skips its cell, and claims the next.
     assert store.claim("tiny", "quick", CELLS, second) == Claim(CELLS[1])
     assert store.held_by_others("tiny", "quick", second) == {CELLS[0]}
-    assert store.record("tiny", "quick", *CELLS[1], {"team_reward": 1.0}, [], "run", "hw", second)
+    assert store.record("tiny", "quick", CELLS[1], {"team_reward": 1.0}, [], "run", "hw", runner=second)
     assert store.claim("tiny", "quick", CELLS[:2], second) is None  # one held, one finished
     # A runner of this host whose process has ended holds nothing, whatever its heartbeat.
     dead = RunnerId(pid=finished_process_id(), process_start="1")
@@ -60,8 +60,8 @@ def test_a_claim_holds_its_cell_while_its_runner_lives_and_is_taken_over_after(t
     assert store.claim("tiny", "quick", CELLS, dead) == Claim(CELLS[0])
     assert store.claim("tiny", "quick", CELLS, second) == Claim(CELLS[0], previous=dead.id)
     # ... and its late result is dropped: the cell is the taker's.
-    assert not store.record("tiny", "quick", *CELLS[0], {"team_reward": 9.0}, [], "run", "hw", dead)
-    assert store.record("tiny", "quick", *CELLS[0], {"team_reward": 2.0}, [], "run", "hw", second)
+    assert not store.record("tiny", "quick", CELLS[0], {"team_reward": 9.0}, [], "run", "hw", runner=dead)
+    assert store.record("tiny", "quick", CELLS[0], {"team_reward": 2.0}, [], "run", "hw", runner=second)
     assert {(r["algorithm"], r["seed"]): r["metrics"]["team_reward"] for r in store.rows("tiny", "quick")} == {
         ("ppo", 0): 2.0, ("ppo", 1): 1.0}
     # Another host's runner holds its cell while its heartbeat is younger than the lease, not after.
@@ -91,7 +91,7 @@ def test_runners_claiming_at_once_never_get_the_same_cell(tmp_path):
         cells = [("ppo", "clean", seed) for seed in range(150)]
         time.sleep(max(0.0, float(sys.argv[1]) - time.time()))
         while (claim := store.claim("tiny", "quick", cells, runner)) is not None:
-            assert store.record("tiny", "quick", *claim.cell, {{}}, [], "run", "hw", runner, ("v", "c"))
+            assert store.record("tiny", "quick", claim.cell, {{}}, [], "run", "hw", runner=runner, version=("v", "c"))
             print(claim.cell[2], flush=True)
             time.sleep(0.02)  # a cell takes time: the others claim meanwhile, even when one process started first
     """)
@@ -116,7 +116,7 @@ def test_an_old_store_gets_unknown_versions_and_a_report_refuses_to_mix_them(tmp
     store = ResultStore(path)
     (old,) = store.rows("tiny", "quick")
     assert old["version"] == old["git_commit"] == "unknown" and old["metrics"] == {"team_reward": 1.0}
-    store.record("tiny", "quick", "a2c", "clean", 0, {"team_reward": 2.0}, [], "r", "hw")
+    store.record("tiny", "quick", ("a2c", "clean", 0), {"team_reward": 2.0}, [], "r", "hw")
     assert {r["version"] for r in store.rows("tiny", "quick")} == {"unknown", __version__}
     assert store.finished("tiny", "quick", __version__) == {("a2c", "clean", 0)}
     # --rerun-stale: a cell another version stored is claimed again (and replaced when it finishes).

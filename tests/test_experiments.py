@@ -186,7 +186,7 @@ def test_the_report_goes_under_the_results_folder_and_the_docs_change_only_with_
     page.write_text("# Results\n")
     store = ResultStore("runs/results.sqlite")
     for seed in (0, 1):
-        store.record("tiny", "quick", "ppo", "clean", seed, {"team_reward": 1.0 + seed}, [], "r", "hw")
+        store.record("tiny", "quick", ("ppo", "clean", seed), {"team_reward": 1.0 + seed}, [], "r", "hw")
     assert experiment_main([str(spec), "-f", "runs", "--report-only"]) == 0
     assert page.read_text() == "# Results\n" and not figures.exists()
     assert "wrote runs/tiny/quick/results.md" in capsys.readouterr().out

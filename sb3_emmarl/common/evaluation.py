@@ -122,6 +122,7 @@ def evaluate_team(
     model: Predictor,
     n_episodes: int = 10,
     seed: int = 0,
+    *,
     env_kwargs: dict[str, Any] | None = None,
     deterministic: bool = False,
     vec_env: VecEnv | None = None,
@@ -217,14 +218,15 @@ def evaluate_policy(
     env: gym.Env | VecEnv,
     n_eval_episodes: int = 10,
     deterministic: bool = True,
+    *,
     render: bool = False,
     callback: Callable[[dict[str, Any], dict[str, Any]], None] | None = None,
     reward_threshold: float | None = None,
     return_episode_rewards: bool = False,
     warn: bool = True,
 ) -> tuple[float, float] | tuple[list[float], list[int]]:
-    """SB3's ``evaluate_policy`` (same arguments, same return values) counting team episodes on a parameter-sharing
-    vector environment.
+    """SB3's ``evaluate_policy`` (same arguments in SB3's order, those after ``deterministic`` by keyword only; same
+    return values) counting team episodes on a parameter-sharing vector environment.
 
     Each vector entry of :func:`~sb3_emmarl.common.vec_env.make_vec_env` is one UAV, and every UAV of a copy receives
     the team reward: SB3's own function counts each UAV's episode as an episode, so ``n_eval_episodes=10`` on a team of
@@ -259,8 +261,9 @@ def evaluate_policy(
         env = model.wrap_env(env)
     per_copy = int(getattr(env, "agents_per_copy", 1)) if isinstance(env, VecEnv) else 1
     if per_copy <= 1:
-        return sb3_evaluation.evaluate_policy(model, env, n_eval_episodes, deterministic, render,  # type: ignore[arg-type]
-                                              callback, reward_threshold, return_episode_rewards, warn)
+        return sb3_evaluation.evaluate_policy(model, env, n_eval_episodes, deterministic,  # type: ignore[arg-type]
+                                              render=render, callback=callback, reward_threshold=reward_threshold,
+                                              return_episode_rewards=return_episode_rewards, warn=warn)
     assert isinstance(env, VecEnv)  # (only a vector environment has agents_per_copy here)
     if env.num_envs % per_copy:
         raise ValueError(f"the environment has {env.num_envs} entries, not a whole number of copies of "

@@ -76,6 +76,7 @@ def record_episode(
     model: Predictor,
     path: str | Path,
     seed: int = 0,
+    *,
     env_kwargs: dict[str, Any] | None = None,
     deterministic: bool = False,
     vec_normalize_path: str | None = None,

@@ -110,8 +110,9 @@ def experiment_main(argv: list[str] | None = None) -> int:
     if not args.report_only:
         for spec, path in specs:
             try:
-                run_experiment(spec, args.budget, store, root, args.backend, args.n_jobs, args.address, path,
-                               lease_seconds=args.lease, rerun_stale=args.rerun_stale, gather=args.gather)
+                run_experiment(spec, args.budget, store, root, backend=args.backend, n_jobs=args.n_jobs,
+                               address=args.address, spec_path=path, lease_seconds=args.lease,
+                               rerun_stale=args.rerun_stale, gather=args.gather)
             except (RuntimeError, ValueError) as error:
                 print(f"error: {error}", file=sys.stderr)
                 return 1

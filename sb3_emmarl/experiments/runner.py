@@ -204,7 +204,7 @@ def unpack(data: bytes, folder: Path) -> None:
 
 
 def run_cell_process(spec_name: str, spec_text: str | None, budget: str, algorithm: str, condition: str, seed: int,
-                     root: str, version: str | None = None, gather_from: str | None = None) -> dict[str, Any]:
+                     root: str, *, version: str | None = None, gather_from: str | None = None) -> dict[str, Any]:
     """:func:`run_cell` in a fresh process (one torch thread, its own process group, killed if this process dies),
     after :func:`compile_for_condition` in this one; returns its result.
 
@@ -322,7 +322,7 @@ def _spec_source(spec: ExperimentSpec, spec_path: str | None) -> tuple[str, str 
     return spec.name, Path(spec_path).read_text()
 
 
-def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: str | Path, backend: str = "local",
+def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: str | Path, *, backend: str = "local",
                    n_jobs: int | None = None, address: str | None = None, spec_path: str | None = None,
                    log: Callable[[str], None] = print, lease_seconds: float = LEASE_SECONDS,
                    rerun_stale: bool = False, gather: bool = False) -> int:
@@ -381,7 +381,7 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
                         if claim.previous is not None:
                             log(f"  taking over {' / '.join(map(str, claim.cell))} from runner {claim.previous[:8]}, "
                                 "which is gone")
-                        running[submit((name, text, budget, *claim.cell, root, version[0]))] = claim.cell
+                        running[submit((name, text, budget, *claim.cell, root), version[0])] = claim.cell
                     if not running:
                         others = store.held_by_others(spec.name, budget, runner, lease_seconds)
                         if not others:
@@ -394,8 +394,9 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
                     for handle in wait_any(list(running), POLL_SECONDS):
                         algorithm, condition, seed = running.pop(handle)
                         result = collect(handle)
-                        if not store.record(spec.name, budget, algorithm, condition, seed, result["metrics"],
-                                            result["episodes"], result["run_dir"], result["hardware"], runner, version):
+                        if not store.record(spec.name, budget, (algorithm, condition, seed), result["metrics"],
+                                            result["episodes"], result["run_dir"], result["hardware"], runner=runner,
+                                            version=version):
                             log(f"  dropped {algorithm} / {condition} / seed {seed}: its claim was taken over")
                             continue
                         ran += 1
@@ -413,17 +414,21 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
 
 @contextmanager
 def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool) -> Iterator[tuple]:
-    """``(slots, submit(args) -> handle, wait_any(handles, timeout) -> finished handles, collect(handle) -> result)``
-    of a backend, shut down on exit (running cells killed first)."""
+    """``(slots, submit(args, version) -> handle, wait_any(handles, timeout) -> finished handles,
+    collect(handle) -> result)`` of a backend, shut down on exit (running cells killed first): ``submit`` runs
+    :func:`run_cell_process` with the positional ``args`` and the driver's package ``version``."""
     if backend == "local":
         slots = (os.cpu_count() or 1) if n_jobs is None else n_jobs
         pool = ThreadPoolExecutor(max_workers=slots)
+
+        def submit_local(args: tuple, version: str) -> Future:
+            return pool.submit(run_cell_process, *args, version=version)
 
         def wait_local(handles: list[Future], timeout: float) -> set[Future]:
             return wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)[0]
 
         try:
-            yield slots, lambda args: pool.submit(run_cell_process, *args), wait_local, Future.result
+            yield slots, submit_local, wait_local, Future.result
         finally:
             kill_cells()
             pool.shutdown(wait=True, cancel_futures=True)
@@ -436,11 +441,12 @@ def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool
     refs: set[Any] = set()
     try:
         slots = n_jobs if n_jobs is not None else max(1, int(ray.cluster_resources().get("CPU", 1)))
-        task = ray.remote(num_cpus=1, max_retries=0)(run_cell_process)
+        # (ray's typed remote functions take positional arguments only; run_cell_process takes two by keyword)
+        task: Any = ray.remote(num_cpus=1, max_retries=0)(run_cell_process)
         gather_from = ray.get_runtime_context().get_node_id() if gather else None
 
-        def submit(args: tuple) -> Any:
-            ref = task.remote(*args, gather_from=gather_from)
+        def submit(args: tuple, version: str) -> Any:
+            ref = task.remote(*args, version=version, gather_from=gather_from)
             refs.add(ref)
             return ref
 

@@ -272,17 +272,25 @@ class ResultStore:
                 db.execute("DELETE FROM claims WHERE runner = ? AND algorithm = ? AND condition = ? AND seed = ?",
                            (runner.id, *cell))
 
-    def record(self, experiment: str, budget: str, algorithm: str, condition: str, seed: int,
-               metrics: dict[str, float], episodes: list[dict[str, Any]], run_dir: str, hardware: str,
-               runner: RunnerId | None = None, version: tuple[str, str] | None = None) -> bool:
+    def record(self, experiment: str, budget: str, cell: Cell, metrics: dict[str, float],
+               episodes: list[dict[str, Any]], run_dir: str, hardware: str, *, runner: RunnerId | None = None,
+               version: tuple[str, str] | None = None) -> bool:
         """Store one finished cell (replacing an earlier result of the same cell) and drop its claim.
 
+        :param experiment: the experiment's name
+        :param budget: the budget
+        :param cell: (algorithm, condition, seed)
+        :param metrics: the cell's metrics (name -> value)
+        :param episodes: its evaluation records
+        :param run_dir: the folder of its run
+        :param hardware: what it ran on
         :param runner: the runner that claimed the cell: the result is stored only while its claim holds (a runner
             whose lease expired and whose cell another runner took over stores nothing); None: unclaimed
         :param version: (package version, git commit) that made the cell (default: :func:`code_version`)
         :return: whether the cell was stored
         """
         version = code_version() if version is None else version
+        algorithm, condition, seed = cell
         cell = (algorithm, condition, int(seed))
         with self._transaction() as db:
             if runner is not None:

@@ -236,10 +236,22 @@ class MAPPO(WrapsEnv, PPO):
         return value_loss.mean()
 
     def _record_train_logs(self, entropy_losses: list[float], pg_losses: list[float], value_losses: list[float],
-                           approx_kl_divs: list[Any], clip_fractions: list[float], actor_norms: list[float],
+                           approx_kl_divs: list[Any], clip_fractions: list[float], *, actor_norms: list[float],
                            critic_norms: list[float], last_loss: float | None, clip_range: float,
                            clip_range_vf: float | None) -> None:
-        """PPO's ``train/`` logs, and MAPPO's: the gradient norms and the value normaliser's statistics."""
+        """PPO's ``train/`` logs, and MAPPO's: the gradient norms and the value normaliser's statistics.
+
+        :param entropy_losses: each minibatch's entropy loss
+        :param pg_losses: each minibatch's policy-gradient loss
+        :param value_losses: each minibatch's value loss
+        :param approx_kl_divs: the last epoch's approximate KL divergences
+        :param clip_fractions: each minibatch's fraction of clipped ratios
+        :param actor_norms: each update's actor gradient norm (before clipping)
+        :param critic_norms: each update's critic gradient norm (before clipping)
+        :param last_loss: the last minibatch's total loss (None: no minibatch)
+        :param clip_range: the policy's clip range of this update
+        :param clip_range_vf: the value clip range of this update (None: none)
+        """
         buffer = self.rollout_buffer
         explained_var = explained_variance(buffer.values.flatten(), buffer.returns.flatten())
         self.logger.record("train/entropy_loss", np.mean(entropy_losses))
@@ -333,8 +345,10 @@ class MAPPO(WrapsEnv, PPO):
             if not continue_training:
                 break
 
-        self._record_train_logs(entropy_losses, pg_losses, value_losses, approx_kl_divs, clip_fractions, actor_norms,
-                                critic_norms, loss.item() if value_losses else None, clip_range, clip_range_vf)
+        self._record_train_logs(entropy_losses, pg_losses, value_losses, approx_kl_divs, clip_fractions,
+                                actor_norms=actor_norms, critic_norms=critic_norms,
+                                last_loss=loss.item() if value_losses else None, clip_range=clip_range,
+                                clip_range_vf=clip_range_vf)
 
     def learn(self: SelfMAPPO, total_timesteps: int, callback: Any = None, log_interval: int = 1,
               tb_log_name: str = "MAPPO", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfMAPPO:

@@ -2,8 +2,8 @@
 numpy beforehand, in :meth:`~wildlife_reserve.zone_patrol.world.ZonePatrolWorld.step`, so the episodes are those of
 the generator alone). Twenty-odd numpy calls per step on arrays of a few dozen values cost several times the
 arithmetic; one compiled pass over the copies does not. The kernels take the world's arrays as named records
-(:class:`Team`, :class:`Intruders`, :class:`Draws`, :class:`Rules`, :class:`Counts`), which numba compiles as
-tuples."""
+(:class:`Team`, :class:`Intruders`, :class:`Draws`, :class:`Rules`, :class:`Counts`, :class:`Readings`,
+:class:`Layout`), which numba compiles as tuples."""
 
 from __future__ import annotations
 
@@ -59,6 +59,26 @@ class Rules(NamedTuple):
     move_prob: float
     spawn_prob: float
     track_life: int
+
+
+class Readings(NamedTuple):
+    """What the UAVs read beside their windows at a step: the visibility readings ``(c, n)``, the zone readings
+    ``cues`` ``(c, n, 4)`` (``(c, n, 0)`` without them), the modes to append as one-hots ``told_modes`` ``(c,)`` (empty:
+    none) and the episode's ``progress`` (``t / max_cycles``)."""
+
+    visibility: np.ndarray
+    cues: np.ndarray
+    told_modes: np.ndarray
+    progress: float
+
+
+class Layout(NamedTuple):
+    """How an observation is laid out: the windows' ``radius``, the tracks' life ``track_life`` (their scale) and
+    whether each UAV's one-hot index follows its zone readings (``ids``)."""
+
+    radius: int
+    track_life: int
+    ids: bool
 
 
 class Counts(NamedTuple):
@@ -151,15 +171,15 @@ def advance(actions, team, intruders, origins, weathers, draws, rules, counts): 
 
 
 @njit(cache=True)
-def observe(team, intruders, visibility, progress, radius, track_life, cues, ids, told_modes,
-            out):  # pragma: no cover (compiled)
-    """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout): its window of the tracks,
-    of this step's detections and of its teammates, its cell, its visibility reading and the episode's progress;
-    its zone readings ``cues`` ``(c, n, 4)`` (clipped to [-4, 4], over 4; none when the last axis is empty); with
-    ``ids`` (a bool), the one-hot of its index in the team; ``told_modes`` ``(c,)`` the modes to append as one-hots,
-    or empty."""
+def observe(team, intruders, readings, layout, out):  # pragma: no cover (compiled)
+    """Every UAV's observation into ``out`` ``(c, n, obs_dim)`` (see the card for the layout, and :class:`Readings`,
+    :class:`Layout`): its window of the tracks, of this step's detections and of its teammates, its cell, its
+    visibility reading and the episode's progress; its zone readings (clipped to [-4, 4], over 4; none when there are
+    none); with ``layout.ids``, the one-hot of its index in the team; the told mode's one-hot, if any."""
     positions, detections = team.positions, team.detections
     tracks, detected_cells = intruders.tracks, intruders.detected_cells
+    visibility, cues, told_modes, progress = readings.visibility, readings.cues, readings.told_modes, readings.progress
+    radius, track_life, ids = layout.radius, layout.track_life, layout.ids
     n_copies, n_uavs = positions.shape[0], positions.shape[1]
     grid_size = tracks.shape[1]
     side = 2 * radius + 1

@@ -187,6 +187,7 @@ class ZonePatrolWorld:
         self._rules = kernels.Rules(radii, chances, int(config.grid_size), int(config.zone_size),
                                     int(config.intruder_life), float(config.intruder_move_prob),
                                     float(config.spawn_prob), int(config.track_life))
+        self._layout = kernels.Layout(int(config.window_radius), int(config.track_life), bool(config.agent_ids))
         self._subsets: list[tuple[int, ...]] | None = None
         # The kernels' records of the arrays above, made once (the arrays are changed in place from here on).
         self._team = kernels.Team(self.positions, self.sensors, self.detections)
@@ -273,8 +274,9 @@ class ZonePatrolWorld:
         :func:`~wildlife_reserve.zone_patrol.kernels.observe`)."""
         cfg = self.config
         out = np.empty((self.n_copies, cfg.n_uavs, cfg.obs_dim), dtype=np.float32)
-        kernels.observe(self._team, self._intruders, self.visibility, self.t / cfg.max_cycles, cfg.window_radius,
-                        cfg.track_life, self.cues, cfg.agent_ids, self.modes if cfg.told else self.modes[:0], out)
+        readings = kernels.Readings(self.visibility, self.cues, self.modes if cfg.told else self.modes[:0],
+                                    self.t / cfg.max_cycles)
+        kernels.observe(self._team, self._intruders, readings, self._layout, out)
         return out
 
     def near(self) -> np.ndarray:

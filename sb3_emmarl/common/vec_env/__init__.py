@@ -77,6 +77,7 @@ def make_vec_env(
     n_copies: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    *,
     num_cpus: int = 0,
     monitor_dir: str | None = None,
     vec_env_wrapper: Callable[[VecEnv], VecEnv] | None = None,

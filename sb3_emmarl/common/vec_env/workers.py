@@ -141,7 +141,7 @@ def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, secon
     return pipe.recv()
 
 
-def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, buffers: tuple,
+def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, *, buffers: tuple,
                    shape: tuple[int, int], start: int, bells: Any, index: int, poll_seconds: float) -> None:
     """A worker process of :class:`_SplitCopies`: ``n_copies`` reserves stepped through :class:`_SteppedCopies`,
     their observations, rewards and dones written to the shared ``buffers`` from entry ``start`` on, their infos
@@ -271,10 +271,10 @@ class _SplitCopies:
             for g in range(1, n_groups):
                 parent, child = context.Pipe()
                 process = context.Process(
-                    target=_copies_worker, daemon=True, args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space,
-                                                              with_state, buffers, (total, self.obs_dim),
-                                                              self.bounds[g] * self.n, bells, g - 1,
-                                                              self.poll_seconds),
+                    target=_copies_worker, daemon=True,
+                    args=(child, CloudpickleWrapper(env_fn), sizes[g], action_space, with_state),
+                    kwargs={"buffers": buffers, "shape": (total, self.obs_dim), "start": self.bounds[g] * self.n,
+                            "bells": bells, "index": g - 1, "poll_seconds": self.poll_seconds},
                     name=f"reserve-copies-{self.bounds[g]}-{self.bounds[g + 1] - 1}")
                 self.pipes.append(parent)
                 self.processes.append(process)
