@@ -126,6 +126,20 @@ def test_an_ordinary_environment_gets_sb3s_result_exactly(vectorised):
         assert ours == theirs
 
 
+def test_sb3s_parameter_names_and_order_with_the_rarely_positional_tail_by_keyword():
+    import inspect
+
+    ours, theirs = (inspect.signature(f).parameters for f in (evaluate_policy, sb3_evaluation.evaluate_policy))
+    assert list(ours) == list(theirs)
+    assert [name for name, p in ours.items() if p.kind is p.POSITIONAL_OR_KEYWORD] == list(theirs)[:4]
+    model = tiny(PPO, reserve)
+    by_keyword = evaluate_policy(model, reserve(2, 3), n_eval_episodes=2, deterministic=True)
+    assert evaluate_policy(model, reserve(2, 3), 2) == by_keyword  # SB3's calls by position still work
+    assert evaluate_policy(model, reserve(2, 3), 2, True) == by_keyword
+    with pytest.raises(TypeError):
+        evaluate_policy(model, reserve(2, 3), 2, True, False)  # render and after: by keyword
+
+
 @pytest.mark.parametrize("bad", [0, -2, 2.5, True, "3", None])
 def test_a_bad_episode_count_is_refused_with_a_message(bad):
     model = tiny(PPO, reserve)
