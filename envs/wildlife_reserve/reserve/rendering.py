@@ -8,15 +8,13 @@ and the messages delivered this step), leopards, poachers, decoys, this step's r
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from wildlife_reserve.extras import requires
 from wildlife_reserve.reserve.constants import POACHER_ACTIVE, POACHER_CAUGHT
-
-if TYPE_CHECKING:
-    from wildlife_reserve.reserve.reserve import ReserveParallelEnv
+from wildlife_reserve.reserve.view import ReserveView
 
 TERRAIN_COLOURS = np.array([[196, 214, 150], [52, 110, 60], [128, 118, 108]], dtype=np.float64)
 RISK_COLOUR = np.array([230, 120, 40], dtype=np.float64)
@@ -29,13 +27,14 @@ TARGET_PIXELS = 600
 
 
 class ReserveRenderer:
-    """Draws a :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv`.
+    """Draws a :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv` (any
+    :class:`~wildlife_reserve.reserve.view.ReserveView`).
 
     :param env: the environment to draw
     :param mode: ``"rgb_array"`` (returns frames) or ``"human"`` (a pygame window)
     """
 
-    def __init__(self, env: ReserveParallelEnv, mode: str) -> None:
+    def __init__(self, env: ReserveView, mode: str) -> None:
         if mode == "rgb_array":
             os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         with requires("pygame", "render", "drawing the reserve"):

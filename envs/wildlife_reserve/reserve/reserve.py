@@ -56,6 +56,7 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
 from collections.abc import Mapping
@@ -302,6 +303,22 @@ class ReserveParallelEnv(ParallelEnv):
         """``comm_links[s, r]``: a message (broadcast or query answer) of s reached r this step."""
         return self.team.comm_links
 
+    # ------------------------------------------------------------------ the grid (read-only views)
+    @property
+    def cells(self) -> np.ndarray:
+        """``(n, 2)``: each UAV's cell (row, col)."""
+        return self._cells
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """``(height, width)``: each cell's block of the coarse maps."""
+        return self._block
+
+    @property
+    def inv_scale(self) -> np.ndarray:
+        """``(2,)``: ``1 / (side - 1)`` per axis, the scale of offsets on the grid."""
+        return self._inv_scale
+
     # ------------------------------------------------------------------ map
     def _build_map(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, terrain_lib.Hotspots]:
         cfg = self.config
@@ -309,11 +326,11 @@ class ReserveParallelEnv(ParallelEnv):
         ground = cfg.terrain if cfg.terrain is not None else terrain_lib.generate_terrain(rng, shape, self.preset)
         hotspots = terrain_lib.generate_hotspots(rng, ground, self.preset)
         if cfg.risk is not None:
-            risk = cfg.risk
             empty = np.zeros((0, 2), dtype=np.int64)
-            hotspots = terrain_lib.Hotspots(terrain_lib.dens_from_risk(rng, risk, self.n_dens), empty, empty)
-        else:
-            risk = terrain_lib.risk_map(shape, hotspots)
+            hotspots = terrain_lib.Hotspots(terrain_lib.dens_from_risk(rng, cfg.risk, self.n_dens), empty, empty)
+        if cfg.strategy_zones:  # the dens are the strategy zones' centres
+            hotspots = dataclasses.replace(hotspots, dens=terrain_lib.strategy_zones(shape, len(STRATEGIES)))
+        risk = cfg.risk if cfg.risk is not None else terrain_lib.risk_map(shape, hotspots)
         return ground, risk, hotspots
 
     def _pad(self, grid: np.ndarray, value: float) -> np.ndarray:
@@ -446,7 +463,8 @@ class ReserveParallelEnv(ParallelEnv):
         self.leopard_moved = np.zeros(cfg.n_leopards, dtype=bool)
         poacher_rng, sign_rng = np.random.default_rng(ground_seed), np.random.default_rng([ground_seed, 1])
         self.poacher_entry_time, self.poacher_entry, self.poacher_target = actors.plan_poachers(
-            poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens, self.hotspots.road_entries)
+            poacher_rng, self.strategy, cfg.n_poachers, self.max_cycles, shape, dens, self.hotspots.road_entries,
+            zone=dens[STRATEGIES.index(self.strategy)] if cfg.strategy_zones else None)
         self.poacher_pos = self.poacher_entry.copy()
         self.poacher_status = np.full(cfg.n_poachers, POACHER_WAITING, dtype=np.int8)
         self.poacher_moved = np.zeros(cfg.n_poachers, dtype=bool)
@@ -664,7 +682,9 @@ class ReserveParallelEnv(ParallelEnv):
         world = World(flight=flight, ground=Ground(leopards=leopards, poachers=poachers, jammer=jammer,
                                                    cover=self.cover, steps=actors.STEPS),
                       signs=self.signs.record, sensing=readings, team=self.team.record, coverage=coverage,
-                      observe=observation_record(self),
+                      observe=observation_record(cfg, occlusion=self._occ_pad, risk=self._risk_pad,
+                                                 staleness=self._stale_window, signals=self._signals,
+                                                 block_staleness=self._stale_blocks, inv_scale=self._inv_scale),
                       rewards=Rewards(weights=self._weights, shaping=float(cfg.shaping)))
         self._world_tuple = plain(world)
         return world
