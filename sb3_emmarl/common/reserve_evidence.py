@@ -27,14 +27,14 @@ machinery knows nothing of the reserve, and in an existing package, so that the 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.evidence import LatentEvidence, observation_size, register_evidence
+from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size, register_evidence
+from sb3_emmarl.common.latent.features import FeatureFn
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_SIGN, CH_UAV
 
 #: The window channels counted, in order: signs of poacher activity, leopards, poachers.
@@ -323,7 +323,7 @@ def _reserve_features(obs: np.ndarray, window: int, cells: int, read: np.ndarray
                     column += 1
 
 
-def reserve_features(layout: dict) -> Callable[[np.ndarray], np.ndarray]:
+def reserve_features(layout: dict) -> FeatureFn:
     """Compact features of the reserve's observation: what the hidden mode changes (37 by default).
 
     Counts of poacher, leopard and sign readings in the window, capped at 5 and scaled to [0, 1], and the share
@@ -382,19 +382,15 @@ class ReserveEvidence(LatentEvidence):
     @classmethod
     def from_env(cls, venv: VecEnv) -> ReserveEvidence | None:
         """The reserve's (an environment whose ``observation_layout`` has a ``window``, ``own`` and ``belief`` part)."""
-        try:
-            layout = venv.get_attr("observation_layout", indices=[0])[0]
-        except (AttributeError, NotImplementedError):
-            return None
+        layout = env_attribute(venv, "observation_layout")
         if not (isinstance(layout, dict) and {"window", "own", "belief"} <= set(layout)):
             return None
         spec: dict[str, Any] = {"kind": cls.kind, "obs_dim": observation_size(venv),
                                 "layout": {name: [part.start, part.stop, list(shape)] for name, (part, shape) in
                                            layout.items()}}
-        try:  # the grid's sides place each window cell on the map, for the reading counts
-            spec["grid"] = [int(venv.get_attr(side, indices=[0])[0]) for side in ("height", "width")]
-        except (AttributeError, NotImplementedError):
-            pass
+        grid = [env_attribute(venv, side) for side in ("height", "width")]
+        if None not in grid:  # the grid's sides place each window cell on the map, for the reading counts
+            spec["grid"] = [int(side) for side in grid]
         return cls(spec)
 
     def features(self, observations: np.ndarray) -> np.ndarray:

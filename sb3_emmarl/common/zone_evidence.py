@@ -8,16 +8,16 @@ latent model (:mod:`~sb3_emmarl.common.latent.evidence`) :func:`zone_features` o
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.evidence import LatentEvidence, observation_size, register_evidence
+from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size, register_evidence
+from sb3_emmarl.common.latent.features import FeatureFn
 
 
-def zone_features(zone_map: dict) -> tuple[Callable[[np.ndarray], np.ndarray], int]:
+def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
     """Compact features of an observation made of an egocentric window and the UAV's cell, on a map with zones where
     the hidden mode puts its events (ZonePatrol's ``zone_map``): ``2 * zones + 2``, by default 10 (14 with
     ZonePatrol's ``zone_cue``).
@@ -85,10 +85,7 @@ class ZoneEvidence(LatentEvidence):
     @classmethod
     def from_env(cls, venv: VecEnv) -> ZoneEvidence | None:
         """ZonePatrol's (an environment whose ``zone_map`` is a dict)."""
-        try:
-            zone_map = venv.get_attr("zone_map", indices=[0])[0]
-        except (AttributeError, NotImplementedError):
-            return None
+        zone_map = env_attribute(venv, "zone_map")
         return cls({"kind": cls.kind, "obs_dim": observation_size(venv), "zone_map": zone_map}) \
             if isinstance(zone_map, dict) else None
 

@@ -26,7 +26,7 @@ from typing import Any, ClassVar, Protocol, TypeVar
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.features import FeatureFn, generic_features
+from sb3_emmarl.common.latent.features import generic_features
 
 
 class CountEvidence(Protocol):
@@ -98,7 +98,7 @@ class LatentEvidence(ABC):
     @abstractmethod
     def from_env(cls, venv: VecEnv) -> LatentEvidence | None:
         """The plug-in of ``venv``'s environment, or None when it is not one this plug-in reads (read what it needs
-        with ``venv.get_attr(name, indices=[0])``)."""
+        with :func:`env_attribute`)."""
 
     @abstractmethod
     def features(self, observations: np.ndarray) -> np.ndarray:
@@ -150,6 +150,15 @@ def observation_size(venv: VecEnv) -> int:
     return int(np.prod(venv.observation_space.shape))
 
 
+def env_attribute(venv: VecEnv, name: str) -> Any:
+    """The attribute ``name`` of ``venv``'s first environment, or None when it has none (what :meth:`from_env
+    <LatentEvidence.from_env>` reads to recognise an environment)."""
+    try:
+        return venv.get_attr(name, indices=[0])[0]
+    except (AttributeError, NotImplementedError):
+        return None
+
+
 def evidence_of(venv: VecEnv) -> LatentEvidence:
     """The evidence of ``venv``'s environment: the first registered plug-in that reads it, else
     :class:`GenericEvidence`."""
@@ -171,6 +180,3 @@ def evidence_from_spec(spec: dict[str, Any]) -> LatentEvidence:
                          "its module is imported)")
     return plugins[kind](spec)
 
-
-__all__ = ["PLUGINS", "CountEvidence", "FeatureFn", "GenericEvidence", "LatentEvidence", "evidence_from_spec",
-           "evidence_of", "observation_size", "register_evidence"]
