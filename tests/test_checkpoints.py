@@ -1,6 +1,7 @@
 """Atomic files, checked loading, and training that resumes from a checkpoint exactly as if it had not stopped."""
 
 import pickle
+import pickletools
 import zipfile
 
 import numpy as np
@@ -95,6 +96,17 @@ def test_pickled_views_stay_views():
         copy["first"][1, 2] = 5.0 + round_trip
         copy["flat"][0] = 7.0 + round_trip
         assert copy["base"][0, 1, 2] == 5.0 + round_trip and copy["base"][0, 0, 0] == 7.0 + round_trip
+
+
+def test_views_pickled_before_the_pickling_module_still_load():
+    base = np.arange(12.0).reshape(3, 4)
+    # What checkpoints.py's pickler wrote: a view rebuilt by sb3_emmarl.common.checkpoints._view (protocol 2, by hand)
+    arguments = pickle.dumps((base, 32, (4,), (8,), base.dtype, True), protocol=2)[2:-1]
+    old = b"\x80\x02csb3_emmarl.common.checkpoints\n_view\n" + arguments + b"R."
+    assert ("sb3_emmarl.common.checkpoints", "_view") in {(g.split()[0], g.split()[1]) for op, g, _ in
+                                                          pickletools.genops(old) if op.name == "GLOBAL"}
+    view = pickle.loads(old)
+    assert np.array_equal(view, [4.0, 5.0, 6.0, 7.0]) and view.base is not None
 
 
 @pytest.mark.parametrize("algo,num_cpus", [(PPO, 0), (EMPPO, 0), (MessagePPO, 0), (PPO, 2)],

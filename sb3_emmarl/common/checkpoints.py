@@ -43,8 +43,11 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
 from sb3_emmarl.common.callbacks import EvalCallback
+from sb3_emmarl.common.pickling import ViewPickler, dumps, rebuild_view
 from sb3_emmarl.common.safe_zip import check_zip_pickles, pickle_globals
 
+#: What checkpoints written before :mod:`sb3_emmarl.common.pickling` existed name to rebuild their numpy views.
+_view = rebuild_view
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
     VecMonitor: ("episode_returns", "episode_lengths", "episode_count"),
@@ -68,40 +71,11 @@ def vec_normalize_stats(folder: str | Path) -> str | None:
 
 
 # ---------------------------------------------------------------------------------------------- pickling
-def _view(base: np.ndarray, offset: int, shape: tuple[int, ...], strides: tuple[int, ...], dtype: np.dtype,
-          writeable: bool) -> np.ndarray:
-    view = np.ndarray(shape, dtype, buffer=base, offset=offset, strides=strides)
-    view.flags.writeable = writeable
-    return view
-
-
-class _ViewPickler(pickle.Pickler):
-    """A pickler that keeps numpy views views of their base array (plain pickle copies each view's data, so an
-    environment writing through one view and reading through another behaves differently once unpickled)."""
-
-    def reducer_override(self, obj: Any) -> Any:
-        if type(obj) is not np.ndarray or not isinstance(obj.base, np.ndarray) or obj.dtype.hasobject:
-            return NotImplemented
-        base = obj.base
-        while isinstance(base.base, np.ndarray):  # the outermost array (an unpickled one owns a bytes buffer)
-            base = base.base
-        if type(base) is np.ndarray and base.flags.c_contiguous and not base.dtype.hasobject:
-            offset = obj.__array_interface__["data"][0] - base.__array_interface__["data"][0]
-            return _view, (base, offset, obj.shape, obj.strides, obj.dtype, bool(obj.flags.writeable))
-        return NotImplemented
-
-
-def dumps(obj: Any) -> bytes:
-    """``pickle.dumps`` that keeps numpy views sharing memory with their base arrays (read back with ``pickle.loads``)."""
-    buffer = io.BytesIO()
-    _ViewPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
-    return buffer.getvalue()
-
-
-class _FileReferencePickler(_ViewPickler):
-    """:class:`_ViewPickler` that keeps open files (SB3's ``Monitor`` writers inside a ``DummyVecEnv``, which hold a
-    file and a csv writer) out of the pickle, by their order of appearance: :func:`_loads_with_files` puts back the
-    live environment's in their place, so that a resumed run goes on writing its own monitor files."""
+class _FileReferencePickler(ViewPickler):
+    """:class:`~sb3_emmarl.common.pickling.ViewPickler` that keeps open files (SB3's ``Monitor`` writers inside a
+    ``DummyVecEnv``, which hold a file and a csv writer) out of the pickle, by their order of appearance:
+    :func:`_loads_with_files` puts back the live environment's in their place, so that a resumed run goes on writing its
+    own monitor files."""
 
     def __init__(self, file: io.BytesIO) -> None:
         super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)

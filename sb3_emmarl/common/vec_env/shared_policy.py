@@ -15,6 +15,8 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv, ProcConcatVec
 
+from sb3_emmarl.common.pickling import dumps
+
 #: Key of the ``reset`` options that carries one seed per reserve copy.
 COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
 
@@ -206,8 +208,6 @@ class SharedPolicyVecEnv(VecEnv):
 
         :raise ValueError: with SuperSuit's worker processes (``num_cpus > 1``), whose copies this process cannot read
         """
-        from sb3_emmarl.common.checkpoints import dumps  # keeps the reserves' numpy views views
-
         return dumps({"venv": self._portable_copies(), "copy_seeds": self._copy_seeds,
                       "never_reset": self._never_reset, "reset_infos": self.reset_infos})
 

@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium.vector.utils import CloudpickleWrapper
 from pettingzoo import ParallelEnv
 
+from sb3_emmarl.common.pickling import dumps
 from sb3_emmarl.common.vec_env.shared_policy import (
     COPY_SEEDS_KEY,
     LINKS_KEY,
@@ -171,8 +172,6 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
             elif command == "state_on":
                 copies.with_state = True
             elif command == "get_envs":
-                from sb3_emmarl.common.checkpoints import dumps
-
                 reply = dumps(copies.envs)
             elif command == "set_envs":
                 copies.close()
@@ -407,8 +406,6 @@ class _SplitCopies:
 
     def adopt(self, copies: _SteppedCopies) -> None:
         """Carry on with ``copies`` (every copy, e.g. from a checkpoint), spread over the groups as before."""
-        from sb3_emmarl.common.checkpoints import dumps
-
         envs = copies.envs
         if len(envs) != self.bounds[-1]:
             raise ValueError(f"the checkpoint holds {len(envs)} reserve copies, this environment {self.bounds[-1]}")
