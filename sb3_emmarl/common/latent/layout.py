@@ -20,9 +20,10 @@ class LatentLayout:
     :param action_dim: size of the encoded action (one-hot size for discrete actions)
     :param n_components: ``K``, components of the categorical latent variable
     :param decoder_hidden: hidden layer sizes of the decoder's shared trunk
-    :param count_channels: channels of the reading-count model (:mod:`~sb3_emmarl.common.latent.counts`); 0 with
-        ``count_bins`` 0 when there is none (off the reserve)
-    :param count_bins: bins per channel of the reading-count model
+    :param count_channels: channels of the count model (:mod:`~sb3_emmarl.common.latent.counts`); 0 with
+        ``count_bins`` 0 when there is none (the environment's evidence plug-in counts nothing, or ``reading_counts``
+        is off)
+    :param count_bins: bins per channel of the count model
     """
 
     obs_dim: int
