@@ -137,7 +137,6 @@ def _grouped_counts(observations: np.ndarray, groups: np.ndarray, out: np.ndarra
     return out
 
 
-
 class ReadingCounter:
     """Per-step reading counts and exposures by (block, ring) bin, from the reserve's flat observations.
 
@@ -187,9 +186,12 @@ class ReadingCounter:
                                               self._width_padded, self._flat_offsets, ring, self.n_rings))
 
     @classmethod
-    def from_env(cls, env) -> ReadingCounter:
+    def from_env(cls, env: Any) -> ReadingCounter:
         """The counter of a reserve (``ReserveParallelEnv``, or anything with its ``observation_layout``, ``height``,
-        ``width`` and ``config.belief_size``)."""
+        ``width`` and ``config.belief_size``).
+
+        :param env: the reserve
+        """
         return cls(env.observation_layout, (env.height, env.width), env.config.belief_size)
 
     @property
