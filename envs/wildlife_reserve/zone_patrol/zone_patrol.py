@@ -133,7 +133,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
     def zone_map(self) -> dict[str, Any]:
         """Where the zones lie and where an observation holds the window and the UAV's cell, as plain values: the map
         a reader of the evidence needs to tell in which zone a track was seen (EM's zone features,
-        :func:`sb3_emmarl.common.latent.features.zone_features`)."""
+        :func:`sb3_emmarl.common.zone_evidence.zone_features`)."""
         cfg, cells = self.config, self.config.window_cells
         return {"grid_size": cfg.grid_size, "zone_size": cfg.zone_size, "window_radius": cfg.window_radius,
                 "zone_origins": cfg.zone_origins().tolist(), "tracks": [0, cells], "detections": [cells, 2 * cells],
