@@ -1,9 +1,12 @@
 """One way for an algorithm to wrap its environment: the algorithms whose environment carries more than the plain
 observations (the true mode for OraclePPO, the neighbour messages for MessagePPO, the global state for MAPPO, the
-belief for the EM algorithms) wrap it in ``set_env`` and in ``load`` through this mixin, and say how in two methods.
+belief for the EM algorithms) wrap it in ``set_env`` and in ``load`` through :class:`WrapsEnv`, and say how in two
+methods. Those whose policy acts only on the wrapped observations, and that give them to evaluation through a public
+``wrap_env`` (OraclePPO, MessagePPO, the EM algorithms), are :class:`WrapsObservations`.
 
 SB3 has no hook for this: its ``set_env`` and ``load`` take the environment as given, so each algorithm would otherwise
-override both (as the five did, each its own way).
+override both (as the five did, each its own way). QMIX and VDN add nothing to their observations (their global state
+comes from the infos), so they keep SB3's wrapping; QMIX's ``set_env`` only checks that the teams are the model's.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ else:
 
 
 class WrapsEnv(_AlgorithmBase):
-    """Mixin placed before the SB3 algorithm class (``class OraclePPO(WrapsEnv, PPO)``): ``set_env`` and ``load`` wrap
+    """Mixin placed before the SB3 algorithm class (``class MAPPO(WrapsEnv, PPO)``): ``set_env`` and ``load`` wrap
     a plain parameter-sharing vector environment as training did.
 
     A subclass implements :meth:`_wrap_own_env` (with the model's own settings) and :meth:`_wrap_saved_env` (from a
@@ -41,15 +44,6 @@ class WrapsEnv(_AlgorithmBase):
         """
         raise NotImplementedError
 
-    def _refuse_plain(self, observation: Any) -> None:
-        """Refuse observations without the wrapper's part (a plain environment's) with one line naming the fix, before
-        SB3's own shape message; for the algorithms whose ``predict`` needs the wrapped observations."""
-        shape = getattr(self.observation_space, "shape", None)
-        obs = np.asarray(observation) if not isinstance(observation, dict) else None
-        if shape and obs is not None and obs.ndim >= 1 and obs.shape[-1] != shape[-1]:
-            raise ValueError(f"{type(self).__name__} acts on observations of {shape[-1]} values, got {obs.shape[-1]}: "
-                             f"evaluate it on model.wrap_env(env), which adds what training added")
-
     def set_env(self, env: Any, force_reset: bool = True) -> None:
         """As SB3's ``set_env``; a plain environment gets the model's wrapper."""
         super().set_env(self._wrap_own_env(env), force_reset=force_reset)
@@ -63,3 +57,37 @@ class WrapsEnv(_AlgorithmBase):
             env = cls._wrap_saved_env(env, data or {})
         return super().load(path, env=env, device=device, custom_objects=custom_objects,
                             print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+
+
+class WrapsObservations(WrapsEnv):
+    """:class:`WrapsEnv` for an algorithm whose policy reads what its wrapper adds (``class OraclePPO(WrapsObservations,
+    PPO)``): the one wrapping is the public :meth:`wrap_env`, which ``set_env`` and ``load`` use and which evaluation
+    and recording call (``evaluate_team`` wraps the environment of a model that has it), and :meth:`predict` refuses
+    plain observations with one line naming ``model.wrap_env(env)``.
+
+    A subclass implements :meth:`wrap_env` and :meth:`_wrap_saved_env`; one whose ``predict`` acts on plain
+    observations too (the EM algorithms, which carry the belief in ``state``) overrides :meth:`predict`.
+    """
+
+    def wrap_env(self, venv: VecEnv) -> VecEnv:
+        """``venv`` wrapped as this model's training wrapped it (for evaluation and recording).
+
+        :param venv: a parameter-sharing vector environment (one already wrapped is kept when its wrapper matches)
+        """
+        raise NotImplementedError
+
+    def _wrap_own_env(self, env: Any) -> VecEnv:
+        """SB3's wrapping (a Gymnasium environment becomes a vector one), then :meth:`wrap_env`."""
+        return self.wrap_env(self._wrap_env(env, self.verbose))
+
+    def predict(self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | None = None,
+                episode_start: np.ndarray | None = None,
+                deterministic: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict`` on the wrapped observations; plain ones (a plain environment's) are refused with one line
+        naming ``model.wrap_env(env)``, before SB3's own shape message."""
+        shape = getattr(self.observation_space, "shape", None)
+        obs = np.asarray(observation) if not isinstance(observation, dict) else None
+        if shape and obs is not None and obs.ndim >= 1 and obs.shape[-1] != shape[-1]:
+            raise ValueError(f"{type(self).__name__} acts on observations of {shape[-1]} values, got {obs.shape[-1]}: "
+                             f"evaluate it on model.wrap_env(env), which adds what training added")
+        return super().predict(observation, state, episode_start, deterministic)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
@@ -22,7 +21,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.extractors import message_policy_kwargs
 from sb3_emmarl.common.messages import NeighbourMessageWrapper, find_message_wrapper
 from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsEnv
+from sb3_emmarl.common.wrapping import WrapsObservations
 
 
 def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:
@@ -39,7 +38,7 @@ def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:
     return venv
 
 
-class MessagePPO(WrapsEnv, PPO):
+class MessagePPO(WrapsObservations, PPO):
     """PPO whose shared policy attends over the messages the UAV received (see the module docstring).
 
     :param policy: ``"MlpPolicy"`` (its features extractor is set from ``extractor``)
@@ -68,17 +67,7 @@ class MessagePPO(WrapsEnv, PPO):
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:
         """``venv`` with the neighbour messages appended to its observations (for evaluation and recording)."""
-        return wrap_with_messages(venv, self.max_messages)
-
-    def predict(self, observation: Any, state: tuple[np.ndarray, ...] | None = None,
-                episode_start: np.ndarray | None = None,
-                deterministic: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict`` on the wrapped observations; plain ones are refused naming ``model.wrap_env(env)``."""
-        self._refuse_plain(observation)
-        return super().predict(observation, state, episode_start, deterministic)
-
-    def _wrap_own_env(self, env: Any) -> VecEnv:
-        return wrap_with_messages(env, self.max_messages, self.verbose)
+        return wrap_with_messages(venv, self.max_messages, self.verbose)
 
     @classmethod
     def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
@@ -12,11 +11,11 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
 from sb3_emmarl.common.mode_aware import find_mode_wrapper, wrap_with_mode
 from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsEnv
+from sb3_emmarl.common.wrapping import WrapsObservations
 from wildlife_reserve.reserve.modes import N_MODES
 
 
-class OraclePPO(WrapsEnv, PPO):
+class OraclePPO(WrapsObservations, PPO):
     """PPO that is told the episode's true hidden mode: the upper bound every latent method is measured against.
 
     The environment (and any environment given to ``load``, ``set_env`` or :meth:`wrap_env`) is wrapped in a
@@ -76,17 +75,7 @@ class OraclePPO(WrapsEnv, PPO):
     def wrap_env(self, venv: VecEnv) -> VecEnv:
         """``venv`` with the true mode (or the random label) appended to its observations (for evaluation and
         recording)."""
-        return wrap_with_mode(venv, random_labels=self.random_label)
-
-    def predict(self, observation: Any, state: tuple[np.ndarray, ...] | None = None,
-                episode_start: np.ndarray | None = None,
-                deterministic: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict`` on the wrapped observations; plain ones are refused naming ``model.wrap_env(env)``."""
-        self._refuse_plain(observation)
-        return super().predict(observation, state, episode_start, deterministic)
-
-    def _wrap_own_env(self, env: Any) -> VecEnv:
-        return wrap_with_mode(env, self.verbose, self.random_label)
+        return wrap_with_mode(venv, self.verbose, self.random_label)
 
     @classmethod
     def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:

@@ -15,7 +15,7 @@ sb3-contrib's RecurrentPPO carries its LSTM state.
 from __future__ import annotations
 
 from itertools import chain
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -27,11 +27,12 @@ from stable_baselines3.common.utils import polyak_update
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_emmarl.qmix.mixers import make_mixer
+from sb3_emmarl.qmix.mixers import MIXERS, make_mixer
 
 
-class AgentQNetwork(BasePolicy):
-    """The shared agent network: observation (and one-hot agent index) -> one Q-value per action.
+class AgentNetwork(BasePolicy):
+    """What the shared agent networks have in common: the features of an observation, with the one-hot agent index
+    appended (``agent_id``), as their input (:meth:`agent_inputs`).
 
     :param observation_space: one agent's observation space
     :param action_space: one agent's action space (``Discrete``)
@@ -39,12 +40,14 @@ class AgentQNetwork(BasePolicy):
     :param features_dim: its output size
     :param n_agents: agents per team (the size of the one-hot index)
     :param agent_id: append the one-hot agent index to the features
-    :param net_arch: hidden layer sizes
+    :param net_arch: hidden layer sizes (None: ``default_net_arch``)
     :param activation_fn: activation function
     :param normalize_images: divide image observations by 255
     """
 
     action_space: spaces.Discrete
+    #: the hidden layers without ``net_arch``
+    default_net_arch: ClassVar[list[int]] = [64, 64]
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete,
                  features_extractor: BaseFeaturesExtractor, features_dim: int, n_agents: int = 1,
@@ -52,24 +55,21 @@ class AgentQNetwork(BasePolicy):
                  activation_fn: type[nn.Module] = nn.ReLU, normalize_images: bool = True) -> None:
         super().__init__(observation_space, action_space, features_extractor=features_extractor,
                          normalize_images=normalize_images)
-        self.net_arch = [64, 64] if net_arch is None else list(net_arch)
+        self.net_arch = list(self.default_net_arch if net_arch is None else net_arch)
         self.activation_fn, self.features_dim = activation_fn, features_dim
         self.n_agents, self.agent_id = int(n_agents), bool(agent_id)
-        input_dim = features_dim + (self.n_agents if self.agent_id else 0)
-        self.q_net = nn.Sequential(*create_mlp(input_dim, int(action_space.n), self.net_arch, activation_fn))
+        #: the size of :meth:`agent_inputs`' rows
+        self.input_dim = features_dim + (self.n_agents if self.agent_id else 0)
 
-    def forward(self, obs: PyTorchObs, agent_ids: th.Tensor | None = None) -> th.Tensor:
-        """Q-values ``(n, n_actions)`` of ``n`` observations made by the agents ``agent_ids`` (``(n,)`` ints; needed
-        with ``agent_id``)."""
+    def agent_inputs(self, obs: PyTorchObs, agent_ids: th.Tensor | None = None) -> th.Tensor:
+        """The features ``(n, input_dim)`` of ``n`` observations made by the agents ``agent_ids`` (``(n,)`` ints;
+        needed with ``agent_id``: their one-hot index is appended)."""
         features = self.extract_features(obs, self.features_extractor)
         if self.agent_id:
             if agent_ids is None:
                 raise ValueError("this Q-network takes the agent's index (agent_id=True): pass agent_ids")
             features = th.cat([features, F.one_hot(agent_ids.long(), self.n_agents).to(features.dtype)], dim=-1)
-        return self.q_net(features)
-
-    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        return self(observation, entry_agent_ids(observation, self.n_agents, self.agent_id)).argmax(dim=1)
+        return features
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -78,51 +78,50 @@ class AgentQNetwork(BasePolicy):
         return data
 
 
-class RecurrentAgentQNetwork(BasePolicy):
+class AgentQNetwork(AgentNetwork):
+    """The shared agent network: observation (and one-hot agent index) -> one Q-value per action.
+
+    Takes :class:`AgentNetwork`'s arguments (``net_arch`` default ``[64, 64]``).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.q_net = nn.Sequential(*create_mlp(self.input_dim, int(self.action_space.n), self.net_arch,
+                                               self.activation_fn))
+
+    def forward(self, obs: PyTorchObs, agent_ids: th.Tensor | None = None) -> th.Tensor:
+        """Q-values ``(n, n_actions)`` of ``n`` observations made by the agents ``agent_ids`` (``(n,)`` ints; needed
+        with ``agent_id``)."""
+        return self.q_net(self.agent_inputs(obs, agent_ids))
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self(observation, entry_agent_ids(observation, self.n_agents, self.agent_id)).argmax(dim=1)
+
+
+class RecurrentAgentQNetwork(AgentNetwork):
     """The shared recurrent agent network: observation (and one-hot agent index) -> MLP -> ``GRUCell`` -> Q-values.
 
     EPyMARL's ``RNNAgent`` (``fc1 -> ReLU -> GRUCell -> fc2``) with SB3's features extractor and ``net_arch`` in
     place of ``fc1`` (``net_arch=[]``: the GRU reads the features directly). One call is one time step of ``n``
     entries: ``forward(obs, hidden)`` returns the Q-values and the next hidden state.
 
-    :param observation_space: one agent's observation space
-    :param action_space: one agent's action space (``Discrete``)
-    :param features_extractor: the features extractor
-    :param features_dim: its output size
-    :param n_agents: agents per team (the size of the one-hot index)
-    :param agent_id: append the one-hot agent index to the features
-    :param net_arch: hidden layer sizes before the GRU (default ``[64]``, EPyMARL's ``fc1``)
-    :param activation_fn: activation function
-    :param normalize_images: divide image observations by 255
+    Takes :class:`AgentNetwork`'s arguments (``net_arch`` default ``[64]``, EPyMARL's ``fc1``) and:
+
     :param rnn_hidden_dim: the GRU's hidden size
     """
 
-    action_space: spaces.Discrete
+    default_net_arch: ClassVar[list[int]] = [64]
 
-    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete,
-                 features_extractor: BaseFeaturesExtractor, features_dim: int, n_agents: int = 1,
-                 agent_id: bool = False, net_arch: list[int] | None = None,
-                 activation_fn: type[nn.Module] = nn.ReLU, normalize_images: bool = True,
-                 rnn_hidden_dim: int = 64) -> None:
-        super().__init__(observation_space, action_space, features_extractor=features_extractor,
-                         normalize_images=normalize_images)
-        self.net_arch = [64] if net_arch is None else list(net_arch)
-        self.activation_fn, self.features_dim = activation_fn, features_dim
-        self.n_agents, self.agent_id = int(n_agents), bool(agent_id)
+    def __init__(self, *args: Any, rnn_hidden_dim: int = 64, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
         self.rnn_hidden_dim = int(rnn_hidden_dim)
-        input_dim = features_dim + (self.n_agents if self.agent_id else 0)
-        self.mlp = nn.Sequential(*create_mlp(input_dim, -1, self.net_arch, activation_fn))
-        self.rnn = nn.GRUCell(self.net_arch[-1] if self.net_arch else input_dim, self.rnn_hidden_dim)
-        self.q_head = nn.Linear(self.rnn_hidden_dim, int(action_space.n))
+        self.mlp = nn.Sequential(*create_mlp(self.input_dim, -1, self.net_arch, self.activation_fn))
+        self.rnn = nn.GRUCell(self.net_arch[-1] if self.net_arch else self.input_dim, self.rnn_hidden_dim)
+        self.q_head = nn.Linear(self.rnn_hidden_dim, int(self.action_space.n))
 
     def embed(self, obs: PyTorchObs, agent_ids: th.Tensor | None = None) -> th.Tensor:
         """The GRU's inputs ``(n, gru_input)`` of ``n`` observations made by the agents ``agent_ids``."""
-        features = self.extract_features(obs, self.features_extractor)
-        if self.agent_id:
-            if agent_ids is None:
-                raise ValueError("this Q-network takes the agent's index (agent_id=True): pass agent_ids")
-            features = th.cat([features, F.one_hot(agent_ids.long(), self.n_agents).to(features.dtype)], dim=-1)
-        return self.mlp(features)
+        return self.mlp(self.agent_inputs(obs, agent_ids))
 
     def forward(self, obs: PyTorchObs, hidden: th.Tensor, agent_ids: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor]:
         """One step: Q-values ``(n, n_actions)`` and the next hidden state ``(n, rnn_hidden_dim)`` of ``n``
@@ -137,11 +136,7 @@ class RecurrentAgentQNetwork(BasePolicy):
         return self(observation, hidden, entry_agent_ids(observation, self.n_agents, self.agent_id))[0].argmax(dim=1)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        data.update(net_arch=self.net_arch, features_dim=self.features_dim, activation_fn=self.activation_fn,
-                    features_extractor=self.features_extractor, n_agents=self.n_agents, agent_id=self.agent_id,
-                    rnn_hidden_dim=self.rnn_hidden_dim)
-        return data
+        return {**super()._get_constructor_parameters(), "rnn_hidden_dim": self.rnn_hidden_dim}
 
 
 def entry_agent_ids(observation: PyTorchObs, n_agents: int, agent_id: bool) -> th.Tensor | None:
@@ -168,7 +163,8 @@ class ValueDecompositionPolicy(BasePolicy):
     :param lr_schedule: learning rate schedule
     :param n_agents: agents per team (set by the algorithm)
     :param state_dim: size of the flat global state (set by the algorithm; 0 for VDN)
-    :param mixer: ``"qmix"`` or ``"vdn"`` (set by the algorithm)
+    :param mixer: ``"qmix"`` or ``"vdn"`` (set by the algorithm; None: the class's :attr:`fixed_mixer`, else
+        ``"qmix"``); a subclass with a :attr:`fixed_mixer` takes that one only
     :param mixing_embed_dim: QMIX's mixing width
     :param hypernet_layers: QMIX's hypernetwork depth (1 or 2)
     :param hypernet_embed: QMIX's hypernetwork width
@@ -185,11 +181,13 @@ class ValueDecompositionPolicy(BasePolicy):
     :param rnn_hidden_dim: its GRU's hidden size
     """
 
+    #: the one mixer a subclass takes (QMIXPolicy's ``"qmix"``, VDNPolicy's ``"vdn"``); None: either
+    fixed_mixer: ClassVar[str | None] = None
     q_net: AgentQNetwork | RecurrentAgentQNetwork
     q_net_target: AgentQNetwork | RecurrentAgentQNetwork
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, lr_schedule: Schedule,
-                 n_agents: int = 1, state_dim: int = 0, mixer: str = "qmix", mixing_embed_dim: int = 32,
+                 n_agents: int = 1, state_dim: int = 0, mixer: str | None = None, mixing_embed_dim: int = 32,
                  hypernet_layers: int = 2, hypernet_embed: int = 64, agent_id: bool = False,
                  net_arch: list[int] | None = None, activation_fn: type[nn.Module] = nn.ReLU,
                  features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
@@ -197,6 +195,10 @@ class ValueDecompositionPolicy(BasePolicy):
                  optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
                  optimizer_kwargs: dict[str, Any] | None = None, recurrent: bool = False,
                  rnn_hidden_dim: int = 64) -> None:
+        mixer = (self.fixed_mixer or "qmix") if mixer is None else mixer
+        if self.fixed_mixer is not None and mixer != self.fixed_mixer:
+            raise ValueError(f"{type(self).__name__}'s mixer is {self.fixed_mixer!r}, got mixer={mixer!r} (each of "
+                             f"{list(MIXERS)} has its policy class; ValueDecompositionPolicy takes either)")
         super().__init__(observation_space, action_space, features_extractor_class, features_extractor_kwargs,
                          optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs,
                          normalize_images=normalize_images)
@@ -382,23 +384,13 @@ class ValueDecompositionPolicy(BasePolicy):
 class QMIXPolicy(ValueDecompositionPolicy):
     """:class:`ValueDecompositionPolicy` with QMIX's mixing network (QMIX's ``MlpPolicy``); same arguments."""
 
-    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, lr_schedule: Schedule,
-                 *args: Any, mixer: str = "qmix", **kwargs: Any) -> None:
-        if mixer != "qmix":
-            raise ValueError(f"QMIXPolicy's mixer is 'qmix', got mixer={mixer!r} (VDNPolicy's is 'vdn')")
-        kwargs["mixer"] = mixer
-        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
+    fixed_mixer = "qmix"
 
 
 class VDNPolicy(ValueDecompositionPolicy):
     """:class:`ValueDecompositionPolicy` with the additive mixer (VDN's ``MlpPolicy``); same arguments."""
 
-    def __init__(self, observation_space: spaces.Space, action_space: spaces.Discrete, lr_schedule: Schedule,
-                 *args: Any, mixer: str = "vdn", **kwargs: Any) -> None:
-        if mixer != "vdn":
-            raise ValueError(f"VDNPolicy's mixer is 'vdn', got mixer={mixer!r} (QMIXPolicy's is 'qmix')")
-        kwargs["mixer"] = mixer
-        super().__init__(observation_space, action_space, lr_schedule, *args, **kwargs)
+    fixed_mixer = "vdn"
 
 
 MlpPolicy = QMIXPolicy

@@ -25,7 +25,7 @@ from sb3_emmarl.common.latent.evidence import evidence_from_spec
 from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-from sb3_emmarl.common.wrapping import WrapsEnv
+from sb3_emmarl.common.wrapping import WrapsObservations
 
 if TYPE_CHECKING:
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
@@ -158,7 +158,7 @@ LATENT_ATTRIBUTES = tuple(name for name in LatentConfig().names()
                           if name not in ("n_components", "decoder_hidden", "e_step_kwargs"))
 
 
-class LatentAlgorithmMixin(WrapsEnv):
+class LatentAlgorithmMixin(WrapsObservations):
     """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
 
     policy: LatentPolicyMixin
@@ -418,10 +418,6 @@ class LatentAlgorithmMixin(WrapsEnv):
     def _after_e_step(self) -> None:
         """What runs after an E-step (nothing by default)."""
 
-    def _wrap_own_env(self, env: Any) -> VecEnv:
-        """A plain environment gets the belief wrapper (SB3's own wrapping first, for a Gymnasium environment)."""
-        return self.wrap_env(self._wrap_env(env, self.verbose))
-
     @classmethod
     def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
         """An environment without the belief wrapper gets the one the model was trained with."""
@@ -430,8 +426,8 @@ class LatentAlgorithmMixin(WrapsEnv):
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):
-        """As SB3's ``load`` (an ``env`` gets the belief wrapper: :class:`~sb3_emmarl.common.wrapping.WrapsEnv`), with
-        the E-step's state restored."""
+        """As SB3's ``load`` (an ``env`` gets the belief wrapper:
+        :class:`~sb3_emmarl.common.wrapping.WrapsObservations`), with the E-step's state restored."""
         model = super().load(path, env=env, device=device, custom_objects=custom_objects,
                              print_system_info=print_system_info, force_reset=force_reset, **kwargs)
         e_step_state = model.__dict__.pop("_e_step_state", None)  # (saved before 0.17.0: in the data)
