@@ -97,7 +97,7 @@ benchmark-mode-evidence: install
 
 # How well EM-PPO's latent model tells the mode, fitted by EM and fitted told the mode (its ceiling) (about 8 minutes).
 benchmark-mixture-ceiling: install
-	$(PYTHON) benchmarks/mixture_ceiling.py
+	$(PYTHON) docs/lab/studies/mixture_ceiling.py
 
 # How much knowing the hidden mode pays: PPO told the mode against plain PPO and against a control told a random label,
 # 5 seeds x 500k agent-steps each (about 35 minutes).
@@ -112,8 +112,8 @@ benchmark-mode-value-0-1-0: install
 	test -d $(MV010_TREE) || git worktree add --detach $(MV010_TREE) 8044dff
 	for seed in 0 1 2 3 4 5 6 7 8 9; do for variant in told ppo control; do \
 		echo "run --variant $$variant --seed $$seed --folder $(MV010_FOLDER)"; done; done | \
-		PYTHONPATH=$(MV010_TREE):$(MV010_TREE)/envs xargs -P 2 -L 1 $(PYTHON) benchmarks/mode_value_0_1_0.py
-	$(PYTHON) benchmarks/mode_value_0_1_0.py report --folder $(MV010_FOLDER)
+		PYTHONPATH=$(MV010_TREE):$(MV010_TREE)/envs xargs -P 2 -L 1 $(PYTHON) docs/lab/studies/mode_value_0_1_0.py
+	$(PYTHON) docs/lab/studies/mode_value_0_1_0.py report --folder $(MV010_FOLDER)
 
 # Runs that survive: 20 SIGKILLs at random moments per algorithm (PPO, EM-PPO), resumed and compared with uninterrupted runs (about 25 minutes).
 benchmark-kill-resume: install

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 from scipy import stats
-from scripts import load_benchmark
+from scripts import load_benchmark, load_study
 
 from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
 from sb3_emmarl.zoo.benchmark import (
@@ -207,8 +207,8 @@ def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_pa
         finished_run(tmp_path, "ppo", 3, 256, [], {"n_uavs": 2})
 
 
-def test_the_fusion_benchmarks_all_links_lists_every_teammate_of_the_copy_and_nobody_else():
-    fusion = load_benchmark("fusion")
+def test_the_fusion_study_s_all_links_lists_every_teammate_of_the_copy_and_nobody_else():
+    fusion = load_study("fusion")
     venv = fusion.AllLinks(make_vec_env(2, seed=0, env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 5}))
     try:
         venv.reset()
@@ -219,12 +219,12 @@ def test_the_fusion_benchmarks_all_links_lists_every_teammate_of_the_copy_and_no
         venv.close()
 
 
-def test_the_fusion_benchmark_runs_end_to_end_on_tiny_em_ppo_runs(tmp_path, capsys):
+def test_the_fusion_study_runs_end_to_end_on_tiny_em_ppo_runs(tmp_path, capsys):
     flags = ["-n", "128", "--seeds", "0", "1", "--eval-episodes", "1", "-f", str(tmp_path), "--env-kwargs", "n_uavs:2",
              "grid_size:20", "max_cycles:8"]
     assert compare_main(["--variants", "em_ppo", "ppo", "--oracle", "ppo", *flags]) == 0
     capsys.readouterr()
-    assert load_benchmark("fusion").main(["-f", str(tmp_path), "--seeds", "0", "1", "--eval-episodes", "1",
+    assert load_study("fusion").main(["-f", str(tmp_path), "--seeds", "0", "1", "--eval-episodes", "1",
                                           "--all-links"]) == 0
     out = capsys.readouterr().out
     assert "fusion on / off" in out and "with every link up" in out
@@ -248,8 +248,8 @@ def test_vec_normalize_stats_names_the_file_only_where_a_run_saved_one(tmp_path)
     assert vec_normalize_stats(tmp_path) == str(tmp_path / "vecnormalize.pkl")
 
 
-def test_the_spread_benchmark_counts_the_boundary_corners_and_how_alike_the_moves_are():
-    spread = load_benchmark("team_spread")
+def test_the_spread_study_counts_the_boundary_corners_and_how_alike_the_moves_are():
+    spread = load_study("team_spread")
     for continuous in (True, False):
         env_kwargs = {"n_uavs": 3, "grid_size": 20, "max_cycles": 100, "continuous_actions": continuous}
         own = reserve_v1.parallel_env(**env_kwargs).observation_layout["own"][0]
@@ -271,13 +271,13 @@ def test_the_spread_benchmark_counts_the_boundary_corners_and_how_alike_the_move
             assert summary["alignment"] == pytest.approx(-1.0)
 
 
-def test_the_spread_benchmark_runs_end_to_end_on_a_tiny_ddpg_run(tmp_path, capsys):
+def test_the_spread_study_runs_end_to_end_on_a_tiny_ddpg_run(tmp_path, capsys):
     flags = ["-n", "64", "--seeds", "0", "--eval-episodes", "1", "-f", str(tmp_path), "--env-kwargs", "n_uavs:2",
              "grid_size:20", "max_cycles:8"]
     assert compare_main(["--variants", "ddpg", "--baseline", "ddpg", "--oracle", "-", "--ratio", "ddpg", "ddpg",
                          *flags]) == 0
     capsys.readouterr()
-    assert load_benchmark("team_spread").main(["-f", str(tmp_path), "--variants", "ddpg", "--seeds", "0",
+    assert load_study("team_spread").main(["-f", str(tmp_path), "--variants", "ddpg", "--seeds", "0",
                                                "--eval-episodes", "2"]) == 0
     rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("ddpg")]
     assert len(rows) == 1 and rows[0][:2] == ["ddpg", "0"]

@@ -1,13 +1,13 @@
-"""The mixture-ceiling benchmark: the episodes (and reading counts) it plays, the told E-step, and the script end to end."""
+"""The mixture-ceiling study (docs/lab/studies/): the episodes (and reading counts) it plays, the told E-step, the script."""
 
 import numpy as np
 import pytest
-from scripts import load_benchmark
+from scripts import load_study
 
 
 @pytest.fixture(scope="module")
 def ceiling():
-    return load_benchmark("mixture_ceiling")
+    return load_study("mixture_ceiling")
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch as th
-from scripts import load_benchmark
+from scripts import load_benchmark, load_study
 from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
@@ -414,7 +414,7 @@ def test_wrap_with_mode_refuses_an_environment_wrapped_to_tell_the_other_thing()
 
 
 def test_the_0_1_0_repeat_counts_the_issue_s_protocol_on_hand_built_runs():
-    repeat = load_benchmark("mode_value_0_1_0")
+    repeat = load_study("mode_value_0_1_0")
     ppo = {s: np.zeros(40) for s in range(4)}
     told = {s: np.r_[np.full(20, 10.0), np.zeros(20)] for s in range(3)}  # 10 higher on the first 20 episodes
     told[3] = np.full(40, -1.0)
@@ -425,7 +425,7 @@ def test_the_0_1_0_repeat_counts_the_issue_s_protocol_on_hand_built_runs():
 
 
 def test_the_0_1_0_repeat_reports_every_table_and_refuses_runs_that_do_not_pair(tmp_path, capsys):
-    repeat = load_benchmark("mode_value_0_1_0")
+    repeat = load_study("mode_value_0_1_0")
 
     def episodes(reward):
         return [{m: reward + e % 2 for m in repeat.METRICS} for e in range(repeat.ISSUE_EPISODES)]
@@ -460,7 +460,7 @@ def test_the_0_1_0_repeat_trains_only_on_0_1_0(tmp_path):
     from sb3_emmarl.version import __version__
 
     with pytest.raises(SystemExit, match=rf"run needs sb3-emmarl 0.1.0 on the path .* got {re.escape(__version__)} "):
-        load_benchmark("mode_value_0_1_0").main(["run", "--variant", "told", "--seed", "0", "--folder", str(tmp_path)])
+        load_study("mode_value_0_1_0").main(["run", "--variant", "told", "--seed", "0", "--folder", str(tmp_path)])
     assert not list(tmp_path.iterdir())
 
 

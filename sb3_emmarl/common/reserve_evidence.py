@@ -14,7 +14,7 @@ the reserve's flat observations:
   model's Poisson term (:mod:`~sb3_emmarl.common.latent.counts`) reads them: the transition mixture reads features
   that count readings in the window but cannot say where on the map they were made; fitted even *told* the mode,
   it tells the mode about half of the time from a whole team's evidence at mid-episode
-  (``benchmarks/mixture_ceiling.py``). The counts say where, and nothing else.
+  (``docs/lab/studies/mixture_ceiling.py``). The counts say where, and nothing else.
 
 A sign read from consecutive steps is counted each time (the UAV moves at most ``uav_speed`` cells), so the
 independence of the Poisson model overstates the evidence: the beliefs and the E-step weigh it by
@@ -41,7 +41,7 @@ from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POAC
 COUNTED_CHANNELS = ("sign", "leopard", "poacher")
 #: The factor on the count log-likelihood in EM-PPO's beliefs and E-step responsibilities (the count model's
 #: ``1 / temperature``): a reading is counted from about three consecutive steps. With the model fitted online, as
-#: the E-step fits it, on 400 random-patrol episodes (benchmarks/mixture_ceiling.py's episodes; an ad-hoc script, not
+#: the E-step fits it, on 400 random-patrol episodes (docs/lab/studies/mixture_ceiling.py's episodes; an ad-hoc script, not
 #: kept): a team's mid-episode accuracy 0.65 at 1/3, 0.63 at 1 and 0.48 at 1/10.
 COUNT_EVIDENCE_WEIGHT = 1.0 / 3.0
 

@@ -99,7 +99,7 @@ GAP_METRIC = "team_reward"
 
 
 #: Evaluation episodes per run of the multi-seed comparisons (``zoo/compare.py``, ``benchmarks/mode_value.py``,
-#: ``benchmarks/fusion.py``). Every run plays the same episodes, so whatever those happen to hold moves every seed's
+#: ``docs/lab/studies/fusion.py``). Every run plays the same episodes, so whatever those happen to hold moves every seed's
 #: figure alike and no number of seeds averages it out; and a team's reward varies by about 25 from one episode to
 #: the next on the default reserve. The 0.9.0 EM-PPO comparison, evaluated on 20 episodes and again on 200:
 #: latent accuracy at mid-episode 0.627 and 0.486, EM-PPO minus PPO in team reward +2.4 and -1.1 (docs/lab/results-history.md).

@@ -3,7 +3,7 @@
 The question behind issue 49's acceptance 3 (EM-PPO's belief right 0.37 of the time at mid-episode): is it the model
 (the transition mixture over the generic features, a fixed random projection of the 79-float observation), or the
 data (a learned team that does not visit the zones gives any belief nothing to read)? As
-``benchmarks/mixture_ceiling.py`` does on the reserve, this plays episodes with a fixed team (uniformly random
+``docs/lab/studies/mixture_ceiling.py`` does on the reserve, this plays episodes with a fixed team (uniformly random
 actions, or the best scripted blind team, which splits over the zones), fits EM-PPO's latent model by its E-step over
 all the training episodes (``em``) or told each episode's mode (``told``: the ceiling of the model family and its
 features), and scores the aligned accuracy of the posterior's argmax on held-out episodes, from one UAV's evidence
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch as th
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
 from mixture_ceiling import POINTS, Episodes, ToldEStep, accuracies
 
 from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS

@@ -51,7 +51,7 @@ def closed_form_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarr
 
 
 #: Rounds of the factored rates' coordinate ascent (each factor in closed form given the other); the fits of
-#: ``benchmarks/mixture_ceiling.py`` are the same at 3 and at 10.
+#: ``docs/lab/studies/mixture_ceiling.py`` are the same at 3 and at 10.
 FACTOR_ROUNDS = 3
 
 
@@ -85,7 +85,7 @@ def factored_rates(counts: np.ndarray, exposure: np.ndarray, pooled: np.ndarray,
     other (iterative proportional fitting), ``rounds`` times from ``b = 0``; the Gamma prior of
     :func:`closed_form_rates` pulls ``a`` toward the pooled rate and ``b`` toward 0. Far fewer rates than
     ``K x bins`` (``(F1 x blocks + F2 x rings)`` per channel), and EM finds the modes much more often: on
-    ``benchmarks/mixture_ceiling.py``'s episodes a team's mode at mid-episode 0.76 against 0.61 unfactored.
+    ``docs/lab/studies/mixture_ceiling.py``'s episodes a team's mode at mid-episode 0.76 against 0.61 unfactored.
 
     :param counts: ``(K, channels, bins)`` with ``K = F1 * F2`` and ``bins = blocks * n_rings`` (block-major)
     :param exposure: ``(K, bins)``

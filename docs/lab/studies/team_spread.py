@@ -15,7 +15,7 @@ A deterministic actor shared by every UAV (DDPG, EM-DDPG) gives two UAVs that ob
 for good: docs/lab/results-history.md ("EM-DDPG against DDPG") uses these figures to tell a team that piles up at the boundary
 from one that collides in the open.
 
-Example: ``python benchmarks/team_spread.py -f logs/compare --variants em_ddpg ddpg --seeds 0 1 2`` (a variant as
+Example: ``python docs/lab/studies/team_spread.py -f logs/compare --variants em_ddpg ddpg --seeds 0 1 2`` (a variant as
 compare.py was given it, ``--variants nofusion=em_ddpg:fusion=False``, is read the same way)
 """
 

@@ -6,7 +6,7 @@ latent accuracy at 25%, 50% and 100% of an episode and the team reward for both,
 ``--all-links``, also with every teammate's message reaching every UAV every step (what the reserve's links cost the
 fused belief).
 
-Example: ``python benchmarks/fusion.py -f logs/compare --seeds 0 1 2 3 4`` (after ``zoo/compare.py``)
+Example: ``python docs/lab/studies/fusion.py -f logs/compare --seeds 0 1 2 3 4`` (after ``zoo/compare.py``)
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ appended here, by a PettingZoo wrapper around each reserve copy); ``report`` rea
     git worktree add /tmp/wt_0_1_0 8044dff
     for seed in 0 1 2 3 4 5 6 7 8 9; do for variant in told ppo control; do
         echo "run --variant $variant --seed $seed --folder /tmp/mv010"; done; done |
-      PYTHONPATH=/tmp/wt_0_1_0:/tmp/wt_0_1_0/envs xargs -P 2 -L 1 python benchmarks/mode_value_0_1_0.py
-    python benchmarks/mode_value_0_1_0.py report --folder /tmp/mv010
+      PYTHONPATH=/tmp/wt_0_1_0:/tmp/wt_0_1_0/envs xargs -P 2 -L 1 python docs/lab/studies/mode_value_0_1_0.py
+    python docs/lab/studies/mode_value_0_1_0.py report --folder /tmp/mv010
 
 The variants: ``told`` (the true mode's one-hot appended to every UAV's observation; also evaluated told the next
 strategy, the same weather), ``ppo`` (the plain observation) and ``control`` (the one-hot of a label drawn uniformly
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -41,6 +42,8 @@ METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "collisions")
 ISSUE_SEEDS, ISSUE_EPISODES, ISSUE_GAIN = 3, 20, 7.0
 #: Evaluation: episodes per run and their seed.
 EVAL_EPISODES, EVAL_SEED = 200, 50_000
+#: The benchmarks' folder (``report`` reads ``benchmarks/mode_value.py``'s table).
+BENCHMARKS = Path(__file__).resolve().parents[3] / "benchmarks"
 
 
 def run(variant: str, seed: int, folder: Path, n_timesteps: int = 500_000) -> None:
@@ -156,7 +159,8 @@ def protocol_draws(told: dict[int, np.ndarray], ppo: dict[int, np.ndarray], n_se
 
 def report(folder: Path) -> None:
     """Print the tables of the runs in ``folder`` (paired by seed; every variant must have the same seeds)."""
-    from mode_value import paired_table  # the value-of-information benchmark's table, beside this script
+    sys.path.insert(0, str(BENCHMARKS))
+    from mode_value import paired_table  # the value-of-information benchmark's table
     from scipy import stats
 
     loaded = {variant: load(folder, variant) for variant in VARIANTS}

@@ -22,10 +22,10 @@ Each is scored on held-out episodes (other seeds) by the aligned accuracy of the
 8 modes (components matched to modes by the Hungarian method, as ``evaluate_team`` does) and of the
 poacher strategy read off the aligned mode, at 25 %, 50 % and 100 % of the episode, from **one UAV**'s own
 evidence and from **the team**'s (the sum of all its UAVs' evidence: what fusion would give if every UAV
-heard every other every step, fusion's upper bound). The supervised probe of ``mode_evidence.py`` is the
+heard every other every step, fusion's upper bound). The supervised probe of ``benchmarks/mode_evidence.py`` is the
 ceiling of any method on the same question.
 
-Example: ``python benchmarks/mixture_ceiling.py`` (or ``make benchmark-mixture-ceiling``; about 5 minutes)
+Example: ``python docs/lab/studies/mixture_ceiling.py`` (or ``make benchmark-mixture-ceiling``; about 5 minutes)
 """
 
 from __future__ import annotations
@@ -34,12 +34,15 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch as th
-from em_speed import build
 from scipy.special import softmax
 from stable_baselines3.common.base_class import BaseAlgorithm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
+from em_speed import build  # benchmarks/em_speed.py: an algorithm with its zoo YAML's settings
 
 from sb3_emmarl.common.latent.belief import find_belief_wrapper
 from sb3_emmarl.common.latent.counts import PoissonMixture
