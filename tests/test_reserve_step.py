@@ -150,6 +150,8 @@ PINNED_EPISODES = {
     "robustness": ({"sensor_noise": 0.3, "comm_loss": 0.2, "adversarial": True, "shaping": 0.5}, "58b3f0a855e8ae95"),
     "continuous, fog, many poachers": ({"continuous_actions": True, "mode": 1, "n_poachers": 8, "max_cycles": 60},
                                        "94a399fb265849fa"),
+    # (pinned at 0.21.0 with its Unreleased changes, as the zone raids' gate and pilot ran)
+    "zone raids": ({"scenario": "zone_raids"}, "5fac48b1d7078317"),
 }
 
 
