@@ -6,11 +6,8 @@ stages and evaluates it after each on the benchmark's 200 held-out team episodes
 evaluated told the next zone (a wrong one), which says whether it reads what it is told. One JSON per run in FOLDER,
 rewritten after every stage (a crash loses one stage at most).
 
-``--norm-reward`` trains on rewards scaled by SB3's ``VecNormalize`` (observations untouched; evaluation on the team
-reward as it is).
-
 Usage: ``python docs/lab/2026-12-06/zone_raids_budget_curve.py VARIANT SEED [--budget N] [--stage N] [--folder F]
-[--norm-reward]``.
+[--env-kwargs JSON]``.
 """
 
 from __future__ import annotations
@@ -40,7 +37,6 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=4e6, help="agent-steps in all")
     parser.add_argument("--stage", type=float, default=1e6, help="agent-steps between evaluations")
     parser.add_argument("--folder", default="logs/zone_raids_budget_curve")
-    parser.add_argument("--norm-reward", action="store_true", help="train on VecNormalize's scaled rewards")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help='the scenario\'s arguments beyond it, as JSON: '
                         "'{\"shaping\": 0.5}'")
     args = parser.parse_args()
@@ -48,20 +44,9 @@ def main() -> None:
     variant, seed, budget, stage = args.variant, args.seed, int(args.budget), int(args.stage)
     folder = Path(args.folder)
     folder.mkdir(parents=True, exist_ok=True)
-    if args.norm_reward:
-        from stable_baselines3.common.vec_env import VecNormalize
-
-        from sb3_emmarl.zoo.exp_manager import zoo_model
-
-        algo, overrides = bench.ALGOS[variant]
-        env = VecNormalize(bench.make_env(seed, env_kwargs=args.env_kwargs, task=TASK), norm_obs=False,
-                           norm_reward=True)
-        model = zoo_model(algo, env, seed, bench.TASKS[TASK].env_id, **overrides)
-    else:
-        model = bench.build(variant, seed, args.env_kwargs, task=TASK)
+    model = bench.build(variant, seed, args.env_kwargs, task=TASK)
     wrap = getattr(model, "wrap_env", lambda v: v)
-    record: dict = {"variant": variant, "seed": seed, "stage": stage, "norm_reward": args.norm_reward,
-                    "env_kwargs": args.env_kwargs, "stages": []}
+    record: dict = {"variant": variant, "seed": seed, "stage": stage, "env_kwargs": args.env_kwargs, "stages": []}
     seconds = 0.0
     while model.num_timesteps < budget:
         start = time.perf_counter()
@@ -75,7 +60,7 @@ def main() -> None:
             row["wrong_zone_1"] = bench.play(model, wrong, 200, bench.EVAL_SEED)[0]
         record["stages"].append(row)
         name = f"{variant}_{seed}" + "".join(f"_{k}_{v}" for k, v in sorted(args.env_kwargs.items()))
-        write_text(folder / f"{name}{'_norm_reward' if args.norm_reward else ''}.json", json.dumps(record))
+        write_text(folder / f"{name}.json", json.dumps(record))
         told = f", told the next zone {np.mean(row['wrong_zone_1']):.2f}" if "wrong_zone_1" in row else ""
         print(f"{variant} seed {seed} at {row['agent_steps']:,}: {np.mean(row['team_reward']):.2f}{told} "
               f"({seconds:.0f} s)", flush=True)
