@@ -129,10 +129,11 @@ def zoo_runs(log_folders: Sequence[str | Path], algos: Sequence[str] | None = No
 
     :param log_folders: the folders given to ``train -f``
     :param algos: the algorithms (None: every zoo algorithm that has a folder)
-    :param env_id: the environment (None: every known environment)
+    :param env_id: the environment (None: every known environment); the runs saved under its former ids
+        (:func:`~sb3_emmarl.common.environments.folder_ids`) count as its own
     :return: the runs, by algorithm (in ``algos``' order), environment and run number
     """
-    from sb3_emmarl.common.environments import ENV_MODULES
+    from sb3_emmarl.common.environments import ENV_MODULES, folder_ids
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
     names = list(algos) if algos is not None else sorted(ZOO_ALGOS)
@@ -140,11 +141,12 @@ def zoo_runs(log_folders: Sequence[str | Path], algos: Sequence[str] | None = No
     runs = []
     for algo in names:
         for env in env_ids:
-            for log_folder in log_folders:
-                algo_folder = Path(log_folder) / algo
-                found = sorted((n, f) for f in (algo_folder.iterdir() if algo_folder.is_dir() else [])
-                               if (n := _run_number(f, env)) is not None)
-                runs += [make_run(algo, env, folder, _run_env_kwargs(folder, env)) for _, folder in found]
+            for name in folder_ids(env):  # runs saved under a former id count as the current id's
+                for log_folder in log_folders:
+                    algo_folder = Path(log_folder) / algo
+                    found = sorted((n, f) for f in (algo_folder.iterdir() if algo_folder.is_dir() else [])
+                                   if (n := _run_number(f, name)) is not None)
+                    runs += [make_run(algo, env, folder, _run_env_kwargs(folder, name)) for _, folder in found]
     return runs
 
 
@@ -183,13 +185,15 @@ def tensorboard_runs(tensorboard_log: str | Path, zoo: Sequence[Run]) -> list[Ru
             raise ValueError(f"{names[name]} and {algo} both write their tensorboard runs as {name}_<n>, which cannot "
                              f"be told apart: plot them one at a time, each from the -tb folder it was trained with")
         names[name] = algo
-    folder = Path(tensorboard_log) / env_id
+    from sb3_emmarl.common.environments import folder_ids
+
     runs = []
     for name, algo in names.items():
-        found = sorted((n, f) for f in (folder.iterdir() if folder.is_dir() else [])
-                       if (n := _run_number(f, name)) is not None)
-        runs += [Run(algo, env_id, run_folder, like[algo].agents_per_copy, like[algo].team_size)
-                 for _, run_folder in found]
+        for folder in (Path(tensorboard_log) / saved for saved in folder_ids(env_id)):
+            found = sorted((n, f) for f in (folder.iterdir() if folder.is_dir() else [])
+                           if (n := _run_number(f, name)) is not None)
+            runs += [Run(algo, env_id, run_folder, like[algo].agents_per_copy, like[algo].team_size)
+                     for _, run_folder in found]
     return runs
 
 

@@ -122,7 +122,9 @@ def test_the_listing_keeps_its_columns_apart_and_gives_each_budget_s_cost(capsys
 
 def test_unknown_experiment_and_bad_flags_are_refused(capsys):
     for argv, message in ((["table99"], "unknown experiment 'table99'"), ([], "name experiments or give --all"),
-                          (["table5_latent", "--n-jobs", "0"], "--n-jobs must be >= 1")):
+                          (["table5_latent", "--n-jobs", "0"], "--n-jobs must be >= 1"),
+                          (["table5_latent", "--conditions", "zone_raids"],
+                           "--conditions: conditions of table5_latent are ['default'], got ['zone_raids']")):
         with pytest.raises(SystemExit):
             experiment_main(argv)
         assert message in capsys.readouterr().err
@@ -206,6 +208,27 @@ def test_the_report_goes_under_the_results_folder_and_the_docs_change_only_with_
 #: that means to change training or evaluation updates them and says so in the changelog.
 TINY_ROW = "| clean | a2c | 1 | 2.381 +- 0.000 | - | - | 0.500 +- 0.000 | - |"
 TINY_EPISODES = "0f8b19e9521d592a"
+
+
+def test_conditions_chosen_run_alone_and_the_others_stay_to_run(tmp_path):
+    from sb3_emmarl.experiments.runner import run_experiment
+
+    data = copy.deepcopy(TINY)
+    data.update(algorithms={"ppo": TINY["algorithms"]["ppo"]},
+                conditions={"clean": TINY["conditions"]["clean"],
+                            "small": {"train": {"n_uavs": 2, "grid_size": 16, "max_cycles": 8}}})
+    data["budgets"]["quick"]["seeds"] = [0]
+    path = write_spec(tmp_path, data)
+    spec = load_spec(path)
+    assert spec.cells("quick", ["small"]) == [("ppo", "small", 0)]
+    with pytest.raises(ValueError, match=r"conditions of tiny are \['clean', 'small'\], got \['foggy'\]"):
+        spec.cells("quick", ["foggy"])
+    store, lines = ResultStore(tmp_path / "results.sqlite"), []
+    run = {"n_jobs": 1, "log": lines.append, "spec_path": str(path), "conditions": ["small"]}
+    assert run_experiment(spec, "quick", store, tmp_path, **run) == 1
+    assert lines[0] == "tiny (quick): 1 cells, 0 finished, 1 to run (local)"
+    assert store.finished("tiny", "quick") == {("ppo", "small", 0)}
+    assert run_experiment(spec, "quick", store, tmp_path, **run) == 0
 
 
 def test_a_tiny_cell_regenerates_its_stored_digits(tmp_path):

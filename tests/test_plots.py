@@ -16,9 +16,10 @@ from sb3_emmarl import plots
 ENV = "ZonePatrol-v0"
 
 
-def write_monitor(run: Path, team_rewards: list[float], n_uavs: int, steps: int = 10) -> None:
+def write_monitor(run: Path, team_rewards: list[float], n_uavs: int, steps: int = 10, env: str = ENV) -> None:
     """A zoo run's monitor.csv as VecMonitor writes it on a parameter-sharing environment: one row per UAV episode,
-    the ``n_uavs`` rows of a team episode together (each UAV's return the team reward), and its config.yml."""
+    the ``n_uavs`` rows of a team episode together (each UAV's return the team reward), and its config.yml (in the
+    run's ``env`` folder)."""
     run.mkdir(parents=True)
     lines = ["#" + json.dumps({"t_start": 1000.0, "env_id": "None"}), "r,l,t"]
     t = 0.0
@@ -26,8 +27,8 @@ def write_monitor(run: Path, team_rewards: list[float], n_uavs: int, steps: int 
         t += 1.0
         lines += [f"{reward},{steps},{t + 1e-4 * uav:.6f}" for uav in range(n_uavs)]
     (run / "monitor.csv").write_text("\n".join(lines) + "\n")
-    (run / ENV).mkdir()
-    (run / ENV / "config.yml").write_text(f"env_kwargs:\n  n_uavs: {n_uavs}\n")
+    (run / env).mkdir()
+    (run / env / "config.yml").write_text(f"env_kwargs:\n  n_uavs: {n_uavs}\n")
 
 
 def write_scalars(folder: Path, tag: str, points: dict[int, float]) -> None:
@@ -67,6 +68,16 @@ def test_runs_know_their_team_size(logs: Path):
     runs = plots.zoo_runs([logs])
     assert [(r.algo, r.env_id, r.folder.name, r.agents_per_copy) for r in runs] == [
         ("ppo", ENV, f"{ENV}_1", 2), ("ppo", ENV, f"{ENV}_2", 2)]
+
+
+def test_runs_saved_under_a_former_id_count_as_the_current_id_s(tmp_path: Path):
+    write_monitor(tmp_path / "ppo" / "WildlifeReserve-v0_1", [1, 2], n_uavs=3, env="WildlifeReserve-v0")
+    write_monitor(tmp_path / "ppo" / "WildlifeReserve-v1_1", [3, 4], n_uavs=2, env="WildlifeReserve-v1")
+    runs = plots.zoo_runs([tmp_path], env_id="WildlifeReserve-v1")
+    assert [(r.env_id, r.folder.name, r.team_size) for r in runs] == [
+        ("WildlifeReserve-v1", "WildlifeReserve-v1_1", 2), ("WildlifeReserve-v1", "WildlifeReserve-v0_1", 3)]
+    write_scalars(tmp_path / "tb" / "WildlifeReserve-v0" / "PPO_1", "rollout/ep_rew_mean", {50: 4.0})
+    assert [r.folder.parent.name for r in plots.tensorboard_runs(tmp_path / "tb", runs)] == ["WildlifeReserve-v0"]
 
 
 def test_monitor_curves_mean_and_standard_error(logs: Path, tmp_path: Path):

@@ -2,6 +2,7 @@
 
 import inspect
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -67,6 +68,17 @@ def test_enjoy_prints_metrics_and_records_a_gif(trained_run, capsys):
     assert all(metric in out for metric in TEAM_METRICS)
     with Image.open(gif) as image:
         assert image.n_frames > 20 and image.size == (600, 600)  # identical frames may be merged
+
+
+def test_enjoy_finds_a_run_saved_under_the_former_id(trained_run, tmp_path, capsys):
+    """A run made before the reserve became v1 (``WildlifeReserve-v0_1/WildlifeReserve-v0.zip``) plays on v1."""
+    run = tmp_path / "ppo" / "WildlifeReserve-v0_1"
+    shutil.copytree(trained_run / "logs" / "ppo" / "WildlifeReserve-v1_1" / "WildlifeReserve-v1", run / "WildlifeReserve-v0")
+    shutil.copy(trained_run / "logs" / "ppo" / "WildlifeReserve-v1_1" / "WildlifeReserve-v1.zip",
+                run / "WildlifeReserve-v0.zip")
+    assert enjoy_main(["--algo", "ppo", "-f", str(tmp_path), "--episodes", "1", "--no-record"]) == 0
+    out = capsys.readouterr().out
+    assert f"{run / 'WildlifeReserve-v0.zip'}: 1 episodes from seed 0" in out
 
 
 def test_enjoy_without_a_run_fails_cleanly(tmp_path, capsys):

@@ -42,6 +42,12 @@ def current_env_id(env_id: Any) -> Any:
     return env_id
 
 
+def folder_ids(env_id: str) -> tuple[str, ...]:
+    """The ids under which runs of ``env_id`` are saved (the zoo's ``<algo>/<id>_<n>/<id>.zip``): its own, then the
+    former ids that now give it, whose runs (made before the id changed) load and play on ``env_id``."""
+    return (env_id, *(former for former, current in FORMER_ENV_IDS.items() if current == env_id))
+
+
 def check_env_id(env_id: Any) -> str:
     """``env_id`` if it is one of :data:`ENV_MODULES`' ids; a former id (:data:`FORMER_ENV_IDS`) gives its current one.
 

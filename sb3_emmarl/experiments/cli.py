@@ -37,6 +37,8 @@ def experiment_parser() -> argparse.ArgumentParser:
     parser.add_argument("--all", action="store_true", help="every experiment of the package")
     parser.add_argument("--list", action="store_true", help="list the experiments (cells and agent-steps) and exit")
     parser.add_argument("--budget", default="quick", choices=list(BUDGETS), help="quick (this machine) or full (paper)")
+    parser.add_argument("--conditions", nargs="+", default=None, metavar="CONDITION",
+                        help="run only these conditions' cells (the report still covers every stored cell)")
     parser.add_argument("--backend", default="local", choices=list(BACKENDS), help="local processes or Ray tasks")
     parser.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
     parser.add_argument("--gather", action="store_true",
@@ -63,7 +65,7 @@ def experiment_parser() -> argparse.ArgumentParser:
 
 
 def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[tuple[ExperimentSpec, str | None]]:
-    """Every named specification, loaded and checked before anything runs."""
+    """Every named specification, loaded and checked (with ``--conditions``) before anything runs."""
     if args.all == bool(args.names):
         parser.error("name experiments or give --all (not both)")
     names = list_specs() if args.all else args.names
@@ -73,6 +75,11 @@ def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[tu
             spec = load_spec(name)
         except ValueError as error:
             parser.error(str(error))
+        if args.conditions is not None:
+            try:
+                spec.cells(args.budget, args.conditions)
+            except ValueError as error:
+                parser.error(f"--conditions: {error}")
         specs.append((spec, name if Path(name).suffix else None))
     return specs
 
@@ -112,7 +119,7 @@ def experiment_main(argv: list[str] | None = None) -> int:
             try:
                 run_experiment(spec, args.budget, store, root, backend=args.backend, n_jobs=args.n_jobs,
                                address=args.address, spec_path=path, lease_seconds=args.lease,
-                               rerun_stale=args.rerun_stale, gather=args.gather)
+                               rerun_stale=args.rerun_stale, gather=args.gather, conditions=args.conditions)
             except (RuntimeError, ValueError) as error:
                 print(f"error: {error}", file=sys.stderr)
                 return 1

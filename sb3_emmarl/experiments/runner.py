@@ -37,7 +37,7 @@ import sys
 import tarfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from contextlib import contextmanager
 from pathlib import Path
@@ -325,7 +325,7 @@ def _spec_source(spec: ExperimentSpec, spec_path: str | None) -> tuple[str, str 
 def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: str | Path, *, backend: str = "local",
                    n_jobs: int | None = None, address: str | None = None, spec_path: str | None = None,
                    log: Callable[[str], None] = print, lease_seconds: float = LEASE_SECONDS,
-                   rerun_stale: bool = False, gather: bool = False) -> int:
+                   rerun_stale: bool = False, gather: bool = False, conditions: Sequence[str] | None = None) -> int:
     """Run every cell of ``spec`` at ``budget`` that the store does not hold yet, and record each as it finishes.
 
     Cells are claimed in the store one by one before they start; cells that other live runners hold are left to
@@ -345,6 +345,7 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
         quarter of it
     :param rerun_stale: run again the cells stored by another version of the package (replacing them)
     :param gather: on Ray, bring the run folders of cells run on other nodes to this machine's ``root``
+    :param conditions: run only these conditions' cells (None: every condition); the others stay as they are
     :return: the number of cells run (and recorded) by this runner
     """
     if budget not in spec.budgets:
@@ -357,9 +358,9 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
         raise ValueError(f"lease_seconds must be a number > 0, got {lease_seconds!r}")
     root = str(Path(root).resolve())
     version = code_version()
-    cells = spec.cells(budget)
+    cells = spec.cells(budget, conditions)
     current = version[0] if rerun_stale else None
-    done = store.finished(spec.name, budget, current)
+    done = store.finished(spec.name, budget, current) & set(cells)
     log(f"{spec.name} ({budget}): {len(cells)} cells, {len(done)} finished"
         + (f" by {version[0]}" if rerun_stale else "") + f", {len(cells) - len(done)} to run ({backend})")
     if len(done) == len(cells):
@@ -383,7 +384,7 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
                                 "which is gone")
                         running[submit((name, text, budget, *claim.cell, root), version[0])] = claim.cell
                     if not running:
-                        others = store.held_by_others(spec.name, budget, runner, lease_seconds)
+                        others = store.held_by_others(spec.name, budget, runner, lease_seconds) & set(cells)
                         if not others:
                             break
                         if not waiting_said:

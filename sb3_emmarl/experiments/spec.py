@@ -25,6 +25,7 @@ that a bad specification fails before anything runs, with a message naming the f
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -164,9 +165,18 @@ class ExperimentSpec:
     notes: str = ""
     env: str = ENV_ID
 
-    def cells(self, budget: str) -> list[tuple[str, str, int]]:
-        """Every (algorithm, condition, seed) of ``budget``, seeds outermost (load drifts hit every method alike)."""
-        return [(a, c, s) for s in self.budgets[budget].seeds for c in self.conditions for a in self.algorithms]
+    def cells(self, budget: str, conditions: Sequence[str] | None = None) -> list[tuple[str, str, int]]:
+        """Every (algorithm, condition, seed) of ``budget``, seeds outermost (load drifts hit every method alike).
+
+        :param budget: ``"quick"`` or ``"full"``
+        :param conditions: only these conditions' cells (None: every condition)
+        """
+        if conditions is not None:
+            unknown = [c for c in conditions if c not in self.conditions]
+            if unknown or not conditions:
+                raise ValueError(f"conditions of {self.name} are {list(self.conditions)}, got {list(conditions)}")
+        chosen = [c for c in self.conditions if conditions is None or c in conditions]
+        return [(a, c, s) for s in self.budgets[budget].seeds for c in chosen for a in self.algorithms]
 
 
 def _algorithms(where: str, data: Any) -> dict[str, Variant]:

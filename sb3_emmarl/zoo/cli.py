@@ -35,7 +35,7 @@ from sb3_emmarl.common.checkpoints import (
     vec_normalize_stats,
     write_text,
 )
-from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, parallel_env_fn
+from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, folder_ids, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.safe_config import wrapper_from_config
@@ -60,6 +60,18 @@ def peak_rss_mib() -> float:
             return next(int(line.split()[1]) for line in status if line.startswith("VmHWM")) / 1024
     except (OSError, StopIteration, ValueError):
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def saved_as(log_folder: str | Path, algo: str, env_id: str = ENV_ID, exp_id: int = 0) -> str:
+    """The id under which the run ``exp_id`` (0: the latest) of ``algo`` on ``env_id`` is saved in ``log_folder``:
+    ``env_id`` when it has such a run, else the first former id that does (:func:`folder_ids`), else ``env_id``."""
+    from rl_zoo3.utils import get_latest_run_id
+
+    algo_folder = Path(log_folder) / algo
+    for name in folder_ids(env_id):
+        if (algo_folder / f"{name}_{exp_id or get_latest_run_id(str(algo_folder), name)}").is_dir():
+            return name
+    return env_id
 
 
 def latest_run(log_folder: str | Path, algo: str, env_id: str = ENV_ID) -> Path:
@@ -456,9 +468,10 @@ def enjoy_main(argv: list[str] | None = None) -> int:
 
     try:
         checkpoint = None if args.load_checkpoint is None else str(args.load_checkpoint)
-        _, model_path, log_path = get_model_path(args.exp_id, args.folder, args.algo, EnvironmentName(args.env),
+        saved = saved_as(args.folder, args.algo, args.env, args.exp_id)  # a former id's runs play on the current id
+        _, model_path, log_path = get_model_path(args.exp_id, args.folder, args.algo, EnvironmentName(saved),
                                                  args.load_best, checkpoint)
-        params_path = Path(log_path) / args.env
+        params_path = Path(log_path) / saved
         config_file = params_path / "config.yml"
         config = read_yaml(config_file, "the run's config") if config_file.is_file() else {}
         if not isinstance(config, dict):

@@ -30,7 +30,7 @@ STATE_KEY, TERMINAL_STATE_KEY = "state", "terminal_state"
 LINKS_KEY, TERMINAL_LINKS_KEY = "heard_from", "terminal_heard_from"
 
 
-def _apply(env: Any, kind: str, name: str, payload: tuple) -> Any:
+def apply_to_env(env: Any, kind: str, name: str, payload: tuple) -> Any:
     """``getattr(env, name)`` (kind ``"get"``), ``setattr(env, name, *payload)`` (``"set"``) or
     ``getattr(env, name)(*args, **kwargs)`` with ``payload = (args, kwargs)`` (``"call"``)."""
     if kind == "get":
@@ -258,7 +258,7 @@ class SharedPolicyVecEnv(VecEnv):
 
     # -------------------------------------------------------------- access to the copies
     def _on_copies(self, indices: VecEnvIndices, kind: str, name: str, payload: tuple = ()) -> list[Any]:
-        """:func:`_apply` ``kind`` (get, set or call) on the reserve copy behind each index, once per index; with
+        """:func:`apply_to_env` ``kind`` (get, set or call) on the reserve copy behind each index, once per index; with
         SuperSuit's worker processes ``get`` reads the local prototype and the others are refused."""
         copies = [i // self.agents_per_copy for i in self._get_indices(indices)]
         if self.multiprocess:
@@ -268,7 +268,7 @@ class SharedPolicyVecEnv(VecEnv):
                                       "reads the local prototype, set_attr and env_method need num_cpus <= 1 or the "
                                       "batched path")
         envs = self._par_envs()
-        return [_apply(envs[c], kind, name, payload) for c in copies]
+        return [apply_to_env(envs[c], kind, name, payload) for c in copies]
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """Attribute of the reserve copy behind each index (of the local prototype with SuperSuit's workers)."""

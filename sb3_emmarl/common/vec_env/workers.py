@@ -22,7 +22,7 @@ from sb3_emmarl.common.vec_env.shared_policy import (
     STATE_KEY,
     TERMINAL_LINKS_KEY,
     TERMINAL_STATE_KEY,
-    _apply,
+    apply_to_env,
 )
 
 if TYPE_CHECKING:
@@ -179,7 +179,7 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
             elif command == "apply":  # get_attr, set_attr, env_method on some of the copies
                 kind, name, payload, indices = data
                 try:
-                    reply = [_apply(copies.envs[i], kind, name, payload) for i in indices]
+                    reply = [apply_to_env(copies.envs[i], kind, name, payload) for i in indices]
                 except Exception as error:  # the caller's to handle (an AttributeError, say); the copies carry on
                     send(("raise", error))
                     continue
@@ -372,13 +372,13 @@ class _SplitCopies:
         return observations, rewards, terminations, truncations, infos
 
     def apply(self, copies: list[int], kind: str, name: str, payload: tuple) -> list[Any]:
-        """:func:`_apply` on each of ``copies`` (indices over every copy), wherever it lives, in that order."""
+        """:func:`apply_to_env` on each of ``copies`` (indices over every copy), wherever it lives, in that order."""
         results: list[Any] = [None] * len(copies)
         remote: dict[int, list[tuple[int, int]]] = {}
         for position, c in enumerate(copies):
             g = int(np.searchsorted(self.bounds, c, side="right")) - 1
             if g == 0:
-                results[position] = _apply(self.local.envs[c], kind, name, payload)
+                results[position] = apply_to_env(self.local.envs[c], kind, name, payload)
             else:
                 remote.setdefault(g, []).append((position, c - self.bounds[g]))
         for g, items in remote.items():
