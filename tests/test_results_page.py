@@ -1,4 +1,5 @@
-"""docs/results.md, the current answers: its size, a command before every table, and links that lead somewhere.
+"""docs/results.md, the current answers: its size, a command before every table, the version of every experiment's
+table, and links that lead somewhere.
 
 A table is a markdown pipe table (a row of ``|`` cells over a ``|---|`` separator) or a fenced code block of printed
 output (a fenced block whose first line is not itself a command). Its command is a backtick span or a fenced block
@@ -118,6 +119,13 @@ def test_size():
 def test_every_table_has_its_command():
     missing = tables_without_command(PAGE.read_text())
     assert not missing, f"tables with no command before them in their section, at lines {missing} of docs/results.md"
+
+
+def test_every_experiment_section_names_the_version_that_made_it():
+    sections = re.findall(r"<!-- experiment:(\w+):begin -->(.*?)<!-- experiment:\1:end -->", PAGE.read_text(), re.S)
+    made_with = re.compile(r"^Made with sb3-emmarl \S+, git commit [0-9a-f]{12}(\+dirty)?\.$", re.M)
+    unnamed = [name for name, body in sections if not made_with.search(body)]
+    assert len(sections) == 10 and not unnamed, f"experiment sections without their version: {unnamed}"
 
 
 def test_the_check_finds_a_table_without_a_command():
