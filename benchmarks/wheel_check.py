@@ -3,7 +3,7 @@
 Core install (no extras): rl_zoo3, pygame and matplotlib are absent, EM-PPO trains on the reserve (a few thousand
 agent-steps, save, load, ``evaluate_policy``), ``emmarl patrol`` runs, the first run says that it compiles the reserve's
 kernels, and ``import sb3_emmarl.zoo`` / ``emmarl train`` fail with one line naming the ``[zoo]`` extra. Then with
-``[zoo]`` (and ``[plots]`` when the wheel has ``sb3_emmarl/plots.py``): ``emmarl train`` (20k agent-steps),
+``[zoo]`` alone: ``emmarl train`` (20k agent-steps),
 ``emmarl enjoy`` (metrics; its GIF names the ``[render]`` extra), ``emmarl experiment --list``, ``emmarl plot``.
 
 Each step prints ``ok`` or ``FAIL`` with its time; the script exits 1 at the first failure. Torch is installed first,
@@ -23,7 +23,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -136,7 +135,6 @@ def main(argv: list[str] | None = None) -> int:
         checker.run("build the wheel", [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
                                         "--quiet", "-w", str(dist), str(source)], show=0)
         wheel = next(dist.glob("sb3_emmarl-*.whl"))
-        has_plots = "sb3_emmarl/plots.py" in zipfile.ZipFile(wheel).namelist()
         print(f"       | {wheel.name} ({wheel.stat().st_size / 1024:.0f} KiB)")
         checker.run("a fresh venv (no system site-packages)", [sys.executable, "-m", "venv", str(temp / "venv")], show=0)
         checker.pip(f"torch=={args.torch_version or torch_version()}", f"torch=={args.torch_version or torch_version()}")
@@ -153,8 +151,7 @@ def main(argv: list[str] | None = None) -> int:
                     expect_line=ZOO_MESSAGE)
         checker.run("emmarl train without [zoo]", ["emmarl", "train", "--help"], expect_code=1,
                     expect_line=f"emmarl train: {ZOO_MESSAGE}")
-        extras = "zoo,plots" if has_plots else "zoo"
-        checker.pip(f"the wheel with [{extras}]", f"{wheel}[{extras}]")
+        checker.pip("the wheel with [zoo]", f"{wheel}[zoo]")
         env_id = checker.run("the reserve's zoo id", [python, "-c", "from sb3_emmarl.common.environments import ENV_ID; "
                                                       "print(ENV_ID)"], show=1).stdout.strip()
         checker.run(f"emmarl train --algo em_ppo -n {args.zoo_steps}",
@@ -168,13 +165,10 @@ def main(argv: list[str] | None = None) -> int:
                     expect_line="emmarl enjoy: drawing the reserve needs pygame: pip install 'sb3-emmarl[render]'",
                     show=0)
         checker.run("emmarl experiment --list", ["emmarl", "experiment", "--list"], show=20)
-        if has_plots:
-            checker.run("emmarl plot (learning curve of the run)", ["emmarl", "plot", "-f", "logs", "-a", "em_ppo", "-w", "4",
-                                                                    "-o", "curves.png"], show=2)
-            checker.run("the figure is a PNG", [python, "-c", "import pathlib; data = pathlib.Path('curves.png')"
-                                                ".read_bytes(); raise SystemExit(0 if data[:4] == b'\\x89PNG' else 1)"])
-        else:
-            print("skip emmarl plot (the wheel has no sb3_emmarl/plots.py)")
+        checker.run("emmarl plot (learning curve of the run)", ["emmarl", "plot", "-f", "logs", "-a", "em_ppo", "-w", "4",
+                                                                "-o", "curves.png"], show=2)
+        checker.run("the figure is a PNG", [python, "-c", "import pathlib; data = pathlib.Path('curves.png')"
+                                            ".read_bytes(); raise SystemExit(0 if data[:4] == b'\\x89PNG' else 1)"])
         print("wheel check passed")
         return 0
     finally:

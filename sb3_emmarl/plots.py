@@ -18,7 +18,7 @@ standard error (or the median and quartiles) over runs; :func:`seed_bars` draws 
 the quartiles as whiskers, every seed as a dot) on an axis chosen by :func:`readable_limits`, where a seed that would
 squeeze the others into a sliver of the axis is drawn as an arrow at the axis' edge with its value written beside it.
 
-Figures are drawn with matplotlib (the ``[plots]`` extra) on its ``Agg`` canvas, without pyplot, and saved in the
+Figures are drawn with matplotlib (the ``[zoo]`` extra) on its ``Agg`` canvas, without pyplot, and saved in the
 format of the output's extension (``.png``, ``.pdf``, ``.svg``).
 """
 
@@ -57,7 +57,7 @@ MIN_SHARE = 0.25
 
 def _require_matplotlib() -> None:
     """Fail with one line naming the extra when matplotlib is not installed."""
-    with requires("matplotlib", "plots", "plotting"):
+    with requires("matplotlib", "zoo", "plotting"):
         import matplotlib  # noqa: F401
 
 

@@ -251,7 +251,7 @@ def test_several_environments_need_env(logs: Path, capsys):
 
 def test_missing_matplotlib_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    with pytest.raises(ModuleNotFoundError, match=r"pip install 'sb3-emmarl\[plots\]'"):
+    with pytest.raises(ModuleNotFoundError, match=r"pip install 'sb3-emmarl\[zoo\]'"):
         plots._require_matplotlib()
 
 

@@ -34,7 +34,7 @@ from sb3_emmarl.experiments.spec import ExperimentSpec
 from sb3_emmarl.experiments.store import UNKNOWN
 from wildlife_reserve.reserve.terrain import TERRAIN_NAMES
 
-with requires("matplotlib", "plots", "the experiments' figures"):
+with requires("matplotlib", "zoo", "the experiments' figures"):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import ListedColormap
     from matplotlib.figure import Figure
