@@ -34,9 +34,9 @@ COMMANDS: dict[str, Command] = {
     "train": Command("sb3_emmarl.zoo.cli:train_main", "train an agent with rl-baselines3-zoo's flags [zoo]"),
     "enjoy": Command("sb3_emmarl.zoo.cli:enjoy_main", "a trained team's metrics and a GIF of its patrol [zoo, render]"),
     "experiment": Command("sb3_emmarl.experiments.cli:experiment_main",
-                          "the paper's experiments: run the missing cells, then their tables and figures [zoo, plots]"),
+                          "the paper's experiments: run the missing cells, then their tables and figures [zoo]"),
     "compare": Command("sb3_emmarl.zoo.benchmark:compare_main", "variants at one budget over seeds, paired tests [zoo]"),
-    "plot": Command("sb3_emmarl.plots:main", "learning curves and per-seed bar figures of runs [zoo, plots]"),
+    "plot": Command("sb3_emmarl.plots:main", "learning curves and per-seed bar figures of runs [zoo]"),
     "patrol": Command("sb3_emmarl.patrol:patrol_main", "a scripted patrol's team metrics on the reserve"),
     "benchmark": Command("sb3_emmarl.zoo.benchmark:benchmark_main", "trained teams against the random team [zoo]"),
 }
@@ -47,7 +47,7 @@ def usage(prog: str) -> str:
     width = max(map(len, COMMANDS)) + 2
     lines = [f"usage: {prog} <command> [arguments]   ({prog} <command> --help for a command's flags)", "",
              f"sb3-emmarl {__version__}: EM-PPO and the multi-agent baselines on the wildlife reserve.", "",
-             "commands (extras they need in brackets: pip install 'sb3-emmarl[zoo,render,plots]'):"]
+             "commands (extras they need in brackets: pip install 'sb3-emmarl[zoo,render]'):"]
     lines += [f"  {name:<{width}}{command.help}" for name, command in COMMANDS.items()]
     return "\n".join(lines)
 

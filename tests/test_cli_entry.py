@@ -112,9 +112,9 @@ def test_drawing_the_reserve_without_pygame_names_the_render_extra(monkeypatch):
         env.render()
 
 
-def test_the_experiments_figures_without_matplotlib_name_the_plots_extra(monkeypatch):
+def test_the_experiments_figures_without_matplotlib_name_the_zoo_extra(monkeypatch):
     _without(monkeypatch, "matplotlib", "sb3_emmarl.experiments.report")
-    with pytest.raises(MissingExtra, match=r"needs matplotlib: pip install 'sb3-emmarl\[plots\]'$"):
+    with pytest.raises(MissingExtra, match=r"needs matplotlib: pip install 'sb3-emmarl\[zoo\]'$"):
         importlib.import_module("sb3_emmarl.experiments.report")
 
 
