@@ -5,7 +5,7 @@ TORCH_VERSION ?= 2.13.0
 PIP = $(PYTHON) -m pip install --quiet --disable-pip-version-check
 
 .PHONY: install main test pytest lint type format check-codestyle commit-checks docs docs-check benchmark-env benchmark-ppo benchmark-em benchmark-latent-tasks benchmark-em-speed \
-	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-zone-patrol-gate benchmark-zone-patrol-value benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
+	benchmark-mode-evidence benchmark-mixture-ceiling benchmark-zone-patrol-gate benchmark-zone-patrol-reach benchmark-zone-patrol-value benchmark-mode-value benchmark-mode-value-0-1-0 benchmark-kill-resume benchmark-fuzz benchmark-matrix-game benchmark-baselines benchmark-message-policies benchmark-train-speed \
 	experiments-quick experiments-full experiments-report wheel-check
 
 # Every extra (zoo, render, plots, ray, docs, tests, bench: setup.cfg), as the suite and the docs need them all.
@@ -141,12 +141,23 @@ benchmark-message-policies: install
 benchmark-zone-patrol-gate: install
 	$(PYTHON) benchmarks/zone_patrol_gate.py
 
+# Where a ZonePatrol team's evidence goes, no training: the evidence reach along the links and the exact posterior's
+# accuracy from one UAV's, the linked and the whole team's readings, for scripted teams at several ranges (a minute).
+benchmark-zone-patrol-reach: install
+	$(PYTHON) benchmarks/zone_patrol_reach.py
+
 # What knowing the mode pays a learned team on ZonePatrol: told PPO, PPO, the random-label control and EM-PPO, 10 seeds
-# x 1M agent-steps (hours on 2 cores; a killed run resumes), then the report.
+# x 1M agent-steps, then the arms beside them on seeds 0-4 and the confirmation on seeds 10-19 (about 7 hours on 2 cores;
+# a killed run resumes), then the two reports (docs/zone_patrol.md's protocol).
 ZONE_PATROL_FOLDER ?= logs/zone_patrol_value
 benchmark-zone-patrol-value: install
 	$(PYTHON) benchmarks/zone_patrol_value.py run --folder $(ZONE_PATROL_FOLDER)
+	$(PYTHON) benchmarks/zone_patrol_value.py run --folder $(ZONE_PATROL_FOLDER) --seeds 0 1 2 3 4 \
+		--variants em_ppo_nofusion em_ppo_team exact_belief ppo_lstm mappo
+	$(PYTHON) benchmarks/zone_patrol_value.py run --folder $(ZONE_PATROL_FOLDER)_confirmation \
+		--seeds 10 11 12 13 14 15 16 17 18 19 --variants told ppo em_ppo
 	$(PYTHON) benchmarks/zone_patrol_value.py report --folder $(ZONE_PATROL_FOLDER)
+	$(PYTHON) benchmarks/zone_patrol_value.py report --folder $(ZONE_PATROL_FOLDER)_confirmation
 
 # The package as a user gets it: the wheel in a fresh venv outside the checkout, core only (trains EM-PPO; no rl_zoo3,
 # pygame or matplotlib; the zoo's import says which extra to add), then with [zoo]: emmarl train, enjoy, experiment

@@ -9,7 +9,13 @@ best blind team on the held-out episodes (mean +- std, their ratio, the paired t
 mode), and the stepping speed of 16 copies x 4 UAVs with random actions against the reserve's batched vector
 environment (agent-steps per second, one process, taking turns).
 
-Example: ``python benchmarks/zone_patrol_gate.py`` (about a minute)
+The held-out lines end with how often the exact posterior of the whole team's zone readings tells the zone at
+mid-episode (:func:`~wildlife_reserve.zone_patrol.posterior.zone_posterior`: what a belief that pools the team's
+evidence can reach). ZonePatrol's default ``zone_cue`` (``zone_patrol_v1``) was chosen on this gate: the largest of
+0.20, 0.21, ..., 0.25 at which the told team earns 1.5 times the best blind team and that posterior is right 0.9 of
+the time.
+
+Example: ``python benchmarks/zone_patrol_gate.py`` (about a minute; ``--zone-cue 0``: zone_patrol_v0's task)
 """
 
 from __future__ import annotations
@@ -21,16 +27,18 @@ import time
 import numpy as np
 from scipy import stats
 
-from wildlife_reserve.zone_patrol.scripted import BlindTeam, ToldTeam, blind_plans, play
-from wildlife_reserve.zone_patrol.world import ZonePatrolConfig, ZonePatrolWorld
+from wildlife_reserve.zone_patrol.scripted import BlindTeam, ToldTeam, blind_plans, play_and_read
+from wildlife_reserve.zone_patrol.world import N_WEATHERS, ZonePatrolConfig, ZonePatrolWorld
 
 
-def episodes(team, config: ZonePatrolConfig, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Team rewards of ``n`` episodes (one batch of copies) and their modes; the modes come from their own generator,
-    so every team meets the same modes and starting states."""
+def episodes(team, config: ZonePatrolConfig, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Team rewards of ``n`` episodes (one batch of copies), their modes, and whether the exact posterior of the whole
+    team's zone readings tells each episode's zone at mid-episode (step ``max_cycles // 2``); the modes come from their
+    own generator, so every team meets the same modes and starting states."""
     world = ZonePatrolWorld(config, n)
     modes = np.random.default_rng([seed, 1]).integers(config.n_modes, size=n)
-    return play(team, world, np.random.default_rng(seed), modes), modes
+    rewards, posterior = play_and_read(team, world, np.random.default_rng(seed), modes, config.max_cycles // 2)
+    return rewards, modes, posterior.argmax(1) == modes // N_WEATHERS
 
 
 def gate(config: ZonePatrolConfig, fit: int = 300, held_out: int = 300) -> str:
@@ -41,14 +49,17 @@ def gate(config: ZonePatrolConfig, fit: int = 300, held_out: int = 300) -> str:
         scores[plan] = episodes(BlindTeam(*plan), config, fit, 0)[0].mean()
         lines.append(f"{plan!s:<40}{scores[plan]:>20.3f}")
     best = max(scores, key=scores.get)
-    told, modes = episodes(ToldTeam(), config, held_out, 1)
-    blind, _ = episodes(BlindTeam(*best), config, held_out, 1)
+    told, modes, right = episodes(ToldTeam(), config, held_out, 1)
+    blind = episodes(BlindTeam(*best), config, held_out, 1)[0]
     diff = told - blind
     lines += ["", f"held-out episodes: {held_out} (seed 1); the best blind plan on the fitting episodes: {best}",
               f"told {told.mean():.3f} +- {told.std():.3f}; best blind {blind.mean():.3f} +- {blind.std():.3f}; "
               f"ratio {told.mean() / blind.mean():.3f}; difference {diff.mean():.3f} +- {diff.std():.3f}",
               f"paired t p = {stats.ttest_rel(told, blind).pvalue:.3g}; Wilcoxon p = {stats.wilcoxon(diff).pvalue:.3g}; "
               f"told higher in {int((diff > 0).sum())} of {held_out} episodes",
+              f"the exact posterior of the whole team's zone readings tells the zone at step {config.max_cycles // 2} "
+              f"of {config.max_cycles} in {right.mean():.3f} of the held-out episodes"
+              + ("" if config.zone_cue else " (no zone readings: chance)"),
               f"{'mode (zone, weather)':<24}{'episodes':>9}{'told':>9}{'blind':>9}"]
     for mode in range(config.n_modes):
         mine = modes == mode
@@ -101,7 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit", type=int, default=300, help="fitting episodes per blind plan")
     parser.add_argument("--episodes", type=int, default=300, help="held-out episodes")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed comparison")
-    parser.add_argument("--zone-cue", type=float, default=0.0, help="ZonePatrol's zone_cue (0: no zone readings)")
+    parser.add_argument("--zone-cue", type=float, default=ZonePatrolConfig.zone_cue,
+                        help=f"ZonePatrol's zone_cue (default {ZonePatrolConfig.zone_cue}, zone_patrol_v1's; 0: no zone "
+                             "readings, as zone_patrol_v0)")
     args = parser.parse_args(argv)
     if args.fit < 1 or args.episodes < 2:
         parser.error(f"--fit must be >= 1 and --episodes >= 2, got {args.fit} and {args.episodes}")

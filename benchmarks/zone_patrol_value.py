@@ -46,7 +46,8 @@ from scipy import stats
 
 #: Each variant's zoo algorithm (its settings: the zoo YAML's ``ZonePatrol-v0`` section) and its arguments beyond them.
 ALGOS = {"told": ("oracle_ppo", {}), "ppo": ("ppo", {}), "control": ("oracle_ppo", {"random_label": True}),
-         "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"fusion": False}), "ppo_lstm": ("ppo_lstm", {}),
+         "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"fusion": False}),
+         "em_ppo_team": ("em_ppo", {"fusion": "team"}), "exact_belief": ("ppo", {}), "ppo_lstm": ("ppo_lstm", {}),
          "mappo": ("mappo", {})}
 VARIANTS = tuple(ALGOS)
 #: The variants ``run`` trains unless ``--variants`` says otherwise (the protocol's four; the rest are reported beside).
@@ -84,7 +85,8 @@ class Task(NamedTuple):
 
 
 #: The tasks: ZonePatrol (60 steps) and the reserve's zone raids (200 steps).
-TASKS = {"zone_patrol": Task("ZonePatrol", "ZonePatrol-v0", "wildlife_reserve.zone_patrol_v0", (), 30),
+TASKS = {"zone_patrol": Task("ZonePatrol", "ZonePatrol-v1", "wildlife_reserve.zone_patrol_v1", (), 30),
+         "zone_patrol_v0": Task("ZonePatrol v0", "ZonePatrol-v0", "wildlife_reserve.zone_patrol_v0", (), 30),
          "zone_raids": Task("the reserve's zone raids", "WildlifeReserve-v1", "wildlife_reserve.reserve_v1",
                             (("scenario", "zone_raids"),), 100)}
 
@@ -108,25 +110,40 @@ def build(variant: str, seed: int, env_kwargs: dict | None = None, task: str = "
     from sb3_emmarl.zoo.exp_manager import zoo_model
 
     algo, overrides = ALGOS[variant]
-    return zoo_model(algo, make_env(seed, env_kwargs=env_kwargs, task=task), seed, TASKS[task].env_id, **overrides)
+    env = make_env(seed, env_kwargs=env_kwargs, task=task)
+    if variant != "exact_belief":
+        return zoo_model(algo, env, seed, TASKS[task].env_id, **overrides)
+    from sb3_emmarl.common.initialization import zero_tail_weights
+
+    model = zoo_model(algo, ExactBelief(env), seed, TASKS[task].env_id, **overrides)
+    zero_tail_weights(model.policy, 8)  # (as OraclePPO starts the weights on its one-hot)
+    return model
 
 
 def play(model, venv, episodes: int, seed: int, random: bool = False, beliefs: list | None = None,
-         mid_episode: int = 30) -> tuple[list[float], np.ndarray]:
+         mid_episode: int = 30, exact: list | None = None) -> tuple[list[float], np.ndarray]:
     """Team rewards of ``episodes`` team episodes (the first agent of each copy reports its copy's), and one visited
     observation per step (as the model saw it); ``random`` plays uniformly random actions instead. ``beliefs``, if
-    given, receives ``(belief, mode)`` of every UAV at step ``mid_episode`` (the observations' last 8 values)."""
+    given, receives ``(belief, mode)`` of every UAV at step ``mid_episode`` (the observations' last 8 values);
+    ``exact`` (ZonePatrol), ``(log-likelihood of each mode, mode)`` of every copy's whole team from the readings of its
+    observations up to step ``mid_episode`` (:func:`~wildlife_reserve.zone_patrol.posterior.reading_log_likelihoods`:
+    the exact team posterior of the readings, on the same episodes as the beliefs)."""
     import torch as th
 
     per_copy = int(getattr(venv, "agents_per_copy", 1))
     rewards: list[float] = []
     visited = []
     rng = np.random.default_rng(seed)
+    config = venv.get_attr("config", [0])[0] if exact is not None else None
     with th.random.fork_rng():
         th.manual_seed(seed)
         obs = venv.reset()
         state, starts = None, np.ones(venv.num_envs, dtype=bool)
         steps = np.zeros(venv.num_envs, dtype=np.int64)
+        if config is not None:
+            from wildlife_reserve.zone_patrol.posterior import reading_log_likelihoods
+
+            team_evidence = reading_log_likelihoods(config, obs)
         while len(rewards) < episodes:
             if len(visited) < 1024:
                 visited.append(np.array(obs[0]))
@@ -138,11 +155,73 @@ def play(model, venv, episodes: int, seed: int, random: bool = False, beliefs: l
             steps = np.where(starts, 0, steps + 1)
             if beliefs is not None:
                 beliefs.extend((obs[i, -8:], infos[i]["mode"]) for i in np.flatnonzero(steps == mid_episode))
+            if config is not None:
+                step_evidence = reading_log_likelihoods(config, obs)
+                team_evidence = np.where(starts[:, None], step_evidence, team_evidence + step_evidence)
+                for copy in np.flatnonzero(steps[::per_copy] == mid_episode):
+                    rows = slice(copy * per_copy, (copy + 1) * per_copy)
+                    exact.append((team_evidence[rows].sum(0), infos[copy * per_copy]["mode"]))
             for i in np.flatnonzero(starts):
                 if i % per_copy == 0:
                     rewards.append(float(infos[i]["metrics"]["team_reward"]))
     venv.close()
     return rewards[:episodes], np.stack(visited)
+
+
+class ExactBelief:
+    """A vector environment wrapper (built lazily: SB3's ``VecEnvWrapper`` is imported by the workers only) whose
+    observations end with each UAV's exact posterior of the mode from the readings that reached it along the links
+    (:func:`~wildlife_reserve.zone_patrol.posterior.reading_log_likelihoods`, fused as EM-PPO's beliefs are, terminal
+    observations included): what the ``exact_belief`` variant trains on, and what told runs act on in place of the mode
+    in their ``belief_executed`` evaluation."""
+
+    def __new__(cls, venv):
+        from gymnasium import spaces
+        from stable_baselines3.common.vec_env import VecEnvWrapper
+
+        from sb3_emmarl.common.latent.belief import BeliefTracker
+        from wildlife_reserve.zone_patrol.posterior import reading_log_likelihoods
+
+        class Wrapper(VecEnvWrapper):
+            def __init__(self, venv) -> None:
+                space = venv.observation_space
+                super().__init__(venv, observation_space=spaces.Box(
+                    np.concatenate([space.low, np.zeros(8, np.float32)]),
+                    np.concatenate([space.high, np.ones(8, np.float32)])))
+                self.config = venv.get_attr("config", [0])[0]
+                self.tracker = BeliefTracker(venv.num_envs, 8, 1, 1, agents_per_copy=venv.agents_per_copy)
+
+            def _augment(self, obs):
+                return np.concatenate([obs, self.tracker.beliefs()], axis=1).astype(np.float32)
+
+            def reset(self):
+                obs = self.venv.reset()
+                self.tracker.start(np.arange(self.num_envs), np.zeros((self.num_envs, 1)))
+                self.tracker.evidence[:] = reading_log_likelihoods(self.config, obs)
+                return self._augment(obs)
+
+            def step_wait(self):
+                obs, rewards, dones, infos = self.venv.step_wait()
+                seen = np.array(obs, copy=True)
+                done = np.flatnonzero(dones)
+                for i in done:
+                    seen[i] = infos[i]["terminal_observation"]
+                self.tracker.evidence += reading_log_likelihoods(self.config, seen)
+                self.tracker.fuse(infos)
+                if len(done):  # (the terminal observations with the episode's last belief, as SB3's rollouts read them)
+                    infos = list(infos)
+                    for i, belief in zip(done, self.tracker.beliefs(done)):
+                        infos[i] = {**infos[i], "terminal_observation": np.concatenate([seen[i], belief]).astype(np.float32)}
+                self.tracker.start(done, np.zeros((len(done), 1)))
+                self.tracker.evidence[done] = reading_log_likelihoods(self.config, obs[done])
+                return self._augment(obs), rewards, dones, infos
+
+        return Wrapper(venv)
+
+
+def exact_belief(env_kwargs: dict | None = None, task: str = "zone_patrol"):
+    """The evaluation episodes with :class:`ExactBelief`."""
+    return ExactBelief(make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task))
 
 
 def wrong(relabel: list[int], env_kwargs: dict | None = None, task: str = "zone_patrol"):
@@ -171,22 +250,32 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
     model.learn(budget)
     record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task,
               "seconds": time.perf_counter() - start}
-    wrap = getattr(model, "wrap_env", lambda v: v)
+    wrap = getattr(model, "wrap_env", ExactBelief if variant == "exact_belief" else lambda v: v)
     beliefs: list = []
+    exact: list = []
+    latent, zone_patrol = variant.startswith("em_ppo"), task.startswith("zone_patrol")
     evaluation = make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task)
     record["team_reward"], visited = play(model, wrap(evaluation), episodes, EVAL_SEED,
-                                          beliefs=beliefs if variant.startswith("em_ppo") else None,
-                                          mid_episode=TASKS[task].mid_episode)
+                                          beliefs=beliefs if latent else None, mid_episode=TASKS[task].mid_episode,
+                                          exact=exact if latent and zone_patrol else None)
     if beliefs:
-        from sb3_emmarl.common.latent.metrics import align_components, latent_accuracy
+        from sb3_emmarl.common.latent.metrics import align_components
 
         posteriors, modes = np.stack([b for b, _ in beliefs]), np.array([m for _, m in beliefs])
-        record["belief_accuracy"] = latent_accuracy(posteriors, modes, align_components(posteriors, modes, 8))
-    if variant in ("told", "control") or variant.startswith("em_ppo"):
+        aligned = align_components(posteriors, modes, 8)[posteriors.argmax(1)]
+        record["belief_accuracy"] = float(np.mean(aligned == modes))
+        record["belief_zone_accuracy"] = float(np.mean(aligned // 2 == modes // 2))
+    if exact:
+        evidence, modes = np.stack([e for e, _ in exact]), np.array([m for _, m in exact])
+        record["exact_team_accuracy"] = float(np.mean(evidence.argmax(1) == modes))
+        record["exact_team_zone_accuracy"] = float(np.mean(evidence.argmax(1) // 2 == modes // 2))
+    if variant in ("told", "control") or latent:
         record["swap_kl"] = belief_use(model.policy, visited, 8)
     if variant == "told":
         for name, relabel in WRONG.items():
             record[name] = play(model, wrong(relabel, env_kwargs, task)(), episodes, EVAL_SEED)[0]
+        if zone_patrol:  # acting on the exact posterior of the readings that reached each UAV, in place of the mode
+            record["belief_executed"] = play(model, exact_belief(env_kwargs, task), episodes, EVAL_SEED)[0]
     if variant.startswith("em_ppo"):
         from stable_baselines3.common.vec_env import VecEnvWrapper
 
@@ -263,27 +352,58 @@ def null_calibration(label: dict[int, list[float]], plain: dict[int, list[float]
     return observed, hits / draws
 
 
-def recovered(by: dict[str, dict[int, dict]], variant: str) -> list[str]:
-    """The share of the told gain an EM variant recovers, ``(variant - ppo) / (told - ppo)`` with a 90% bootstrap
-    interval over seeds, and the variant against itself with its belief permuted (over the seeds all three ran)."""
-    seeds = sorted(set(by["told"]) & set(by["ppo"]) & set(by[variant]))
+def recovered(by: dict[str, dict[int, dict]], variant: str, key: str = "team_reward", name: str | None = None
+              ) -> list[str]:
+    """The share of the told gain a variant recovers, ``(variant - ppo) / (told - ppo)`` with a 90% bootstrap
+    interval over seeds, and, for an EM variant, the variant against itself with its belief permuted (over the seeds
+    all three ran). ``key`` is the variant's score (``"belief_executed"``: the told runs acting on the exact belief),
+    ``name`` what the report calls it."""
+    seeds = sorted(set(by["told"]) & set(by["ppo"]) & {s for s, r in by[variant].items() if key in r})
     if len(seeds) < 2:
         return []
+    name = name or variant
 
-    def means(name: str, key: str = "team_reward") -> np.ndarray:
-        return np.array([np.mean(by[name][s][key]) for s in seeds])
+    def means(run: str, what: str = "team_reward") -> np.ndarray:
+        return np.array([np.mean(by[run][s][what]) for s in seeds])
 
-    em, told, ppo = means(variant), means("told"), means("ppo")
+    em, told, ppo = means(variant, key), means("told"), means("ppo")
     if (told - ppo).mean() == 0:
-        share = f"({variant} - ppo) / (told - ppo): undefined, told and ppo score alike"
+        share = f"({name} - ppo) / (told - ppo): undefined, told and ppo score alike"
     else:
         draws = np.random.default_rng(0).integers(len(seeds), size=(10_000, len(seeds)))
         with np.errstate(divide="ignore", invalid="ignore"):
             boot = (em[draws] - ppo[draws]).mean(1) / (told[draws] - ppo[draws]).mean(1)
         low, high = np.nanpercentile(boot, [5, 95])
-        share = (f"({variant} - ppo) / (told - ppo) = {(em - ppo).mean() / (told - ppo).mean():.3f}, 90% bootstrap "
+        share = (f"({name} - ppo) / (told - ppo) = {(em - ppo).mean() / (told - ppo).mean():.3f}, 90% bootstrap "
                  f"interval over seeds [{low:.3f}, {high:.3f}] (seeds {seeds})")
-    return [share, paired(variant, em, f"{variant}, belief permuted", means(variant, "permuted"))]
+    if "permuted" not in by[variant][seeds[0]]:
+        return [share, paired(name, em, "ppo", ppo)]
+    permuted = means(variant, "permuted")
+    return [share, paired(variant, em, f"{variant}, belief permuted", permuted),
+            exceeds(f"{variant} - {variant} permuted", em - permuted, f"({variant} - ppo) / 2", (em - ppo) / 2)]
+
+
+def exceeds(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:
+    """Whether the per-seed ``a`` exceed ``b``: their means and the one-sided paired t p-value."""
+    excess = a - b
+    p = float(stats.ttest_1samp(excess, 0.0, alternative="greater").pvalue) if np.any(excess != 0) else 1.0
+    return f"{name_a} = {a.mean():.3f}, {name_b} = {b.mean():.3f}: one-sided paired t p (the first above the second) {p:.3g}"
+
+
+#: The EM variants (their beliefs are scored).
+EM_VARIANTS = tuple(v for v in VARIANTS if v.startswith("em_ppo"))
+
+
+def settings(variant: str, task: str = "zone_patrol") -> str:
+    """The settings a variant trains with (PROTOCOL item 10: every comparison names them): its zoo YAML section's PPO
+    settings, and its latent settings (EM) or what it appends to the observation."""
+    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+
+    algo, overrides = ALGOS[variant]
+    section = {**zoo_hyperparams(algo, TASKS[task].env_id), **overrides}
+    keys = ("n_envs", "n_steps", "batch_size", "n_epochs", "ent_coef", "learning_rate", "policy_kwargs", "n_components",
+            "fusion", "team_pooling", "likelihood_temperature", "random_label", "policy")
+    return f"{variant} ({algo}): " + ", ".join(f"{k} {section[k]}" for k in keys if k in section)
 
 
 def heading(runs: list[dict]) -> str:
@@ -306,12 +426,16 @@ def heading(runs: list[dict]) -> str:
 def report(runs: list[dict], random_team: float | None = None) -> str:
     by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
     lines = [heading(runs)]
+    task = runs[0].get("task", "zone_patrol")
+    lines += ["settings: " + settings(v, task) for v in VARIANTS if by[v]]
 
     def means(variant: str, key: str = "team_reward", seeds: list[int] | None = None) -> np.ndarray:
         return np.array([np.mean(by[variant][s][key]) for s in seeds])
 
     for a, b in (("told", "ppo"), ("told", "control"), ("control", "ppo"), ("em_ppo", "ppo"), ("told", "em_ppo"),
-                 ("em_ppo", "em_ppo_nofusion"), ("ppo_lstm", "ppo"), ("mappo", "ppo")):
+                 ("em_ppo", "em_ppo_nofusion"), ("em_ppo_team", "ppo"), ("em_ppo_team", "em_ppo"), ("exact_belief", "ppo"),
+                 ("exact_belief", "em_ppo"), ("ppo_lstm", "ppo"),
+                 ("em_ppo", "ppo_lstm"), ("mappo", "ppo")):
         seeds = sorted(set(by[a]) & set(by[b]))
         if len(seeds) >= 2:
             ma, mb = means(a, seeds=seeds), means(b, seeds=seeds)
@@ -329,21 +453,29 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
             loss = means("told", seeds=seeds) - np.mean(
                 [means("told", f"wrong_zone_{shift}", seeds) for shift in (1, 2, 3)], axis=0)
             gain = means("told", seeds=seeds) - means("ppo", seeds=seeds)
-            excess = loss - gain / 2
-            p = float(stats.ttest_1samp(excess, 0.0, alternative="greater").pvalue) if np.any(excess != 0) else 1.0
-            lines.append(f"told right - told a wrong zone = {loss.mean():.3f}, (told - ppo) / 2 = {gain.mean() / 2:.3f}: "
-                         f"one-sided paired t p (the first above the second) {p:.3g}")
-    for variant in ("em_ppo", "em_ppo_nofusion"):
+            lines.append(exceeds("told right - told a wrong zone", loss, "(told - ppo) / 2", gain / 2))
+    for variant in EM_VARIANTS:
         lines += recovered(by, variant)
-    for variant in ("told", "control", "em_ppo", "em_ppo_nofusion"):
+    lines += recovered(by, "exact_belief")
+    lines += recovered(by, "told", "belief_executed", "told, acting on the exact belief along the links")
+    for variant in ("told", "control", *EM_VARIANTS):
         if by[variant]:
             kl = np.array([by[variant][s]["swap_kl"] for s in sorted(by[variant])])
             lines.append(f"{variant}: swap KL {kl.mean():.4f} +- {kl.std():.4f}")
-    for variant in ("em_ppo", "em_ppo_nofusion"):
+    mid = TASKS[task].mid_episode
+    for variant in EM_VARIANTS:
         if by[variant]:
-            acc = np.array([by[variant][s]["belief_accuracy"] for s in sorted(by[variant])])
-            lines.append(f"{variant}: belief tells the mode at mid-episode {acc.mean():.3f} +- {acc.std():.3f} "
+            seeds = sorted(by[variant])
+            acc = np.array([by[variant][s]["belief_accuracy"] for s in seeds])
+            lines.append(f"{variant}: belief tells the mode at step {mid} {acc.mean():.3f} +- {acc.std():.3f} "
                          f"(lowest {acc.min():.3f})")
+            if all("exact_team_zone_accuracy" in by[variant][s] for s in seeds):
+                zone, exact = (np.array([by[variant][s][k] for s in seeds])
+                               for k in ("belief_zone_accuracy", "exact_team_zone_accuracy"))
+                lines.append(f"{variant}: belief tells the zone at step {mid} {zone.mean():.3f} +- {zone.std():.3f}; the "
+                             f"exact posterior of the whole team's readings on the same episodes {exact.mean():.3f} +- "
+                             f"{exact.std():.3f}; ratio {zone.mean() / exact.mean():.3f} (per seed: lowest "
+                             f"{(zone / exact).min():.3f})")
     lines.append("training seconds per run (median): " + ", ".join(
         f"{v} {np.median([r['seconds'] for r in by[v].values()]):.0f}" for v in VARIANTS if by[v]))
     seeds = sorted(set(by["control"]) & set(by["ppo"]))

@@ -380,7 +380,7 @@ def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
         ({"e_step_kwargs": {"n_epochs": 0}}, r"e_step_kwargs\['n_epochs'\] must be an int in \[1, 1000\], got 0"),
         ({"e_step_kwargs": {"learning_rate": float("inf")}}, r"e_step_kwargs\['learning_rate'\] must be a number"),
         ({"likelihood_temperature": 0.0}, r"likelihood_temperature must be a number in \(0.0, 100.0\], got 0.0"),
-        ({"fusion": "no"}, "fusion must be true or false, got 'no'"),
+        ({"fusion": "no"}, "fusion must be true or false or one of \\['team'\\], got 'no'"),
         ({"decoder_hidden": "64"}, "decoder_hidden must be a list of layer sizes"),
         ({"decoder_hidden": [64, -1]}, r"decoder_hidden\[1\] must be an int in \[1, 4096\], got -1"),
         ({"e_step_interval": 0}, r"e_step_interval must be an int in \[1, 10000\], got 0"),
@@ -425,6 +425,8 @@ def test_evaluate_team_reports_latent_metrics_over_the_episode():
     for record in records:
         for key in ("latent_accuracy", "latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100"):
             assert 0.0 <= record[key] <= 1.0
+        for key in ("evidence_reach_25", "evidence_reach_50", "evidence_reach_100"):  # the reserve's links
+            assert 1 / SMALL["n_uavs"] <= record[key] <= 1.0
         assert record["latent_kl"] >= 0.0 and 0.0 <= record["latent_nmi"] <= 1.0
     assert len({r["latent_nmi"] for r in records}) == 1  # one alignment over all evaluated episodes
     assert len({r["belief_use"] for r in records}) == 1 and records[0]["belief_use"] > 0.0

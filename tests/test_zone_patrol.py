@@ -182,15 +182,20 @@ def test_the_gate_benchmark_prints_the_comparison_at_a_small_size(capsys):
     assert "the best blind plan on the fitting episodes" in text and "paired t p =" in text and "7 (3, fog)" in text
 
 
-def test_episodes_are_pinned_by_a_digest():
-    """Rewards, observations, states and links of three configurations over whole episodes: a change that moves any of
-    them changes an episode, and the environment's version must rise (``zone_patrol_v1``)."""
+@pytest.mark.parametrize("version, expected", [
+    (0, "806e273477ab14ea68724e66a49a47d46c6d929b0671ba87e29c7346296f1a60"),  # as pinned before v1 existed
+    (1, "aa42bbb2271fd170b6a637657158ab1ca2b65424d43c40e673c5c473dd60b3fe")])
+def test_episodes_are_pinned_by_a_digest(version, expected):
+    """Rewards, observations, states and links of three configurations over whole episodes, with each version's
+    defaults: a change that moves any of them changes an episode, and the environment's version must rise."""
     import hashlib
+
+    from wildlife_reserve.zone_patrol.zone_patrol import FORMER_DEFAULTS
 
     digest = hashlib.sha256()
     for kwargs in ({}, {"told": True, "n_uavs": 6, "grid_size": 12, "zone_size": 3},
                    {"window_radius": 1, "spawn_prob": 1.0, "intruder_life": 1}):
-        config = ZonePatrolConfig(**kwargs)
+        config = ZonePatrolConfig(**{**FORMER_DEFAULTS.get(version, {}), **kwargs})
         world, rng, actions = ZonePatrolWorld(config, 5), np.random.default_rng(3), np.random.default_rng(4)
         world.reset(rng)
         for _ in range(config.max_cycles):
@@ -198,7 +203,7 @@ def test_episodes_are_pinned_by_a_digest():
             links = np.array([sum(map(len, row)) for row in world.links()])
             for array in (rewards, world.observations(), world.states(), links):
                 digest.update(np.ascontiguousarray(array).tobytes())
-    assert digest.hexdigest() == "806e273477ab14ea68724e66a49a47d46c6d929b0671ba87e29c7346296f1a60"
+    assert digest.hexdigest() == expected
 
 
 def test_the_batched_and_supersuit_vector_environments_give_the_same_data():

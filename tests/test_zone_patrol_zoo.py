@@ -1,4 +1,4 @@
-"""ZonePatrol through the zoo (``--env ZonePatrol-v0``), the team evaluation, SB3's evaluation and the centralised view."""
+"""ZonePatrol through the zoo (``--env ZonePatrol-v1``), the team evaluation, SB3's evaluation and the centralised view."""
 
 import json
 
@@ -14,7 +14,7 @@ from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize, team_metric_keys
 from sb3_emmarl.zoo.cli import enjoy_main, latest_run, run_env_id, train_main
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams, zoo_model
-from wildlife_reserve import zone_patrol_v0
+from wildlife_reserve import zone_patrol_v0, zone_patrol_v1
 
 #: ZonePatrol's episode metrics (its world's ``metrics``).
 METRICS = ("team_reward", "detections", "escapes", "intruders", "detection_rate")
@@ -64,22 +64,31 @@ def test_enjoy_plays_and_records_a_zone_patrol_run(zoo_runs, capsys):
         assert image.n_frames > 10
 
 
+#: em_ppo.yml's likelihood_temperature on ZonePatrol: the transition features' evidence nearly off (docs/zone_patrol.md)
+LATENT_TEMPERATURE = 0.001
+
+
 def test_the_yamls_sections_are_the_protocols_settings():
     ppo, em = zoo_hyperparams("ppo", ZONE_PATROL_ID), zoo_hyperparams("em_ppo", ZONE_PATROL_ID)
     assert (ppo["n_envs"], ppo["n_steps"], ppo["batch_size"], ppo["n_epochs"], ppo["ent_coef"]) == (8, 128, 1024, 10, 0.01)
-    assert {k: v for k, v in em.items() if k not in ("n_components", "fusion")} == ppo
-    assert em["n_components"] == 8 and em["fusion"] is True
+    latent = {"n_components": 8, "fusion": True, "team_pooling": True, "likelihood_temperature": LATENT_TEMPERATURE,
+              "zero_belief_weights": True, "e_step_interval": 8,
+              "e_step_kwargs": zoo_hyperparams("em_ppo")["e_step_kwargs"]}  # the reserve's E-step schedule
+    assert {k: v for k, v in em.items() if k not in latent} == ppo  # EM-PPO at PPO's settings (PROTOCOL item 10)
+    assert {k: em[k] for k in latent} == latent
 
 
 def test_the_zoo_refuses_an_algorithm_without_a_zone_patrol_section(tmp_path, capsys):
     assert train(tmp_path, "ddpg") == 2
-    assert "has no mapping of hyperparameters under 'ZonePatrol-v0'" in capsys.readouterr().err
+    assert f"has no mapping of hyperparameters under '{ZONE_PATROL_ID}'" in capsys.readouterr().err
     assert not (tmp_path / "logs" / "ddpg").exists()
 
 
 def test_environment_ids_are_checked():
-    assert set(ENV_MODULES) == {"WildlifeReserve-v1", ZONE_PATROL_ID}
-    assert parallel_env_fn(ZONE_PATROL_ID) is zone_patrol_v0.parallel_env
+    assert set(ENV_MODULES) == {"WildlifeReserve-v1", ZONE_PATROL_ID, "ZonePatrol-v0"}
+    assert parallel_env_fn(ZONE_PATROL_ID) is zone_patrol_v1.parallel_env
+    assert parallel_env_fn("ZonePatrol-v0") is zone_patrol_v0.parallel_env
+    assert zoo_hyperparams("em_ppo", "ZonePatrol-v0") == zoo_hyperparams("em_ppo", ZONE_PATROL_ID)  # one section
     with pytest.raises(ValueError, match="unknown environment id 'CartPole-v1'; known"):
         check_env_id("CartPole-v1")
 
@@ -87,14 +96,14 @@ def test_environment_ids_are_checked():
 def test_evaluate_team_and_sb3s_evaluate_policy_on_zone_patrol():
     from sb3_emmarl.common.vec_env import make_vec_env
 
-    env = make_vec_env(2, seed=0, env_fn=zone_patrol_v0.parallel_env, vec_env_type="batched")
+    env = make_vec_env(2, seed=0, env_fn=zone_patrol_v1.parallel_env, vec_env_type="batched")
     model = zoo_model("em_ppo", env, seed=0, env_id=ZONE_PATROL_ID, n_steps=32)
     first = evaluate_team(model, n_episodes=3, seed=7, env_id=ZONE_PATROL_ID)
     assert first == evaluate_team(model, n_episodes=3, seed=7, env_id=ZONE_PATROL_ID)  # same seed, same episodes
     assert len(first) == 3 and team_metric_keys(first[0]) == METRICS
     table = format_summary(summarize(first))
     assert table.splitlines()[0].startswith("team_reward") and "latent_accuracy" in table
-    plain = make_vec_env(1, seed=3, env_fn=zone_patrol_v0.parallel_env, vec_env_type="batched")
+    plain = make_vec_env(1, seed=3, env_fn=zone_patrol_v1.parallel_env, vec_env_type="batched")
     mean, _ = evaluate_policy(model, plain, n_eval_episodes=4)
     assert np.isfinite(mean)
 

@@ -62,7 +62,9 @@ class TeamMetricsCallback(BaseCallback):
 class LatentMetricsCallback(BaseCallback):
     """Log how well the beliefs of an EM model tell the true mode during training: ``latent/accuracy_25``,
     ``latent/accuracy_50`` and ``latent/accuracy_100`` (aligned accuracy at the step a quarter, half and all of
-    the way through each episode that ended in the rollout) and ``latent/nmi``.
+    the way through each episode that ended in the rollout) and ``latent/nmi``; on a team with links (more than one
+    agent per copy), also ``latent/evidence_reach_25``, ``_50`` and ``_100``: the share of the team's evidence in the
+    beliefs at those steps (:meth:`~sb3_emmarl.common.latent.belief.BeliefTracker.evidence_reach`).
 
     Needs an environment whose infos carry ``"mode"`` (the reserve, the tasks of :mod:`sb3_emmarl.common.envs`);
     components are aligned to modes over the rollout's finished episodes (Hungarian matching).
@@ -73,22 +75,28 @@ class LatentMetricsCallback(BaseCallback):
     model: LatentAlgorithmMixin  # (an EM algorithm)
 
     def _init_callback(self) -> None:
-        #: (belief, mode) of every step of each entry's running episode, and of the episodes finished this rollout
-        self.current: list[list[tuple[np.ndarray, int]]] = [[] for _ in range(self.training_env.num_envs)]
-        self.finished: list[list[tuple[np.ndarray, int]]] = []
+        from sb3_emmarl.common.latent.belief import find_belief_wrapper
+
+        #: (belief, mode, evidence reach) of every step of each entry's running episode, and of the episodes finished
+        #: this rollout
+        self.current: list[list[tuple[np.ndarray, int, float]]] = [[] for _ in range(self.training_env.num_envs)]
+        self.finished: list[list[tuple[np.ndarray, int, float]]] = []
+        wrapper = find_belief_wrapper(self.training_env)
+        self.tracker = wrapper.tracker if wrapper is not None and wrapper.tracker.agents_per_copy > 1 else None
 
     def _on_rollout_start(self) -> None:
         self.finished = []
 
     def _on_step(self) -> bool:
         beliefs = self.model.posterior(self.locals["new_obs"])
+        reach = self.tracker.evidence_reach() if self.tracker is not None else np.ones(len(beliefs))
         for i, (done, info) in enumerate(zip(self.locals["dones"], self.locals["infos"])):
             if done:
                 if self.current[i]:
                     self.finished.append(self.current[i])
                 self.current[i] = []
             elif "mode" in info:
-                self.current[i].append((beliefs[i], int(info["mode"])))
+                self.current[i].append((beliefs[i], int(info["mode"]), float(reach[i])))
         return True
 
     def _on_rollout_end(self) -> None:
@@ -103,14 +111,17 @@ class LatentMetricsCallback(BaseCallback):
         episodes = [e for e in self.finished if len(e) >= 2]
         if not episodes:
             return
-        beliefs = np.array([b for e in episodes for b, _ in e])
-        modes = np.array([m for e in episodes for _, m in e])
+        beliefs = np.array([b for e in episodes for b, _, _ in e])
+        modes = np.array([m for e in episodes for _, m, _ in e])
         mapping = align_components(beliefs, modes)
         self.logger.record("latent/nmi", normalized_mutual_information(beliefs.argmax(1), modes))
         for fraction in EPISODE_FRACTIONS:
             picks = [e[fraction_step(fraction, len(e))] for e in episodes]
-            correct = [mapping[int(np.argmax(b))] == m for b, m in picks]
+            correct = [mapping[int(np.argmax(b))] == m for b, m, _ in picks]
             self.logger.record(f"latent/accuracy_{fraction_label(fraction)}", float(np.mean(correct)))
+            if self.tracker is not None:
+                self.logger.record(f"latent/evidence_reach_{fraction_label(fraction)}",
+                                   float(np.mean([reach for _, _, reach in picks])))
 
 
 class EvalCallback(sb3_callbacks.EvalCallback):

@@ -13,7 +13,8 @@ single-agent Stable-Baselines3 algorithm can train on the reserve:
     model = PPO("MlpPolicy", CentralizedReserveEnv(n_uavs=3, grid_size=20)).learn(10_000)
 
 :func:`register_envs` makes the same environment available as ``gymnasium.make("WildlifeReserve-v1", **env_kwargs)``,
-and ZonePatrol's (:class:`CentralizedZonePatrolEnv`) as ``gymnasium.make("ZonePatrol-v0", **env_kwargs)``.
+and ZonePatrol's (:class:`CentralizedZonePatrolEnv`) as ``gymnasium.make("ZonePatrol-v1", **env_kwargs)`` (its former
+version: :class:`CentralizedZonePatrolV0Env`, ``"ZonePatrol-v0"``).
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, check_env_id
-from wildlife_reserve import reserve_v1, zone_patrol_v0
+from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, ZONE_PATROL_V0_ID, check_env_id
+from wildlife_reserve import reserve_v1, zone_patrol_v0, zone_patrol_v1
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 #: Values of one UAV's continuous action: ``(d_row, d_col, comm)``.
@@ -136,6 +137,15 @@ class CentralizedZonePatrolEnv(CentralizedReserveEnv):
     """ZonePatrol as one single-agent Gymnasium environment: the global state, the joint action
     ``MultiDiscrete([n_actions] * n_uavs)``, the team reward (see :class:`CentralizedReserveEnv`).
 
+    :param env_kwargs: arguments of ``zone_patrol_v1.parallel_env``
+    """
+
+    parallel_env_fn = staticmethod(zone_patrol_v1.parallel_env)
+
+
+class CentralizedZonePatrolV0Env(CentralizedZonePatrolEnv):
+    """ZonePatrol's former version (``zone_patrol_v0``) as :class:`CentralizedZonePatrolEnv`.
+
     :param env_kwargs: arguments of ``zone_patrol_v0.parallel_env``
     """
 
@@ -144,7 +154,8 @@ class CentralizedZonePatrolEnv(CentralizedReserveEnv):
 
 #: The centralised view of each environment id.
 CENTRALIZED_ENVS: dict[str, type[CentralizedReserveEnv]] = {ENV_ID: CentralizedReserveEnv,
-                                                            ZONE_PATROL_ID: CentralizedZonePatrolEnv}
+                                                            ZONE_PATROL_ID: CentralizedZonePatrolEnv,
+                                                            ZONE_PATROL_V0_ID: CentralizedZonePatrolV0Env}
 
 
 def centralized_env(env_id: str = ENV_ID, **env_kwargs: Any) -> CentralizedReserveEnv:
@@ -156,7 +167,7 @@ def centralized_env(env_id: str = ENV_ID, **env_kwargs: Any) -> CentralizedReser
 
 
 def register_envs() -> None:
-    """Register the centralised views with Gymnasium (``"WildlifeReserve-v1"``, ``"ZonePatrol-v0"``).
+    """Register the centralised views with Gymnasium (``"WildlifeReserve-v1"``, ``"ZonePatrol-v1"``, ``"ZonePatrol-v0"``).
 
     Idempotent: calling it again does nothing. There is no ``max_episode_steps``: the environments
     truncate themselves after their episode length.

@@ -13,13 +13,18 @@ from typing import Any
 
 #: The wildlife reserve (:mod:`wildlife_reserve.reserve_v1`): the zoo's default environment.
 ENV_ID = "WildlifeReserve-v1"
-#: ZonePatrol (:mod:`wildlife_reserve.zone_patrol_v0`): the team task where the hidden mode decides the best action.
-ZONE_PATROL_ID = "ZonePatrol-v0"
+#: ZonePatrol (:mod:`wildlife_reserve.zone_patrol_v1`): the team task where the hidden mode decides the best action.
+ZONE_PATROL_ID = "ZonePatrol-v1"
+#: ZonePatrol's first version (:mod:`wildlife_reserve.zone_patrol_v0`: no zone readings, short links), kept so that its
+#: runs load and its results regenerate; the zoo's YAML files give it the settings of :data:`ZONE_PATROL_ID`.
+ZONE_PATROL_V0_ID = "ZonePatrol-v0"
 #: Every environment id and the module whose ``parallel_env`` builds it.
-ENV_MODULES: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve_v1", ZONE_PATROL_ID: "wildlife_reserve.zone_patrol_v0"}
+ENV_MODULES: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve_v1", ZONE_PATROL_ID: "wildlife_reserve.zone_patrol_v1",
+                               ZONE_PATROL_V0_ID: "wildlife_reserve.zone_patrol_v0"}
 #: The configuration class of each id (``module:class``): its ``from_kwargs`` checks arguments without building.
 ENV_CONFIGS: dict[str, str] = {ENV_ID: "wildlife_reserve.reserve.config:ReserveConfig",
-                               ZONE_PATROL_ID: "wildlife_reserve.zone_patrol.world:ZonePatrolConfig"}
+                               ZONE_PATROL_ID: "wildlife_reserve.zone_patrol.world:ZonePatrolConfig",
+                               ZONE_PATROL_V0_ID: "wildlife_reserve.zone_patrol.world:ZonePatrolConfig"}
 
 
 #: Former ids, still taken (with a warning, once per process), and the current id each gives: PettingZoo's rule, the

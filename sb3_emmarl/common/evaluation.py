@@ -336,16 +336,24 @@ class LatentTracker:
     a distribution or an actor, the overall ``belief_use``: how far its actions move when the belief is permuted
     between components, over one observation per evaluated step (at most
     :data:`~sb3_emmarl.common.latent.diagnostics.BELIEF_USE_ROWS`; see
-    :func:`~sb3_emmarl.common.latent.diagnostics.belief_use`), 0 for a policy that ignores its belief.
+    :func:`~sb3_emmarl.common.latent.diagnostics.belief_use`), 0 for a policy that ignores its belief. On a team with
+    links (the model's belief wrapper tracks more than one agent per copy) it adds ``evidence_reach_25``, ``_50`` and
+    ``_100``: the share of the team's evidence in the beliefs at those steps, over the team's agents
+    (:meth:`~sb3_emmarl.common.latent.belief.BeliefTracker.evidence_reach`).
     """
 
     def __init__(self, model: Any, vec_env: VecEnv) -> None:
+        from sb3_emmarl.common.latent.belief import find_belief_wrapper
+
         self.model = model
         self.steps = np.zeros(vec_env.num_envs, dtype=np.int64)
         self.posteriors: list[np.ndarray] = []
         self.modes: list[np.ndarray] = []
         self.episodes: list[np.ndarray] = []
         self.step_index: list[np.ndarray] = []
+        wrapper = find_belief_wrapper(vec_env)
+        self.tracker = wrapper.tracker if wrapper is not None and wrapper.tracker.agents_per_copy > 1 else None
+        self.reach: list[np.ndarray] = []
         #: one augmented observation per step (the first entry's), for the policy's belief use
         self.visited: list[np.ndarray] = []
 
@@ -358,6 +366,8 @@ class LatentTracker:
             self.modes.append(np.array([infos[i]["mode"] for i in keep], dtype=np.int64))
             self.episodes.append(np.full(len(keep), episode))
             self.step_index.append(self.steps[keep].copy())
+            if self.tracker is not None:
+                self.reach.append(self.tracker.evidence_reach(keep))
             if len(self.visited) < BELIEF_USE_ROWS:
                 self.visited.append(np.array(observations[keep[0]]))
 
@@ -375,6 +385,7 @@ class LatentTracker:
             return
         posteriors, modes, episodes, steps = (np.concatenate(x) for x in
                                               (self.posteriors, self.modes, self.episodes, self.step_index))
+        reach = np.concatenate(self.reach) if self.reach else None
         mapping = align_components(posteriors, modes)
         correct = mapping[posteriors.argmax(1)] == modes
         nmi = normalized_mutual_information(posteriors.argmax(1), modes)
@@ -395,3 +406,5 @@ class LatentTracker:
             for fraction in EPISODE_FRACTIONS:
                 at = mine & (steps == fraction_step(fraction, length))
                 record[f"latent_accuracy_{fraction_label(fraction)}"] = float(correct[at].mean())
+                if reach is not None:
+                    record[f"evidence_reach_{fraction_label(fraction)}"] = float(reach[at].mean())

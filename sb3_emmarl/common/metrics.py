@@ -21,9 +21,11 @@ TEAM_METRICS: tuple[str, ...] = (
     "signs_found",
 )
 #: What ``evaluate_team`` adds for a model with a latent belief (see ``LatentTracker``): how well the belief tells the
-#: mode, and how far the policy's actions move when the belief is permuted (``belief_use``).
+#: mode, how far the policy's actions move when the belief is permuted (``belief_use``) and, on a team with links, how
+#: much of the team's evidence is in the beliefs (``evidence_reach_*``).
 LATENT_METRICS: tuple[str, ...] = ("latent_accuracy", *(f"latent_accuracy_{fraction_label(f)}" for f in EPISODE_FRACTIONS),
-                                   "latent_kl", "latent_nmi", "belief_use")
+                                   "latent_kl", "latent_nmi", "belief_use",
+                                   *(f"evidence_reach_{fraction_label(f)}" for f in EPISODE_FRACTIONS))
 
 
 #: Keys of an evaluation record that describe the episode rather than measure it.
@@ -81,6 +83,9 @@ METRIC_MEANINGS: dict[str, tuple[str, str]] = {
     "latent_nmi": ("mutual information of the belief's choice and the mode, 0 (none) to 1", "higher"),
     "belief_use": ("how far the actions move when the belief is permuted (KL, nats): 0 when the policy ignores its "
                    "belief, higher the more its actions follow it (good only where the belief is right)", ""),
+    **{f"evidence_reach_{fraction_label(f)}": (f"share of the team's evidence in a UAV's belief at {f:.0%} of the episode "
+                                               "(1: the whole team's, 1/n: its own)", "higher")
+       for f in EPISODE_FRACTIONS},
 }
 
 

@@ -295,7 +295,7 @@ RULES: dict[str, Rule] = {
     "n_components": integer(1, 64),
     "decoder_hidden": layers(),
     "likelihood_temperature": number(0.0, 100.0, low_open=True),
-    "fusion": boolean(),
+    "fusion": one_of(boolean(), choice("team")),
     "estimator": choice("enumerate", "gumbel"),
     "belief_input": choice("probabilities", "map", "both"),
     "team_pooling": boolean(),

@@ -3,7 +3,8 @@
 ZonePatrol (``wildlife_reserve.zone_patrol_v0``) hides a zone where intruders strike and a weather that decides
 which sensor works; its observation is an egocentric window and the UAV's cell. :class:`ZoneEvidence` gives the
 latent model (:mod:`~sb3_emmarl.common.latent.evidence`) :func:`zone_features` of any environment that exposes a
-``zone_map``; it has no count evidence. Registered when ``sb3_emmarl`` is imported.
+``zone_map``, the visibility and zone readings among them declared as readings (:func:`zone_readings`); it has no
+count evidence. Registered when ``sb3_emmarl`` is imported.
 """
 
 from __future__ import annotations
@@ -69,9 +70,18 @@ def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
     return features, dim
 
 
+def zone_readings(zone_map: dict) -> tuple[int, ...]:
+    """The indices of :func:`zone_features`' readings: the visibility reading and, with ``zone_cue``, the zone readings
+    (read afresh each step, independent given the mode; the tracks in view and the detections are not)."""
+    n_zones = len(zone_map["zone_origins"])
+    n_cues = zone_map["cues"][1] - zone_map["cues"][0] if zone_map.get("cues") else 0
+    return (2 * n_zones, *range(2 * n_zones + 2, 2 * n_zones + 2 + n_cues))
+
+
 @register_evidence
 class ZoneEvidence(LatentEvidence):
-    """:func:`zone_features` of an environment with a ``zone_map`` (ZonePatrol); no counts.
+    """:func:`zone_features` of an environment with a ``zone_map`` (ZonePatrol), its readings
+    (:func:`zone_readings`) modelled as readings; no counts.
 
     :param spec: ``kind`` ``"zones"``, ``obs_dim`` and the environment's ``zone_map``
     """
@@ -81,6 +91,7 @@ class ZoneEvidence(LatentEvidence):
     def __init__(self, spec: dict[str, Any]) -> None:
         super().__init__(spec)
         self._fn, self.feature_dim = zone_features(spec["zone_map"])
+        self.readings = zone_readings(spec["zone_map"])
 
     @classmethod
     def from_env(cls, venv: VecEnv) -> ZoneEvidence | None:

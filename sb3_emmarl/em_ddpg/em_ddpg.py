@@ -42,7 +42,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param n_components: ``K``
     :param decoder_hidden: decoder hidden layer sizes
     :param likelihood_temperature: ``beta`` on the transitions' log-likelihoods
-    :param fusion: fuse teammates' evidence along the links
+    :param fusion: fuse teammates' evidence along the links (``"team"``: every teammate's, centralised; False: none)
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
     :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
@@ -86,7 +86,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         n_components: int = 4,
         decoder_hidden: tuple[int, ...] = (64, 64),
         likelihood_temperature: float = 1.0,
-        fusion: bool = True,
+        fusion: bool | str = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
         reading_counts: bool = True,

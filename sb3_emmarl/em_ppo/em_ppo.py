@@ -49,9 +49,11 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param n_components: ``K``, components of the latent variable
     :param decoder_hidden: hidden layer sizes of the transition models' shared trunk
     :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood in the beliefs and the
-        responsibilities (below 1 tempers an overconfident decoder)
-    :param fusion: beliefs combine the evidence of the teammates heard from this step (decentralised; needs the
-        environment's ``infos[i]["heard_from"]``)
+        responsibilities (below 1 tempers an overconfident decoder); the terms of the environment's readings (its
+        evidence plug-in's ``readings``, modelled exactly) are not tempered
+    :param fusion: beliefs combine the evidence of the teammates heard from, each counted once, newest version only
+        (True: decentralised, along the environment's ``infos[i]["heard_from"]`` links; ``"team"``: every teammate's at
+        every step, centralised inference, an ablation; False: each UAV's own)
     :param estimator: the E-step's estimator of the expected log-likelihood, ``"enumerate"`` (exact over ``K``) or
         ``"gumbel"`` (annealed Gumbel-softmax samples, as in the paper)
     :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
@@ -101,7 +103,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         n_components: int = 4,
         decoder_hidden: tuple[int, ...] = (64, 64),
         likelihood_temperature: float = 1.0,
-        fusion: bool = True,
+        fusion: bool | str = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
         reading_counts: bool = True,

@@ -52,7 +52,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param n_components: ``K``
     :param decoder_hidden: trunk sizes of the transition models
     :param likelihood_temperature: ``beta`` on the transitions' log-likelihoods
-    :param fusion: fuse teammates' evidence along the links
+    :param fusion: fuse teammates' evidence along the links (``"team"``: every teammate's, centralised; False: none)
     :param estimator: ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
     :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
@@ -105,7 +105,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         n_components: int = 4,
         decoder_hidden: tuple[int, ...] = (64, 64),
         likelihood_temperature: float = 1.0,
-        fusion: bool = True,
+        fusion: bool | str = True,
         estimator: str = "enumerate",
         team_pooling: bool = False,
         reading_counts: bool = True,

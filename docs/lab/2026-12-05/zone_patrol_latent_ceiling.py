@@ -35,7 +35,7 @@ from sb3_emmarl.common.latent.em import EStep
 from sb3_emmarl.common.latent.features import generic_features
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-from sb3_emmarl.common.zone_evidence import zone_features
+from sb3_emmarl.common.zone_evidence import zone_features, zone_readings
 from wildlife_reserve import zone_patrol_v0
 from wildlife_reserve.zone_patrol.scripted import BlindTeam
 from wildlife_reserve.zone_patrol.world import ZonePatrolConfig, ZonePatrolWorld
@@ -105,9 +105,11 @@ class Fitted:
         self.likelihood_temperature = beta
 
 
-def fit(seed: int, train: Episodes, dim: int, e_steps: int, told: bool, team_pooling: bool, beta: float) -> Fitted:
+def fit(seed: int, train: Episodes, dim: int, e_steps: int, told: bool, team_pooling: bool, beta: float,
+        readings: tuple[int, ...] = ()) -> Fitted:
     th.manual_seed(seed)
-    latent = LatentModel(LatentLayout(obs_dim=dim, feature_dim=dim, action_dim=10, n_components=8))
+    latent = LatentModel(LatentLayout(obs_dim=dim, feature_dim=dim, action_dim=10, n_components=8,
+                                      reading_features=readings))
     kwargs = {**E_STEP_DEFAULTS, "window": 1, "likelihood_temperature": beta, "seed": seed}
     if told:
         e_step = ToldEStep(dict(zip(train.team_episode.tolist(), train.mode.tolist())), latent_model=latent, **kwargs)
@@ -130,6 +132,8 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--beta", type=float, default=1.0, help="likelihood_temperature")
     parser.add_argument("--team-pooling", action="store_true")
+    parser.add_argument("--readings", action="store_true",
+                        help="model the zone features' readings as readings (zone_readings; since 2026-12-07)")
     parser.add_argument("--env-kwargs", default="{}", help="ZonePatrol's arguments, as JSON (e.g. '{\"agent_ids\": true}')")
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -140,6 +144,8 @@ def main() -> int:
           f"aligned mode accuracy (mean over seeds) at {[f'{p:.0%}' for p in POINTS]} of the episode")
     for features in args.features:
         fn, dim = zone_map_features(cfg) if features == "zone" else generic_features(cfg.obs_dim)
+        readings = zone_readings(zone_patrol_v0.parallel_env(**cfg.__dict__).zone_map) \
+            if args.readings and features == "zone" else ()
         for team in args.teams:
             train = collect(cfg, team, args.train_episodes, 20, 0, fn)
             test = collect(cfg, team, args.test_episodes, 20, 1_000_000, fn)
@@ -147,7 +153,7 @@ def main() -> int:
                   f"{np.mean(SEEN[team][-args.test_episodes:]):.3f} of the held-out episodes; a cell of the zone in "
                   f"view in {np.mean(SEEN[team + ' exposed'][-(-args.test_episodes // 20):]):.3f} of the UAV-steps")
             for told in (False, True):
-                runs = [accuracies(fit(s, train, dim, args.e_steps, told, args.team_pooling, args.beta), test)
+                runs = [accuracies(fit(s, train, dim, args.e_steps, told, args.team_pooling, args.beta, readings), test)
                         for s in args.seeds]
                 for source in ("one UAV", "team"):
                     cells = [np.mean([run[f"{source} mode {p:.0%}"] for run in runs]) for p in POINTS]

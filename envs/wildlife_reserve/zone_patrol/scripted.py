@@ -18,6 +18,7 @@ from itertools import product
 
 import numpy as np
 
+from wildlife_reserve.zone_patrol.posterior import zone_posterior
 from wildlife_reserve.zone_patrol.world import CLEAR, N_MOVES, N_ZONES, NARROW, WIDE, ZonePatrolWorld
 
 #: How a blind team searches before a zone shows evidence: each UAV to its own zone (``"split"``), or the whole team
@@ -111,12 +112,8 @@ class BlindTeam:
             self.cue_sums += world.cues.sum(1)
 
     def zone_posterior(self, world: ZonePatrolWorld) -> np.ndarray:
-        """``(c, 4)``: each zone's posterior from the team's zone readings so far (uniform without them): unit-variance
-        Gaussian readings with mean ``zone_cue`` on the mode's zone, so the log-odds are ``zone_cue`` times the sums."""
-        logits = world.config.zone_cue * self.cue_sums
-        logits -= logits.max(1, keepdims=True)
-        weights = np.exp(logits)
-        return weights / weights.sum(1, keepdims=True)
+        """``(c, 4)``: each zone's posterior from the team's zone readings so far (:func:`zone_posterior`)."""
+        return zone_posterior(world.config.zone_cue, self.cue_sums)
 
     def act(self, world: ZonePatrolWorld) -> np.ndarray:
         self._observe(world)
@@ -142,8 +139,24 @@ class BlindTeam:
 
 def play(team, world: ZonePatrolWorld, rng: np.random.Generator, modes: np.ndarray | None = None) -> np.ndarray:
     """One episode in every copy of ``world`` with ``team``; returns each copy's team reward."""
+    return play_and_read(team, world, rng, modes)[0]
+
+
+def play_and_read(team, world: ZonePatrolWorld, rng: np.random.Generator, modes: np.ndarray | None = None,
+                  posterior_at: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`play`, also returning, per copy, the exact zone posterior ``(c, 4)`` of the whole team's zone readings of
+    the observations up to step ``posterior_at`` (the one after reset included; :func:`zone_posterior`), whatever the
+    team does (None, the default: uniform)."""
     world.reset(rng, modes)
     team.reset(world)
-    for _ in range(world.config.max_cycles):
+    cue_sums = world.cues.sum(1)
+    posterior = np.full((world.n_copies, N_ZONES), 1.0 / N_ZONES)
+    if posterior_at is not None and not 1 <= posterior_at <= world.config.max_cycles:
+        raise ValueError(f"posterior_at must be a step in [1, {world.config.max_cycles}], got {posterior_at!r}")
+    for t in range(1, world.config.max_cycles + 1):
         world.step(team.act(world), rng)
-    return world.team_reward.copy()
+        if posterior_at is not None and t <= posterior_at:
+            cue_sums = cue_sums + world.cues.sum(1)
+            if t == posterior_at:
+                posterior = zone_posterior(world.config.zone_cue, cue_sums)
+    return world.team_reward.copy(), posterior

@@ -56,10 +56,15 @@ class ZonePatrolConfig:
     :param narrow_detect: the same for the narrow sensor
     :param visibility_noise: standard deviation of the visibility reading (1 in clear weather, 0 in fog, plus noise)
     :param zone_cue: strength of a faint reading of the zone that reaches every UAV wherever it is (radio chatter):
-        each step, per zone, ``zone_cue`` if it is the mode's zone, plus standard normal noise; 0 (the default): no
-        such reading, episodes and observations as without the option. Its evidence builds up as ``zone_cue *
-        sqrt(steps)``: a team can infer the zone without searching, if it integrates the readings over time
-    :param comm_range: Chebyshev distance within which teammates hear each other (``infos["heard_from"]``)
+        each step, per zone, ``zone_cue`` if it is the mode's zone, plus standard normal noise; 0: no such reading,
+        episodes and observations as without the option (``zone_patrol_v0``'s default). Its evidence builds up as
+        ``zone_cue * sqrt(steps)``: a team can infer the zone without searching, if it integrates the readings over
+        time. The default was chosen on the gate (``benchmarks/zone_patrol_gate.py``; docs/zone_patrol.md): told
+        scripted teams must still earn far more than blind ones, while the whole team's readings tell the zone by
+        mid-episode
+    :param comm_range: Chebyshev distance within which teammates hear each other (``infos["heard_from"]``); None (the
+        default): half the grid, which keeps a team that splits over the four zones linked through relays, so that
+        its evidence reaches every UAV within a few steps (``zone_patrol_v0``: 4; ``benchmarks/zone_patrol_reach.py``)
     :param escape_cost: team reward lost per intruder that escapes
     :param window_radius: radius of the observed window (``(2r + 1)^2`` cells per channel)
     :param agent_ids: append the one-hot of the UAV's index in the team to its observation (EPyMARL's
@@ -82,8 +87,8 @@ class ZonePatrolConfig:
     wide_detect: tuple[float, float] = (0.4, 0.03)
     narrow_detect: tuple[float, float] = (0.3, 0.3)
     visibility_noise: float = 1.0
-    zone_cue: float = 0.0
-    comm_range: int = 4
+    zone_cue: float = 0.24
+    comm_range: int | None = None
     escape_cost: float = 0.25
     window_radius: int = 2
     agent_ids: bool = False
@@ -108,6 +113,8 @@ class ZonePatrolConfig:
             object.__setattr__(self, name, tuple(_check(f"{name}[{i}]", v, 0.0, 1.0, float) for i, v in enumerate(value)))
         _check("visibility_noise", self.visibility_noise, 0.0, 100.0, float)
         _check("zone_cue", self.zone_cue, 0.0, 100.0, float)
+        if self.comm_range is None:
+            object.__setattr__(self, "comm_range", self.grid_size // 2)
         _check("comm_range", self.comm_range, 0, self.grid_size)
         _check("escape_cost", self.escape_cost, 0.0, 1000.0, float)
         _check("window_radius", self.window_radius, 0, self.grid_size)

@@ -1,14 +1,14 @@
 """
 # Zone Patrol
 
-| Import             | `from wildlife_reserve import zone_patrol_v0`                           |
+| Import             | `from wildlife_reserve import zone_patrol_v1`                           |
 |--------------------|-------------------------------------------------------------------------|
 | Actions            | Discrete                                                                |
 | Parallel API       | Yes                                                                     |
 | Manual control     | No                                                                      |
 | Agents             | `agents= ['uav_0', 'uav_1', 'uav_2', 'uav_3']` (default `n_uavs=4`)     |
 | Action shape       | `Discrete(10)`: `move + 5 * sensor`                                     |
-| Observation shape  | `(3 * (2r + 1)^2 + 4,)`: 79 by default (`zone_cue`: 4 more, `agent_ids`: n, `told`: 8) |
+| Observation shape  | `(3 * (2r + 1)^2 + 4 + 4,)`: 83 by default (`zone_cue=0`: 4 fewer; `agent_ids`: n more, `told`: 8) |
 | Observation values | [-1, 1]                                                                 |
 | State shape        | `(2 n_uavs + 2 grid_size^2 + 1,)`: 1577 by default                      |
 
@@ -19,21 +19,23 @@ corner zones of `zone_size x zone_size` cells) x a **weather** (clear or fog); t
 them. The zones lie far apart (crossing from the centre to a zone takes about a third of an episode), so a team that
 does not know the zone must split and converge on evidence, while a team told it stacks in it. The weather decides
 which sensor works: the wide one (reach `wide_radius`) sees well in clear weather and almost nothing in fog; the
-narrow one (reach `narrow_radius`) sees alike in both. A scripted team told the mode earns 1.6 times what the best
+narrow one (reach `narrow_radius`) sees alike in both. A scripted team told the mode earns 1.5 times what the best
 blind scripted team earns, though that team shares everything its UAVs see (`benchmarks/zone_patrol_gate.py`).
 
 The evidence builds up: intruders leave tracks that fade after `track_life` steps, and older tracks lie in the zone
 at the start; the visibility reading (1 in clear weather, 0 in fog, plus noise of deviation `visibility_noise`) shows
-the weather over many steps, not in one. With `zone_cue > 0` every UAV also reads, each step and wherever it is, a
-faint signal of the zone (radio chatter: per zone, `zone_cue` for the mode's zone plus standard normal noise): its
-evidence grows as `zone_cue * sqrt(steps)`, so a team that integrates the readings over time can infer the zone
-without searching, which a memoryless policy cannot.
+the weather over many steps, not in one. Every UAV also reads, each step and wherever it is, a faint signal of the
+zone (`zone_cue`, radio chatter: per zone, `zone_cue` for the mode's zone plus standard normal noise): its evidence
+grows as `zone_cue * sqrt(steps)`, so a team that integrates the readings over time can infer the zone without
+searching, which a memoryless policy cannot. One UAV's readings tell the zone by mid-episode far less often than the
+whole team's (docs/zone_patrol.md): a UAV's belief is worth what it pools from its teammates, whose messages reach it
+within `comm_range` (relayed one hop per step).
 
 ### Observations
 Per UAV, a flat float32 vector: an egocentric `(2r + 1) x (2r + 1)` window (`r = window_radius`) of three channels
 (tracks, as their remaining life over `track_life`, -1 off the grid; this UAV's detections this step; teammates),
 then its own position (row, column, scaled to [-1, 1]), the visibility reading (clipped to [-3, 4], over 4) and the
-episode's progress (`t / max_cycles`); with `zone_cue > 0`, the four zone readings (clipped to [-4, 4], over 4); with
+episode's progress (`t / max_cycles`); the four zone readings (clipped to [-4, 4], over 4; none with `zone_cue=0`); with
 `agent_ids=True`, the one-hot of the UAV's index in the team (EPyMARL's
 `obs_agent_id`: with parameter sharing, what lets UAVs that see alike split over the zones); with `told=True`, the
 one-hot of the mode last.
@@ -55,7 +57,11 @@ Every field of :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`, by
 `ValueError` naming the argument. `reset(seed, options={"mode": m})` fixes the mode of the episode.
 
 ### Version History
-* v0: the current version; what each sb3-emmarl release changed in it is in CHANGELOG.md
+* v1: zone readings on by default (`zone_cue=0.24`, chosen on the gate) and links across half the grid
+  (`comm_range=None`: 14 cells on the default grid, chosen on the evidence reach), so that the team's evidence tells
+  the zone by mid-episode and reaches every UAV; every other constant as v0's
+* v0: `zone_cue=0`, `comm_range=4`; still importable (`zone_patrol_v0`, zoo id `ZonePatrol-v0`), its episodes as
+  before; what each sb3-emmarl release changed in either version is in CHANGELOG.md
 """
 
 from __future__ import annotations
@@ -75,37 +81,48 @@ from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, Zone
 
 #: The render modes (``metadata["render_modes"]``).
 RENDER_MODES = ("human", "rgb_array")
+#: The current version (``zone_patrol_v1``), whose defaults are :class:`ZonePatrolConfig`'s.
+VERSION = 1
+#: Each former version's defaults that differ from the current version's (its module passes them under the caller's
+#: arguments, so that its episodes stay as they were).
+FORMER_DEFAULTS: dict[int, dict[str, Any]] = {0: {"zone_cue": 0.0, "comm_range": 4}}
 
 
-def env(**kwargs: Any) -> wrappers.OrderEnforcingWrapper:
+def env(version: int = VERSION, **kwargs: Any) -> wrappers.OrderEnforcingWrapper:
     """The AEC form, with PettingZoo's order-enforcing wrapper."""
-    return wrappers.OrderEnforcingWrapper(raw_env(**kwargs))
+    return wrappers.OrderEnforcingWrapper(raw_env(version, **kwargs))
 
 
-def raw_env(**kwargs: Any) -> parallel_to_aec_wrapper:
+def raw_env(version: int = VERSION, **kwargs: Any) -> parallel_to_aec_wrapper:
     """The AEC form (PettingZoo's conversion of the parallel environment)."""
-    return parallel_to_aec_wrapper(parallel_env(**kwargs))
+    return parallel_to_aec_wrapper(parallel_env(version, **kwargs))
 
 
-def parallel_env(**kwargs: Any) -> ZonePatrolParallelEnv:
-    """The parallel environment (keyword arguments: :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`)."""
-    return ZonePatrolParallelEnv(**kwargs)
+def parallel_env(version: int = VERSION, **kwargs: Any) -> ZonePatrolParallelEnv:
+    """The parallel environment (keyword arguments: :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig`;
+    ``version``: the version whose defaults apply, as the modules ``zone_patrol_v0`` and ``zone_patrol_v1`` set it)."""
+    return ZonePatrolParallelEnv(version=version, **kwargs)
 
 
 class ZonePatrolParallelEnv(ParallelEnv):
     """ZonePatrol as a PettingZoo ``ParallelEnv`` (one copy of :class:`ZonePatrolWorld`; see the module's card).
 
     :param render_mode: None, ``"rgb_array"`` (an RGB image of the grid) or ``"human"`` (the image in a pygame window)
+    :param version: the version whose defaults apply (:data:`VERSION`, or one of :data:`FORMER_DEFAULTS`)
     :param kwargs: :class:`~wildlife_reserve.zone_patrol.world.ZonePatrolConfig` fields
     """
 
-    metadata = {"name": "zone_patrol_v0", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
+    metadata = {"name": f"zone_patrol_v{VERSION}", "render_modes": list(RENDER_MODES), "is_parallelizable": True,
                 "render_fps": 10}
 
-    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(self, render_mode: str | None = None, version: int = VERSION, **kwargs: Any) -> None:
         if render_mode not in (None, *RENDER_MODES):
             raise ValueError(f"render_mode must be None or one of {list(RENDER_MODES)}, got {render_mode!r}")
-        self.config = ZonePatrolConfig.from_kwargs(**kwargs)
+        if isinstance(version, bool) or version not in (VERSION, *FORMER_DEFAULTS):
+            raise ValueError(f"version must be one of {sorted((VERSION, *FORMER_DEFAULTS))}, got {version!r}")
+        self.version = int(version)
+        self.metadata = {**self.metadata, "name": f"zone_patrol_v{self.version}"}
+        self.config = ZonePatrolConfig.from_kwargs(**{**FORMER_DEFAULTS.get(self.version, {}), **kwargs})
         self.render_mode = render_mode
         self.possible_agents = [f"uav_{i}" for i in range(self.config.n_uavs)]
         self.agents: list[str] = []

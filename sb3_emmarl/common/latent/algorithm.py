@@ -165,7 +165,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     replay_buffer: ReplayBuffer | None  # (the off-policy algorithms': EM-DDPG, VDN+EM)
     # The latent settings (LATENT_ATTRIBUTES), set by _init_latent from the LatentConfig.
     likelihood_temperature: float
-    fusion: bool
+    fusion: bool | str
     estimator: str
     team_pooling: bool
     reading_counts: bool
@@ -212,10 +212,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         wrapper = find_belief_wrapper(venv)
         assert wrapper is not None  # (wrap_with_belief gives an environment with one)
         self.feature_spec = wrapper.feature_spec
-        counter = wrapper.counter if self.reading_counts else None
-        layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, wrapper.n_components,
-                              tuple(decoder_hidden), count_channels=counter.n_channels if counter else 0,
-                              count_bins=counter.n_bins if counter else 0)
+        layout = wrapper.layout(tuple(decoder_hidden), self.reading_counts)
         policy_kwargs["latent_kwargs"] = layout.to_dict()
         policy_kwargs["use_latent"] = self.use_latent
         policy_kwargs["belief_input"] = self.belief_input

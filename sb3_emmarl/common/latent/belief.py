@@ -1,7 +1,8 @@
 """Each agent's belief over the latent mode, from the whole episode so far, fused along the team's links.
 
-:class:`BeliefTracker` keeps, per vector entry, the evidence ``e_k = beta * sum_{j < t} log p(x_{j+1} | x_j, a_j,
-z = k)`` that the entry's own transitions since its episode began give each component (one decoder call per
+:class:`BeliefTracker` keeps, per vector entry, the evidence ``e_k = sum_{j < t} log p(x_{j+1} | x_j, a_j, z = k)``
+(its transition features' terms tempered by ``beta``, its readings' not: :class:`~sb3_emmarl.common.latent.model.
+StepLikelihood`) that the entry's own transitions since its episode began give each component (one decoder call per
 step: constant cost, no history re-read), plus, when the environment's plug-in counts readings (on the reserve:
 where on the map signs, leopards and poachers were read), the plug-in's ``weight`` times the log-likelihood of each
 new observation's counts under the component's count model (:mod:`~sb3_emmarl.common.latent.counts`), and the
@@ -12,7 +13,14 @@ reserve's messages carry its knowledge matrix: the sender's own evidence now and
 newest version of that teammate's own evidence the sender holds, with the step it dates from. The receiver keeps,
 per teammate, whichever version is newest (evidence travels one hop per step, like the reserve's knowledge).
 Each teammate's evidence enters a belief once, in one version: nothing is counted twice. No link, no fusion: with
-``comm_loss=1`` every belief is the agent's own.
+``comm_loss=1`` every belief is the agent's own. Where the evidence of the UAVs is independent given the mode (each
+reads its own noise), the fused belief is the exact posterior of all the evidence that reached the UAV, which is the
+posterior of the whole team's evidence once every teammate's newest version has arrived.
+
+How much arrived is the **evidence reach** (:meth:`BeliefTracker.evidence_reach`): the share of the team's transitions
+since the episode began whose likelihood is in an entry's belief (1: the whole team's; ``1 / n`` for a UAV that heard
+nobody). ``fusion="team"`` gives every entry every teammate's evidence at every step, whatever the links: the belief
+of *centralised* inference (reach 1), an ablation to compare with, never the decentralised result.
 
 :class:`BeliefWrapper` is the ``VecEnvWrapper`` that runs a tracker during training and evaluation and
 appends the belief to every observation (terminal observations included), so that SB3's rollout and
@@ -34,6 +42,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepR
 
 from sb3_emmarl.common.latent.evidence import CountEvidence, evidence_of
 from sb3_emmarl.common.latent.features import encode_actions
+from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
@@ -84,17 +93,18 @@ class BeliefTracker:
         ``i // agents_per_copy``); links only join agents of one copy
     :param model: the latent model (None: every belief is uniform, as in the no-latent ablation)
     :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood
-    :param fusion: combine the evidence of teammates heard from (else each belief is the agent's own)
+    :param fusion: combine the evidence of the teammates heard from (True: along the links of the infos; ``"team"``:
+        every teammate's, links or not, as centralised inference would; False: each belief is the agent's own)
     :param counter: the count evidence of the observations (the environment's plug-in's), used when the model has a
         count model
     """
 
     def __init__(self, n_entries: int, n_components: int, feature_dim: int, action_dim: int, *, agents_per_copy: int = 1,
-                 model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool = True,
+                 model: LatentModel | None = None, likelihood_temperature: float = 1.0, fusion: bool | str = True,
                  counter: CountEvidence | None = None) -> None:
         self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
         self.counter = counter
-        self.likelihood_temperature, self.fusion = float(likelihood_temperature), bool(fusion)
+        self.likelihood_temperature, self.fusion = float(likelihood_temperature), RULES["fusion"]("fusion", fusion)
         self.model = model
         self.evidence = np.zeros((n_entries, n_components))
         #: ``heard[i, m]``: the newest own evidence of teammate ``m`` that entry ``i`` knows, dated ``stamps[i, m]``
@@ -136,8 +146,8 @@ class BeliefTracker:
         if len(indices) == 0:
             return
         if self._likelihood is not None:
-            log_lik = self._likelihood.log_likelihood(self.features[indices], self.actions[indices], next_features)
-            self.evidence[indices] += self.likelihood_temperature * log_lik
+            self.evidence[indices] += self._likelihood.log_likelihood(self.features[indices], self.actions[indices],
+                                                                      next_features, self.likelihood_temperature)
             if next_observations is not None and self.counter is not None and self._likelihood.model.has_counts:
                 counts = self._likelihood.count_log_likelihood(self.counter, next_observations, refresh=False)
                 self.evidence[indices] += self.counter.weight * counts
@@ -151,21 +161,39 @@ class BeliefTracker:
         its own and dates from ``r``'s episode (never its own entry). This is the reserve's knowledge merge
         (``knowledge[r] = max(knowledge[r], knowledge[s])``) applied to the evidence.
         """
+        self.clock += 1  # (one tick per step, fused or not: the clock also counts each entry's steps)
         if not self.fusion or self.agents_per_copy == 1:
             return
-        self.clock += 1
-        receivers: list[int] = []
-        senders: list[int] = []
-        for i, info in enumerate(infos):
-            heard_from = info.get(LINKS_KEY) if isinstance(info, dict) else None
-            if heard_from:
-                receivers += [i] * len(heard_from)
-                senders += heard_from
-        if not receivers:
-            return
-        links = np.zeros((self.n, self.agents_per_copy), dtype=np.bool_)  # links[r, s]: teammate s reached entry r
-        links[receivers, senders] = True
+        if self.fusion == "team":  # every teammate, links or not (centralised inference)
+            links = ~np.eye(self.agents_per_copy, dtype=np.bool_)[np.arange(self.n) % self.agents_per_copy]
+        else:
+            receivers: list[int] = []
+            senders: list[int] = []
+            for i, info in enumerate(infos):
+                heard_from = info.get(LINKS_KEY) if isinstance(info, dict) else None
+                if heard_from:
+                    receivers += [i] * len(heard_from)
+                    senders += heard_from
+            if not receivers:
+                return
+            links = np.zeros((self.n, self.agents_per_copy), dtype=np.bool_)  # links[r, s]: teammate s reached entry r
+            links[receivers, senders] = True
         _merge_evidence(links, self.evidence, self.heard, self.stamps, self.started, self.clock)
+
+    def evidence_reach(self, indices: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``(n,)``: the share of the team's transitions since the episode began whose likelihood is in each entry's
+        belief (its own, and each teammate's up to the step of the newest version it holds); 1 before the first step
+        and for a team of one.
+
+        Counted in steps of :meth:`fuse`'s clock, which ticks once per environment step: the teammates of a copy
+        begin their episodes together, so a teammate's version dated ``stamp`` holds ``stamp - started`` transitions.
+        """
+        own = (self.clock - self.started[indices]).astype(np.float64)
+        stamps = self.stamps[indices]
+        heard = np.where(stamps == NEVER, 0, stamps - self.started[indices][:, None]).clip(min=0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            reach = (own + heard) / (self.agents_per_copy * own)
+        return np.where(own > 0, reach, 1.0)
 
     # ------------------------------------------------------------------ beliefs
     def log_beliefs(self, indices: np.ndarray | slice = slice(None), refresh: bool = True) -> np.ndarray:
@@ -245,12 +273,25 @@ class BeliefWrapper(VecEnvWrapper):
         self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim,
                                      agents_per_copy=agents_per_copy(venv), counter=self.counter)
 
-    def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool = True) -> None:
-        """Compute beliefs with ``model`` from now on (evidence gathered so far is kept)."""
+    def layout(self, decoder_hidden: tuple[int, ...], reading_counts: bool = True) -> LatentLayout:
+        """The latent layout of a model of this wrapper's beliefs: its sizes, the evidence's count model (with
+        ``reading_counts``) and readings.
+
+        :param decoder_hidden: the decoder trunk's hidden sizes
+        :param reading_counts: give the model the evidence's count model, if it has one
+        """
+        counter = self.counter if reading_counts else None
+        return LatentLayout(self.obs_dim, self.feature_dim, self.action_dim, self.n_components, tuple(decoder_hidden),
+                            count_channels=counter.n_channels if counter else 0,
+                            count_bins=counter.n_bins if counter else 0, reading_features=self.evidence.readings)
+
+    def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool | str = True) -> None:
+        """Compute beliefs with ``model`` from now on (evidence gathered so far is kept); ``fusion`` as the tracker's."""
         if model is not None and model.n_components != self.n_components:
             raise ValueError(f"the latent model has {model.n_components} components, the wrapper {self.n_components}")
         tracker = self.tracker
-        tracker.model, tracker.likelihood_temperature, tracker.fusion = model, float(likelihood_temperature), bool(fusion)
+        tracker.model, tracker.likelihood_temperature = model, float(likelihood_temperature)
+        tracker.fusion = RULES["fusion"]("fusion", fusion)
 
     def get_state(self) -> np.ndarray:
         """The beliefs' state between steps (for checkpoints that resume mid-episode)."""

@@ -70,7 +70,8 @@ class EMCallback(BaseCallback):
         least this many steps after the last one
     :param decoder_hidden: hidden layer sizes of the transition models' shared trunk
     :param likelihood_temperature: ``beta``, the factor on every log-likelihood in the beliefs and responsibilities
-    :param fusion: fuse the evidence of teammates heard from (the reserve's ``infos[i]["heard_from"]``)
+    :param fusion: fuse the evidence of teammates heard from (the environment's ``infos[i]["heard_from"]``; ``"team"``:
+        every teammate's, centralised; False: none)
     :param estimator: the E-step's estimator, ``"enumerate"`` or ``"gumbel"``
     :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
     :param reading_counts: the count model beside the transition model when the environment's evidence plug-in counts
@@ -88,7 +89,7 @@ class EMCallback(BaseCallback):
     """
 
     def __init__(self, n_components: int = 4, e_step_every: int = 2000, *, decoder_hidden: tuple[int, ...] = (64, 64),
-                 likelihood_temperature: float = 1.0, fusion: bool = True, estimator: str = "enumerate",
+                 likelihood_temperature: float = 1.0, fusion: bool | str = True, estimator: str = "enumerate",
                  team_pooling: bool = False, reading_counts: bool = True, count_factors: tuple[int, int] | None = None,
                  belief_input: str = "probabilities", e_step_kwargs: dict[str, Any] | None = None,
                  freeze_e_step: bool = False, seed: int = 0, verbose: int = 0) -> None:
@@ -150,9 +151,7 @@ class EMCallback(BaseCallback):
         """The latent model and the E-step, sized by ``wrapper``'s environment (with a loaded callback's state)."""
         config = self.config
         counter = wrapper.counter if config.reading_counts else None
-        layout = LatentLayout(wrapper.obs_dim, wrapper.feature_dim, wrapper.action_dim, config.n_components,
-                              config.decoder_hidden, count_channels=counter.n_channels if counter else 0,
-                              count_bins=counter.n_bins if counter else 0)
+        layout = wrapper.layout(config.decoder_hidden, config.reading_counts)
         with th.random.fork_rng(devices=[]):  # the model's initial weights from the callback's seed alone
             th.manual_seed(self.seed)
             model = LatentModel(layout)

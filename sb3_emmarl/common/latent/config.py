@@ -27,7 +27,7 @@ class LatentConfig:
     n_components: int = 4
     decoder_hidden: tuple[int, ...] = (64, 64)
     likelihood_temperature: float = 1.0
-    fusion: bool = True
+    fusion: bool | str = True
     estimator: str = "enumerate"
     team_pooling: bool = False
     reading_counts: bool = True

@@ -151,18 +151,24 @@ def _copy(tensor: th.Tensor) -> th.Tensor:
     return tensor.detach().to("cpu", copy=True)
 
 
-def transition_log_likelihoods(model: LatentModel, data: Transitions) -> th.Tensor:
-    """``log p(x_{t+1} | x_t, a_t, z = k)`` of every transition of ``data`` ``(N, K)``, without gradient, in chunks of
+def transition_log_likelihoods(model: LatentModel, data: Transitions, temperature: float = 1.0) -> th.Tensor:
+    """``log p(x_{t+1} | x_t, a_t, z = k)`` of every transition of ``data`` ``(N, K)``, tempered as the beliefs temper
+    it (``temperature`` on the transition features' terms, the readings' untempered:
+    :meth:`~sb3_emmarl.common.latent.model.StepLikelihood.log_likelihood`), without gradient, in chunks of
     :data:`LIKELIHOOD_CHUNK` transitions: through :class:`~sb3_emmarl.common.latent.model.StepLikelihood`, whose
     compiled density never builds the ``(N, K, d_x)`` arrays that
     :meth:`~sb3_emmarl.common.latent.model.LatentModel.transition_log_likelihood` needs for its gradient (a third of
     an E-step's time went into them)."""
     likelihood = StepLikelihood(model)
+    readings = model.transition_mask is not None  # (without readings, tempered in float32 as it always was)
     arrays = [part.detach().cpu().numpy() for part in (data.features, data.actions, data.next_features)]
-    chunks = [likelihood.log_likelihood(*(array[i:i + LIKELIHOOD_CHUNK] for array in arrays))
+    features, actions, next_features = arrays
+    chunks = [likelihood.log_likelihood(features[i:i + LIKELIHOOD_CHUNK], actions[i:i + LIKELIHOOD_CHUNK],
+                                        next_features[i:i + LIKELIHOOD_CHUNK], temperature if readings else 1.0)
               for i in range(0, len(data), LIKELIHOOD_CHUNK)]
     values = np.concatenate(chunks) if chunks else np.zeros((0, model.n_components))
-    return th.as_tensor(values, dtype=th.float32, device=data.features.device)
+    tensor = th.as_tensor(values, dtype=th.float32, device=data.features.device)
+    return tensor if readings else temperature * tensor
 
 
 def episode_ids(counters: np.ndarray, new_episode: np.ndarray, agents_per_copy: int = 1,
@@ -328,8 +334,8 @@ class EStep:
         """Log-responsibilities of each episode ``(S, K)``, each transition's episode index ``(N,)`` and each
         episode's summed tempered log-likelihoods ``(S, K)`` (no gradient)."""
         with th.no_grad():
-            log_lik = transition_log_likelihoods(self.model, data)
-            evidence, index = sum_by_group(self.likelihood_temperature * log_lik, data.episodes)
+            log_lik = transition_log_likelihoods(self.model, data, self.likelihood_temperature)
+            evidence, index = sum_by_group(log_lik, data.episodes)
             if self.model.has_counts and any(part is not None for part in self.count_memory):
                 counts, exposure, _ = self._episode_counts(th.unique(data.episodes), list(self.count_memory))
                 count_evidence = self.model.count_log_likelihood(counts, exposure)

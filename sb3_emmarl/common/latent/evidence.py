@@ -76,7 +76,8 @@ class LatentEvidence(ABC):
     """An environment's evidence for the latent model: its features, optionally its counts, and how to rebuild them.
 
     A subclass sets :attr:`kind`, implements :meth:`from_env` and :meth:`features`, sets :attr:`feature_dim` (and
-    :attr:`counts`, if it has any) in ``__init__``, and is registered with :func:`register_evidence`.
+    :attr:`counts` and :attr:`readings`, if it has any) in ``__init__``, and is registered with
+    :func:`register_evidence`.
 
     :param spec: plain values (JSON): ``kind``, ``obs_dim`` and what the plug-in needs to rebuild itself
     """
@@ -87,6 +88,10 @@ class LatentEvidence(ABC):
     feature_dim: int
     #: the count evidence, or None (the transition mixture alone)
     counts: CountEvidence | None = None
+    #: the indices of the features that are readings (read afresh each step, independent given the mode: the latent
+    #: model gives each a Gaussian whose mean depends on the component alone; see
+    #: :class:`~sb3_emmarl.common.latent.layout.LatentLayout`); empty: every feature is a transition's
+    readings: tuple[int, ...] = ()
 
     def __init__(self, spec: dict[str, Any]) -> None:
         if spec.get("kind") != self.kind:

@@ -24,6 +24,11 @@ class LatentLayout:
         ``count_bins`` 0 when there is none (the environment's evidence plug-in counts nothing, or ``reading_counts``
         is off)
     :param count_bins: bins per channel of the count model
+    :param reading_features: the indices of the features that are *readings*: read afresh at each step and, given the
+        mode, independent of everything before (ZonePatrol's zone and visibility readings); the decoder models each as
+        a Gaussian whose mean depends on the component alone, not on ``(x_t, a_t)`` (the environment's evidence
+        plug-in names them: :attr:`~sb3_emmarl.common.latent.evidence.LatentEvidence.readings`); empty: every feature
+        is modelled as a transition
     """
 
     obs_dim: int
@@ -33,6 +38,7 @@ class LatentLayout:
     decoder_hidden: tuple[int, ...] = field(default=(64, 64))
     count_channels: int = 0
     count_bins: int = 0
+    reading_features: tuple[int, ...] = field(default=())
 
     def __post_init__(self) -> None:
         RULES["n_components"]("n_components", self.n_components)
@@ -48,6 +54,13 @@ class LatentLayout:
             raise ValueError(f"count_channels and count_bins must both be 0 (no count model) or both >= 1, got "
                              f"{self.count_channels} and {self.count_bins}")
         object.__setattr__(self, "decoder_hidden", tuple(RULES["decoder_hidden"]("decoder_hidden", self.decoder_hidden)))
+        readings = self.reading_features
+        if isinstance(readings, (str, bytes)) or not hasattr(readings, "__iter__") or not all(
+                isinstance(i, int) and not isinstance(i, bool) and 0 <= i < self.feature_dim for i in readings) \
+                or len(set(readings)) != len(tuple(readings)):
+            raise ValueError(f"reading_features must be distinct feature indices in [0, {self.feature_dim - 1}], "
+                             f"got {readings!r}")
+        object.__setattr__(self, "reading_features", tuple(sorted(readings)))
 
     @property
     def total_dim(self) -> int:
@@ -60,8 +73,12 @@ class LatentLayout:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values for ``policy_kwargs`` (saved in the model's zip)."""
-        return {**asdict(self), "decoder_hidden": list(self.decoder_hidden)}
+        data = {**asdict(self), "decoder_hidden": list(self.decoder_hidden), "reading_features": list(self.reading_features)}
+        if not self.reading_features:  # (as layouts were saved before readings existed)
+            del data["reading_features"]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LatentLayout:
-        return cls(**{**data, "decoder_hidden": tuple(data.get("decoder_hidden", (64, 64)))})
+        return cls(**{**data, "decoder_hidden": tuple(data.get("decoder_hidden", (64, 64))),
+                      "reading_features": tuple(data.get("reading_features", ()))})

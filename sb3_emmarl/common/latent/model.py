@@ -9,8 +9,9 @@ does. The model is the decoder of the paper (section 4.2.1, ``p(x_{t+1} | o_t, a
 the filtering posterior that :mod:`~sb3_emmarl.common.latent.belief` keeps up to date one transition at a
 time (constant cost per step). ``beta`` (``likelihood_temperature``, default 1) tempers the evidence: a
 decoder that is misspecified (a Gaussian over features that are not Gaussian) is overconfident, and
-``beta < 1`` keeps the belief calibrated. Rewards are not modelled: SB3's ``predict`` never sees them, and
-the belief must be computable from what an agent observes when it acts.
+``beta < 1`` keeps the belief calibrated. The readings (below) are modelled exactly, and their terms are not
+tempered. Rewards are not modelled: SB3's ``predict`` never sees them, and the belief must be computable from what an
+agent observes when it acts.
 
 The E-step (:mod:`~sb3_emmarl.common.latent.em`) fits the decoder to whole episodes by EM and sets ``pi``
 to the mean responsibilities.
@@ -85,6 +86,13 @@ class LatentModel(nn.Module):
     components differ only in how the modes differ: otherwise the component that happens to be fitted on most
     data models the common part best and wins every episode (observed on the reserve).
 
+    The layout's *reading* features (``reading_features``: read afresh each step, independent given the mode) are
+    modelled as what they are: a Gaussian whose mean is a bias shared by the components plus each component's own,
+    neither ``x_t`` nor the trunk entering it (their read-out weights are masked to zero). For Gaussian readings of a
+    mode-dependent mean, as ZonePatrol's zone readings, this is the exact likelihood, so that the belief from them is
+    the exact posterior once the means are fitted; the transition form fitted to the same readings must learn to
+    subtract ``x_t`` through the trunk, and reads them less well (docs/em.md, "Readings").
+
     Whatever writes the model's parameters or buffers announces it (:meth:`mark_changed`), so that the beliefs'
     compiled copy (:class:`StepLikelihood`) follows: the closed-form updates here, ``load_state_dict`` (a post-hook)
     and the steps of every optimizer :meth:`watch` was given (the E-step's) do; a write elsewhere must call it.
@@ -92,9 +100,11 @@ class LatentModel(nn.Module):
     :param layout: the latent layout (feature and action sizes, ``K``, decoder sizes)
     """
 
-    # Buffers (register_buffer), declared for the type checker; count_log_rates is None without the count model.
+    # Buffers (register_buffer), declared for the type checker; count_log_rates is None without the count model,
+    # transition_mask (1 for a transition feature, 0 for a reading) None without readings.
     log_prior: th.Tensor
     count_log_rates: th.Tensor | None
+    transition_mask: th.Tensor | None
 
     def __init__(self, layout: LatentLayout) -> None:
         super().__init__()
@@ -119,6 +129,12 @@ class LatentModel(nn.Module):
             self.register_buffer("count_log_rates", COUNT_START_NOISE * th.randn(shape))
         else:
             self.count_log_rates = None
+        if layout.reading_features:
+            mask = th.ones(d_x)
+            mask[list(layout.reading_features)] = 0.0
+            self.register_buffer("transition_mask", mask)
+        else:
+            self.transition_mask = None
         #: bumped by :meth:`mark_changed` whenever the parameters or buffers are written (see :meth:`version`)
         self.revision = 0
         self._tensors: list[th.Tensor] | None = None
@@ -128,8 +144,12 @@ class LatentModel(nn.Module):
         """Each component's predicted mean of ``x_{t+1}``: ``(B, K, d_x)``, as ``x_t`` plus a predicted change
         (a residual: what stays put costs the components nothing to model)."""
         hidden = self.decoder_trunk(th.cat([features, actions], dim=-1))
-        shared = features + self.decoder_shared(hidden)
-        return shared[:, None, :] + th.einsum("bh,khd->bkd", hidden, self.decoder_weight) + self.decoder_bias
+        mask = self.transition_mask
+        if mask is None:
+            shared = features + self.decoder_shared(hidden)
+            return shared[:, None, :] + th.einsum("bh,khd->bkd", hidden, self.decoder_weight) + self.decoder_bias
+        shared = (features + hidden @ self.decoder_shared.weight.T) * mask + self.decoder_shared.bias
+        return shared[:, None, :] + th.einsum("bh,khd->bkd", hidden, self.decoder_weight * mask) + self.decoder_bias
 
     def log_std(self) -> th.Tensor:
         """The log standard deviations ``(d_x,)``, within :data:`LOG_STD_BOUNDS`."""
@@ -145,8 +165,14 @@ class LatentModel(nn.Module):
         log_std = self.log_std()
         inv_std = (-log_std).exp()
         k, size, d_x = self.decoder_weight.shape
-        own = (next_features - features - self.decoder_shared(hidden)) * inv_std  # (B, d_x)
-        weight = (self.decoder_weight * inv_std).permute(1, 0, 2).reshape(size, k * d_x)
+        mask = self.transition_mask
+        if mask is None:
+            own = (next_features - features - self.decoder_shared(hidden)) * inv_std  # (B, d_x)
+            weight = (self.decoder_weight * inv_std).permute(1, 0, 2).reshape(size, k * d_x)
+        else:  # (readings: their means are the biases alone)
+            own = (next_features - (features + hidden @ self.decoder_shared.weight.T) * mask
+                   - self.decoder_shared.bias) * inv_std
+            weight = (self.decoder_weight * (mask * inv_std)).permute(1, 0, 2).reshape(size, k * d_x)
         z = own[:, None, :] - th.addmm((self.decoder_bias * inv_std).reshape(-1), hidden, weight).view(-1, k, d_x)
         return -0.5 * z.square().sum(-1) - gaussian_log_normalizer(log_std)
 
@@ -280,11 +306,18 @@ class StepLikelihood:
             k, hidden, d_x = model.decoder_weight.shape
             # The shared read-out and every component's own, as one (hidden, K * d_x) product.
             weight = copy(model.decoder_weight) + copy(model.decoder_shared.weight).T[None]
+            mask = model.transition_mask
+            #: the features' factor in the means (1 each, 0 for a reading), None without readings
+            self.mask = None if mask is None else mask.detach().cpu().numpy().astype(np.float32)
+            if mask is not None:
+                weight = weight * copy(mask)
             self.readout = weight.permute(1, 0, 2).reshape(hidden, k * d_x).contiguous()
             self.bias = (copy(model.decoder_bias) + copy(model.decoder_shared.bias)[None]).reshape(-1)
             log_std = model.log_std().detach().cpu().double()
             self.inv_std = (-log_std).exp().numpy()
             self.constant = -float(gaussian_log_normalizer(log_std))
+            #: each feature's part of the constant (``constant = weighted_constant.sum()``), for tempered densities
+            self.weighted_constant = -(log_std.numpy() + 0.5 * math.log(2 * math.pi))
             self.log_prior = model.log_prior.detach().cpu().double().numpy().copy()
             self.shape = (k, d_x)
             if model.count_log_rates is not None:  # (has_counts) the count log-likelihood's table: minus the rates, then
@@ -293,9 +326,16 @@ class StepLikelihood:
                 self.count_table = table.permute(1, 2, 0).contiguous().numpy()  # (1 + channels, bins, K)
         self._model_version = version
 
-    def log_likelihood(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray) -> np.ndarray:
-        """``(B, K)`` float64 log-likelihoods of the transitions ``(features, actions) -> next_features``."""
+    def log_likelihood(self, features: np.ndarray, actions: np.ndarray, next_features: np.ndarray,
+                       temperature: float = 1.0) -> np.ndarray:
+        """``(B, K)`` float64 log-likelihoods of the transitions ``(features, actions) -> next_features``, tempered:
+        ``temperature`` (``beta``) times the terms of the transition features, plus the terms of the readings (the
+        layout's ``reading_features``, modelled exactly: never tempered)."""
         self._refresh()
+        inv_std, constant = self.inv_std, self.constant
+        if self.mask is not None and temperature != 1.0:  # (the weights folded into the deviations and the constant)
+            weights = np.where(self.mask > 0, temperature, 1.0)
+            inv_std, constant = inv_std * np.sqrt(weights), float(self.weighted_constant @ weights)
         # The products through torch, not numpy's ``@``: numpy's OpenBLAS starts worker threads for products of a
         # few dozen rows and they keep spinning between calls (measured: 16% of a second core over a whole EM-PPO
         # run, for no speed), where torch's obey ``torch.set_num_threads`` as the networks do. One inference-mode
@@ -306,8 +346,12 @@ class StepLikelihood:
                 hidden = th.tanh(th.addmm(bias, hidden, weight))
             changes = th.addmm(self.bias, hidden, self.readout).numpy()
         out = np.empty((len(features), self.shape[0]))
-        _step_log_density(changes, np.asarray(features, dtype=np.float32), np.asarray(next_features, dtype=np.float32),
-                          self.inv_std, self.constant, out)
+        features = np.asarray(features, dtype=np.float32)
+        if self.mask is not None:  # (a reading's mean does not start from its last value)
+            features = features * self.mask
+        _step_log_density(changes, features, np.asarray(next_features, dtype=np.float32), inv_std, constant, out)
+        if self.mask is None and temperature != 1.0:
+            out *= temperature
         return out
 
     def count_log_likelihood(self, counter: CountEvidence, observations: np.ndarray, refresh: bool = True) -> np.ndarray:
