@@ -51,7 +51,10 @@ indices of the teammates whose messages reached this UAV this step) and, on the 
 `infos[agent]["metrics"]`.
 
 ### Version History
-* v0: the current version; what each sb3-emmarl release changed in it is in CHANGELOG.md
+* v1: the current version (`reserve_v1`, zoo id `WildlifeReserve-v1`): the name it took when the rule that the version
+  rises whenever an episode can change was applied; what each sb3-emmarl release changed in it is in CHANGELOG.md
+* v0: the name it kept from its first release while its observation and dynamics changed many times; `reserve_v0` and
+  `WildlifeReserve-v0` still give v1, with a warning
 """
 
 from __future__ import annotations
