@@ -248,12 +248,17 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
                                                  "wrong_weather"))
     em = next(r for r in runs if r["variant"] == "em_ppo")
     assert 0.0 <= em["belief_accuracy"] <= 1.0 and len(em["permuted"]) == 8 and em["swap_kl"] >= 0.0
+    assert 0.0 <= em["belief_zone_accuracy"] <= 1.0 and 0.0 <= em["exact_team_zone_accuracy"] <= 1.0
+    assert len(told["belief_executed"]) == 8
     # mode 5 = zone 2, fog: the wrong zones 3, 0, 1 in fog, the wrong weather zone 2 clear
     assert [bench.WRONG[f"wrong_zone_{k}"][5] for k in (1, 2, 3)] == [7, 1, 3] and bench.WRONG["wrong_weather"][5] == 4
     assert bench.main(["report", "--folder", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     assert "told -" in text and "random team" in text and "collapsed runs" in text and "null calibration" in text
     assert "(em_ppo - ppo) / (told - ppo)" in text and "em_ppo, belief permuted" in text
+    assert "em_ppo - em_ppo permuted = " in text and "the exact posterior of the whole team's readings" in text
+    assert "(told, acting on the exact belief along the links - ppo) / (told - ppo)" in text
+    assert "settings: em_ppo (em_ppo): n_envs 8, n_steps 128, batch_size 1024" in text  # PROTOCOL item 10
     with pytest.raises(SystemExit, match="no runs in"):
         bench.main(["report", "--folder", str(tmp_path / "empty")])
     assert all(r["env_kwargs"] == {} for r in runs)
@@ -280,3 +285,41 @@ def test_the_protocols_bar_and_its_null_calibration():
     assert not observed and rate < 0.05  # a label that carries nothing rarely passes
     shifted = {s: [x + 2.0 for x in values] for s, values in noise.items()}
     assert bench.null_calibration(shifted, other, draws=50)[0]  # a real gain passes on the runs themselves
+
+
+def test_the_exact_belief_is_the_posterior_of_the_readings_that_reached_each_uav():
+    from scipy.special import softmax
+
+    from wildlife_reserve.zone_patrol.posterior import reading_log_likelihoods
+
+    bench = load_benchmark("zone_patrol_value")
+    venv = bench.ExactBelief(bench.make_env(3, n_copies=2, env_kwargs={"max_cycles": 4}))
+    config = venv.get_attr("config", [0])[0]
+    obs = venv.reset()
+    evidence = reading_log_likelihoods(config, obs)
+    np.testing.assert_allclose(obs[:, -8:], softmax(evidence, axis=1), atol=1e-5)  # before any message: its own
+    for step in range(4):
+        obs, _, dones, infos = venv.step(np.zeros(venv.num_envs, dtype=np.int64))
+        seen = np.stack([info["terminal_observation"] for info in infos]) if dones.all() else obs
+        heard = np.repeat(evidence.reshape(2, 4, 8).sum(1), 4, axis=0) - evidence  # the teammates' versions so far
+        evidence += reading_log_likelihoods(config, seen)
+        if not dones.all():  # the team starts together, within half the grid: every teammate's newest evidence arrives
+            heard = np.repeat(evidence.reshape(2, 4, 8).sum(1), 4, axis=0) - evidence
+        # (at an episode's end the vector environment moves the last step's links to "terminal_heard_from": the
+        # terminal belief holds the teammates' versions of the step before, as EM-PPO's does)
+        np.testing.assert_allclose(seen[:, -8:], softmax(evidence + heard, axis=1), atol=1e-5)
+    assert dones.all() and seen.shape == (8, config.obs_dim + 8)  # the terminal observations carry the last belief
+    np.testing.assert_allclose(obs[:, -8:], softmax(reading_log_likelihoods(config, obs), axis=1), atol=1e-5)  # anew
+    venv.close()
+
+
+def test_the_reach_benchmark_prints_reach_and_posteriors(capsys):
+    bench = load_benchmark("zone_patrol_reach")
+    assert bench.main(["--teams", "random", "split", "--ranges", "0", "28", "--episodes", "20", "--steps", "10"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[2:]]
+    reach = {(team, int(r)): float(value) for team, r, _, value, *_ in rows}
+    assert 0.25 <= reach[("random", 0)] < 0.5 and reach[("random", 28)] == pytest.approx(1.0)  # (0: same cell only)
+    for team, r, _, value, one, links, whole in rows:  # the links pool between one UAV's and the whole team's
+        assert float(one) <= float(links) + 1e-9 and float(links) <= float(whole) + 0.05
+    with pytest.raises(SystemExit):
+        bench.main(["--episodes", "0"])
