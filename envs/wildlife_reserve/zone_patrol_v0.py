@@ -1,7 +1,7 @@
-"""ZonePatrol's first version (``zone_cue=0``, ``comm_range=4``: :data:`~wildlife_reserve.zone_patrol.zone_patrol.
-FORMER_DEFAULTS`), kept so that its episodes and results can be regenerated; the current version is
-:mod:`wildlife_reserve.zone_patrol_v1` (the card's version history says what changed). Each function takes the current
-version's keyword arguments, with version 0's defaults under them."""
+"""ZonePatrol's first version (``zone_cue=0``, ``comm_range=4``:
+:data:`~wildlife_reserve.zone_patrol.zone_patrol.FORMER_DEFAULTS`), kept so that its episodes and results can be
+regenerated; the current version is :mod:`wildlife_reserve.zone_patrol_v1` (the card's version history says what
+changed). Each function takes the current version's keyword arguments, with version 0's defaults under them."""
 
 from typing import Any
 
