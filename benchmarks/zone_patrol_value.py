@@ -1,31 +1,36 @@
 """What knowing the hidden mode pays a learned team on ZonePatrol (or the reserve's zone raids), and how much of it
 EM-PPO recovers.
 
-``--task zone_raids`` runs the same protocol on the reserve with ``scenario="zone_raids"`` (docs/zone_raids.md): its
-modes are numbered as ZonePatrol's (``2 * strategy + weather``, the strategy deciding the zone), so the told-wrong
-relabellings are the same; the settings are the zoo's ``WildlifeReserve-v1`` sections, EM-PPO's belief is scored at
-step 100 of 200.
+``--task zone_patrol`` (the default) runs ZonePatrol version 1 (``zone_patrol_v1``; ``--task zone_patrol_v0`` the first
+version); ``--task zone_raids`` runs the same protocol on the reserve with ``scenario="zone_raids"``
+(docs/zone_raids.md): its modes are numbered as ZonePatrol's (``2 * strategy + weather``, the strategy deciding the
+zone), so the told-wrong relabellings are the same; the settings are the zoo's ``WildlifeReserve-v1`` sections,
+EM-PPO's belief is scored at step 100 of 200.
 
-Four variants train with the same PPO settings (the zoo's, ``ppo.yml``'s ``ZonePatrol-v0`` section) on 8 copies of
-ZonePatrol through the batched vector environment, each run in its own process with one torch thread: PPO told the
-mode (``told``:
-``OraclePPO``, the one-hot of the mode appended to every observation), plain PPO (``ppo``), the control told a random
-label per episode instead (``control``: ``OraclePPO(random_label=True)``, the same input without the information) and
-EM-PPO (``em_ppo``: ``em_ppo.yml``'s settings, its generic latent model, 8 components, fusion along the links).
-Reported beside them when asked for (``--variants``): EM-PPO without fusion, RecurrentPPO (``ppo_lstm.yml``) and
-MAPPO (``mappo.yml``), each with its zoo settings. Each run then plays the same
+Four variants train with the same PPO settings (the zoo's, ``ppo.yml``'s section of the task) on 8 copies of the task
+through the batched vector environment, each run in its own process with one torch thread: PPO told the mode
+(``told``: ``OraclePPO``, the one-hot of the mode appended to every observation), plain PPO (``ppo``), the control told
+a random label per episode instead (``control``: ``OraclePPO(random_label=True)``, the same input without the
+information) and EM-PPO (``em_ppo``: ``em_ppo.yml``'s settings, fusion along the links). Reported beside them when
+asked for (``--variants``): EM-PPO without fusion, EM-PPO with the team-scope belief (``fusion="team"``: centralised
+inference, an ablation), ``exact_belief`` (ZonePatrol: PPO at the same settings trained on the exact posterior of the
+readings that reached each UAV along the links, :class:`ExactBelief`: what a right belief pays a learner),
+RecurrentPPO (``ppo_lstm.yml``) and MAPPO (``mappo.yml``), each with its zoo settings. Each run then plays the same
 ``--eval-episodes`` held-out team episodes (8 copies from seed 50,000; actions sampled, torch seeded), scored as team
 episodes (one team reward per episode of a copy). ``told`` runs play them again told each wrong zone (the same
-weather) and the wrong weather (the same zone); EM-PPO runs with their belief permuted between components, and report
-how often their belief tells the mode at mid-episode (aligned accuracy). Told, control and
-EM-PPO runs report how far their actions move when the one-hot or the belief is permuted over the visited
-observations (:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`: the swap KL). A run is *collapsed* when its
-mean team reward is below the random team's on the same episodes (rule fixed before any run).
+weather) and the wrong weather (the same zone), and on ZonePatrol acting on the exact belief in place of the mode
+(``belief_executed``: trained told, executed on the belief); EM-PPO runs with their belief permuted between
+components, and report how often their belief tells the mode and the zone at mid-episode (aligned accuracy) beside the
+exact posterior of the whole team's readings on the same episodes (ZonePatrol). Told, control and EM-PPO runs report
+how far their actions move when the one-hot or the belief is permuted over the visited observations
+(:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`: the swap KL). A run is *collapsed* when its mean team reward
+is below the random team's on the same episodes (rule fixed before any run).
 
 ``run`` writes one JSON file per run into ``--folder`` (atomically; an existing run is kept, so a killed sweep
-resumes); ``report`` prints the paired tables (told against PPO, told against the control, the control against PPO,
-told right against told wrong, EM-PPO against PPO) with paired t and Wilcoxon p-values, seeds higher, medians, the
-share of the told gain EM-PPO recovers with a 90% bootstrap interval over seeds, and the collapsed runs.
+resumes); ``report`` prints each arm's settings and the paired tables (told against PPO, told against the control,
+the control against PPO, told right against told wrong, EM-PPO against PPO, the arms beside), with paired t and
+Wilcoxon p-values, seeds higher, medians, the share of the told gain each arm recovers with a 90% bootstrap interval
+over seeds, and the collapsed runs.
 
 Example: ``python benchmarks/zone_patrol_value.py run --seeds 0 1 2 3 4 5 6 7 8 9 --folder logs/zone_patrol_value``,
 then ``python benchmarks/zone_patrol_value.py report --folder logs/zone_patrol_value``.
@@ -401,8 +406,11 @@ def settings(variant: str, task: str = "zone_patrol") -> str:
 
     algo, overrides = ALGOS[variant]
     section = {**zoo_hyperparams(algo, TASKS[task].env_id), **overrides}
+    if variant == "exact_belief":
+        section["belief"] = "the exact posterior of the readings along the links, its weights started at zero"
     keys = ("n_envs", "n_steps", "batch_size", "n_epochs", "ent_coef", "learning_rate", "policy_kwargs", "n_components",
-            "fusion", "team_pooling", "likelihood_temperature", "random_label", "policy")
+            "fusion", "team_pooling", "likelihood_temperature", "zero_belief_weights", "e_step_interval", "e_step_kwargs",
+            "random_label", "belief", "policy")
     return f"{variant} ({algo}): " + ", ".join(f"{k} {section[k]}" for k in keys if k in section)
 
 
