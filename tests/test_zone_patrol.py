@@ -298,7 +298,7 @@ def test_the_exact_belief_is_the_posterior_of_the_readings_that_reached_each_uav
     obs = venv.reset()
     evidence = reading_log_likelihoods(config, obs)
     np.testing.assert_allclose(obs[:, -8:], softmax(evidence, axis=1), atol=1e-5)  # before any message: its own
-    for step in range(4):
+    for _ in range(4):
         obs, _, dones, infos = venv.step(np.zeros(venv.num_envs, dtype=np.int64))
         seen = np.stack([info["terminal_observation"] for info in infos]) if dones.all() else obs
         heard = np.repeat(evidence.reshape(2, 4, 8).sum(1), 4, axis=0) - evidence  # the teammates' versions so far
@@ -319,7 +319,7 @@ def test_the_reach_benchmark_prints_reach_and_posteriors(capsys):
     rows = [line.split() for line in capsys.readouterr().out.splitlines()[2:]]
     reach = {(team, int(r)): float(value) for team, r, _, value, *_ in rows}
     assert 0.25 <= reach[("random", 0)] < 0.5 and reach[("random", 28)] == pytest.approx(1.0)  # (0: same cell only)
-    for team, r, _, value, one, links, whole in rows:  # the links pool between one UAV's and the whole team's
+    for *_, one, links, whole in rows:  # the links pool between one UAV's and the whole team's
         assert float(one) <= float(links) + 1e-9 and float(links) <= float(whole) + 0.05
     with pytest.raises(SystemExit):
         bench.main(["--episodes", "0"])
