@@ -27,9 +27,8 @@ def zone_features(zone_map: dict) -> tuple[FeatureFn, int]:
     (over the window's cells, the exposure); then the visibility reading as observed, the window's detection cells
     this step and, when the observation has them (``zone_cue``), the zone readings as observed. The zone is where the
     mode shows, so the features say *where* the tracks were seen, which an egocentric window alone does not; the
-    visibility is where the weather shows. On ZonePatrol's episodes of the best scripted blind team, EM fitted with
-    team pooling tells the mode at mid-episode 0.75 of the time from these features against 0.56 from
-    :func:`generic_features` (``docs/lab/2026-12-05/zone_patrol_latent_ceiling.py``, one seed).
+    visibility is where the weather shows. How well EM reads the mode from them, against :func:`generic_features`:
+    ``docs/lab/2026-12-05/zone_patrol_latent_ceiling.py`` (its figures in that day's lab notebook).
 
     :param zone_map: plain values: ``grid_size``, ``zone_size``, ``window_radius``, ``zone_origins`` (top-left cells),
         the observation's ``tracks``, ``detections`` and ``own`` parts as ``[start, stop]`` (``own``: row and column
