@@ -63,7 +63,7 @@ def max_difference(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> float:
 
 def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: float, rng: np.random.Generator,
           args: argparse.Namespace) -> dict:
-    from sb3_emmarl.common.checkpoints import check_model_file, list_checkpoints
+    from sb3_emmarl.common.checkpoints import list_checkpoints, load_model
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
     folder = root / "trial"
@@ -90,8 +90,7 @@ def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: flo
             steps, newest = checkpoints[-1]
             outcome["checkpoint"] = steps
             try:
-                check_model_file(newest)
-                ZOO_ALGOS[algo].load(newest, device="cpu")
+                load_model(ZOO_ALGOS[algo], newest, device="cpu")
                 outcome["loads"] = True
             except Exception as error:
                 outcome["loads"] = f"{type(error).__name__}: {error}"

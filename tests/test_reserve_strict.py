@@ -71,15 +71,19 @@ def test_the_dict_path_refuses_what_step_arrays_refuses(action):
         env.step_arrays(np.array([action, action]))  # every UAV given it: the same refusal
 
 
-def test_the_dict_path_takes_ints_whole_floats_numpy_ints_and_none_as_stay():
+def test_the_dict_path_takes_ints_numpy_ints_and_none_as_stay():
+    """As Gymnasium's ``Discrete.contains``: a whole float or a one-element array is refused (since 0.22.1)."""
     def play(actions):
         env = reserve_v1.parallel_env(**TINY)
         env.reset(seed=3)
         return env.step(actions)[0]["uav_0"]
 
     reference = play({"uav_0": 0, "uav_1": 7})
-    for actions in ({"uav_0": None, "uav_1": np.int64(7)}, {"uav_1": 7.0}, {"uav_0": np.array([0]), "uav_1": 7}):
+    for actions in ({"uav_0": None, "uav_1": np.int64(7)}, {"uav_1": np.array(7)}, {"uav_0": np.uint8(0), "uav_1": 7}):
         np.testing.assert_array_equal(play(actions), reference)
+    for actions in ({"uav_1": 7.0}, {"uav_0": np.array([0]), "uav_1": 7}):
+        with pytest.raises(ValueError, match="must be an int"):
+            play(actions)
 
 
 def test_a_list_of_actions_is_refused():

@@ -8,6 +8,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_emmarl.common.checkpoints import REPLAY_BUFFER, TRAINING_STATE, companion, list_checkpoints
+from sb3_emmarl.common.safe_pickle import load_vec_normalize
 from sb3_emmarl.zoo.cli import enjoy_main, train_main
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
@@ -58,6 +59,40 @@ def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "c")])
     assert exit_info.value.code == 2 and "has no checkpoint" in capsys.readouterr().err
+
+
+def test_a_normalized_run_resumes_to_the_same_model_and_statistics(tmp_path):
+    """normalize: the reward normaliser's running returns are in the training state (before 0.22.1 a wrapper's own
+    state was skipped for its inner environment's, and the resumed run's weights drifted by about 1e-3)."""
+    run, killed = killed_after_first_checkpoint(tmp_path, "ppo", "-n", "3000", "-params", "normalize:True")
+    assert train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
+    reference, resumed = parameters(run / f"{ENV}.zip"), parameters(killed / f"{ENV}.zip")
+    assert all(th.equal(reference[k], resumed[k]) for k in reference)
+    statistics = [load_vec_normalize(folder / ENV / "vecnormalize.pkl", None) for folder in (run, killed)]
+    for name in ("obs_rms", "ret_rms"):
+        first, second = (getattr(s, name) for s in statistics)
+        assert np.array_equal(first.mean, second.mean) and np.array_equal(first.var, second.var)
+        assert first.count == second.count
+
+
+def test_resume_passes_over_another_runs_checkpoint_and_a_damaged_final_model(tmp_path, capsys):
+    """A valid zip of another model as the newest checkpoint is passed over (it used to leave --resume failing on every
+    try); a final model that does not load does not make the run "finished"."""
+    from stable_baselines3 import PPO
+
+    run, killed = killed_after_first_checkpoint(tmp_path, "ppo", "-n", "3000")
+    PPO("MlpPolicy", "CartPole-v1", n_steps=32, batch_size=32).save(killed / "rl_model_2048_steps.zip")
+    capsys.readouterr()
+    assert train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "from rl_model_1024_steps.zip" in out and "rl_model_2048_steps.zip: its networks' shapes differ" in out
+    reference = parameters(run / f"{ENV}.zip")
+    assert all(th.equal(reference[k], v) for k, v in parameters(killed / f"{ENV}.zip").items())
+    (killed / f"{ENV}.zip").write_bytes(b"PK\x03\x04 cut short")
+    assert train_main(["--algo", "ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
+    captured = capsys.readouterr()
+    assert "does not load" in captured.err and "from rl_model_2048_steps.zip" in captured.out
+    assert all(th.equal(reference[k], v) for k, v in parameters(killed / f"{ENV}.zip").items())
 
 
 def test_a_run_with_its_reserves_in_worker_processes_resumes_to_the_same_model(tmp_path):

@@ -44,7 +44,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper,
 
 from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.pickling import ViewPickler, dumps, rebuild_view
-from sb3_emmarl.common.safe_zip import check_zip_pickles, pickle_globals
+from sb3_emmarl.common.safe_zip import check_zip_sizes, pickle_globals, safe_data_objects
 
 #: What checkpoints written before :mod:`sb3_emmarl.common.pickling` existed name to rebuild their numpy views.
 _view = rebuild_view
@@ -151,7 +151,8 @@ def save_model(model: BaseAlgorithm, path: str | Path) -> Path:
 
 
 def load_pickle(path: str | Path) -> Any:
-    """Unpickle a file written by :func:`save_pickle`; a truncated file fails with a message naming it."""
+    """Unpickle a file written by :func:`save_pickle`; a truncated file fails with a message naming it. Unrestricted:
+    for a run's training state only (its environments' objects), which the run itself wrote."""
     try:
         with open(path, "rb") as file:
             return pickle.load(file)
@@ -161,8 +162,8 @@ def load_pickle(path: str | Path) -> Any:
 
 # ---------------------------------------------------------------------------------------------- checked loading
 def check_model_file(path: str | Path) -> Path:
-    """Check that ``path`` is a complete SB3 model zip whose pickles name only allowed globals
-    (:func:`~sb3_emmarl.common.safe_zip.check_zip_pickles`).
+    """Check that ``path`` is a complete SB3 model zip whose pickles name only allowed globals and read as data only
+    (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`).
 
     :raise ValueError: naming the file when it is missing, truncated, corrupt, not a model, or names a foreign global
     """
@@ -171,6 +172,7 @@ def check_model_file(path: str | Path) -> Path:
         raise ValueError(f"no model file {str(path)!r}")
     try:
         with zipfile.ZipFile(path) as archive:
+            check_zip_sizes(archive, path)  # before the checksums read every member
             names = set(archive.namelist())
             bad = archive.testzip()
     except (zipfile.BadZipFile, OSError, EOFError) as error:
@@ -180,7 +182,7 @@ def check_model_file(path: str | Path) -> Path:
         raise ValueError(f"{path} is corrupt (member {bad!r} fails its checksum): use an earlier checkpoint")
     if "data" not in names:
         raise ValueError(f"{path} is not a Stable-Baselines3 model (no 'data' in the zip)")
-    check_zip_pickles(path)  # before anything in it is unpickled (a zip from an unknown source is code)
+    safe_data_objects(path)  # its names checked, then its pickles read as data only (a zip from anywhere is code)
     return path
 
 
@@ -195,6 +197,21 @@ def check_pickle_file(path: str | Path) -> Path:
     except (OSError, ValueError) as error:
         raise ValueError(f"{path} is incomplete or corrupt ({error}); it may have been cut short by a crash") from None
     return Path(path)
+
+
+def network_shapes(path: str | Path) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    """The names and shapes of a model zip's parameters (read with ``torch.load(weights_only=True)``): what tells a
+    checkpoint of another run apart from a run's own.
+
+    :raise ValueError: naming the file if its parameters do not load
+    """
+    try:
+        _, params, _ = load_from_zip_file(path, device="cpu", load_data=False)
+    except Exception as error:  # torch and zipfile raise many kinds on a broken member
+        raise ValueError(f"{path}: its parameters do not load ({type(error).__name__})") from None
+    states: dict[str, Any] = params
+    return tuple(sorted((f"{part}.{name}", tuple(value.shape)) for part, state in states.items()
+                        for name, value in state.items() if hasattr(value, "shape")))
 
 
 def check_checkpoint(path: str | Path) -> Path:
@@ -267,7 +284,7 @@ def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidate
 
     :raise ValueError: naming the file, the algorithm asked for and the ones that fit
     """
-    data, _, _ = load_from_zip_file(path, device="cpu", load_data=True)
+    data, _, _ = load_from_zip_file(path, device="cpu", load_data=True, custom_objects=safe_data_objects(path))
     fits = fitting_algorithms(data or {}, candidates)
     if not any(candidates[name] is algo for name in fits):
         raise ValueError(f"{path} was not saved by {algo.__name__}: its settings fit "
@@ -277,11 +294,13 @@ def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidate
 def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str, type[BaseAlgorithm]] | None = None,
                **kwargs: Any) -> BaseAlgorithm:
     """``algo.load(path, **kwargs)`` after :func:`check_model_file` (and :func:`check_saved_algorithm` if
-    ``candidates`` are given)."""
+    ``candidates`` are given), the zip's pickled data read as data only
+    (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`, given to SB3 as ``custom_objects``)."""
     check_model_file(path)
     if candidates:
         check_saved_algorithm(path, algo, candidates)
-    return algo.load(path, **kwargs)
+    custom_objects = safe_data_objects(path, kwargs.pop("custom_objects", None))
+    return algo.load(path, custom_objects=custom_objects, **kwargs)
 
 
 # ---------------------------------------------------------------------------------------------- training state
@@ -293,6 +312,12 @@ def _layers(venv: VecEnv | None) -> list[Any]:
     return layers
 
 
+def _has_own(layer: Any, method: str) -> bool:
+    """Whether ``layer``'s class defines ``method`` (an SB3 ``VecEnvWrapper`` forwards unknown attributes to the
+    environment it wraps, so ``hasattr`` would find the inner environment's)."""
+    return callable(getattr(type(layer), method, None))
+
+
 def supports_training_state(venv: VecEnv | None) -> bool:
     """Whether :func:`vec_env_state` can read ``venv``: its innermost environment is SB3's ``DummyVecEnv`` or gives
     its state (the reserve's parameter-sharing vector environments, except SuperSuit's with worker processes)."""
@@ -301,7 +326,7 @@ def supports_training_state(venv: VecEnv | None) -> bool:
     inner = _layers(venv)[-1]
     if isinstance(inner, DummyVecEnv):
         return True
-    return hasattr(inner, "get_state") and getattr(inner, "checkpointable", True)
+    return _has_own(inner, "get_state") and getattr(inner, "checkpointable", True)
 
 
 def vec_env_state(venv: VecEnv | None) -> list[Any]:
@@ -314,7 +339,7 @@ def vec_env_state(venv: VecEnv | None) -> list[Any]:
                          "processes): a run resumed from its checkpoints starts new episodes")
     states: list[Any] = []
     for layer in _layers(venv):
-        if hasattr(layer, "get_state"):
+        if _has_own(layer, "get_state"):
             states.append(layer.get_state())
         else:
             names = next((attrs for cls, attrs in SB3_WRAPPER_STATE.items() if isinstance(layer, cls)), ())
@@ -328,10 +353,12 @@ def set_vec_env_state(venv: VecEnv | None, states: list[Any]) -> None:
     if len(layers) != len(states):
         raise ValueError(f"the saved environment has {len(states)} layers, this one {len(layers)} "
                          f"({[type(layer).__name__ for layer in layers]}): build it as the run did")
-    for layer, state in zip(layers, states):
-        if hasattr(layer, "set_state"):
+    for index, (layer, state) in enumerate(zip(layers, states)):
+        if _has_own(layer, "set_state"):
             layer.set_state(state)
-        elif state is not None:  # the layer's open files (monitor files) stay this environment's own
+        elif state is None or (index < len(layers) - 1 and isinstance(state, bytes) and state == states[-1]):
+            continue  # stateless, or (checkpoints before 0.22.1) the inner environment's state forwarded: set last
+        else:  # the layer's open files (monitor files) stay this environment's own
             names = next(attrs for cls, attrs in SB3_WRAPPER_STATE.items() if isinstance(layer, cls))
             _, files = _dumps_with_files({name: getattr(layer, name) for name in names})
             for name, value in _loads_with_files(state, files).items():

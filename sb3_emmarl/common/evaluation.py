@@ -17,10 +17,12 @@ from gymnasium import spaces
 from stable_baselines3.common import evaluation as sb3_evaluation
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize, is_vecenv_wrapped
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, is_vecenv_wrapped
 
 from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
+from sb3_emmarl.common.safe_pickle import load_vec_normalize
+from sb3_emmarl.common.safe_zip import safe_data_objects
 from sb3_emmarl.common.vec_env import make_vec_env
 
 
@@ -81,7 +83,7 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
         venv = make_vec_env(n_copies=1, seed=seed, env_kwargs=env_kwargs, vec_env_wrapper=vec_env_wrapper,
                             env_fn=parallel_env_fn(env_id), vec_env_type="batched")
     if vec_normalize_path is not None:
-        venv = VecNormalize.load(vec_normalize_path, venv)
+        venv = load_vec_normalize(vec_normalize_path, venv)
         venv.training = False
         venv.norm_reward = False
     if hasattr(model, "wrap_env"):
@@ -114,6 +116,7 @@ def load_for_evaluation(algo_class: type[BaseAlgorithm], path: str | Path, **kwa
     :param path: the saved model
     :param kwargs: ``load``'s other arguments
     """
+    kwargs["custom_objects"] = safe_data_objects(path, kwargs.get("custom_objects"))  # data only: nothing in it runs
     with _TORCH_RNG_LOCK, th.random.fork_rng():
         return algo_class.load(path, **kwargs)
 

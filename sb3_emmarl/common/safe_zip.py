@@ -7,7 +7,11 @@ code. :func:`check_zip_pickles` reads those pickles' opcodes (``pickletools.geno
 whose pickles name a global outside :func:`allowed_global`: the classes SB3, sb3-contrib and this package save (policies,
 buffers, extractors, action noise, schedules, their data classes), Gymnasium's spaces, numpy's arrays, dtypes and random
 generators, torch's activation and optimizer classes, ``collections.deque``/``OrderedDict`` and a few builtin types.
-The weights (``*.pth``) are loaded by SB3 with ``torch.load(weights_only=True)``, which takes tensors only.
+Naming allowed globals only is not enough (some call or deserialise what they are given, data types allocate what an
+argument asks for), so :func:`safe_data_objects` then unpickles the entries as data only
+(:mod:`sb3_emmarl.common.safe_pickle`) and hands them to SB3's ``load`` as ``custom_objects``, which SB3 takes in place of
+unpickling them itself. The weights (``*.pth``) are loaded by SB3 with ``torch.load(weights_only=True)``, which takes
+tensors only.
 """
 
 from __future__ import annotations
@@ -17,7 +21,9 @@ import binascii
 import dataclasses
 import enum
 import importlib
+import io
 import json
+import os
 import pickletools
 import zipfile
 from pathlib import Path
@@ -150,28 +156,91 @@ def _serialized(value: Any, key: str) -> list[tuple[str, str]]:
     return found
 
 
-def check_zip_pickles(path: str | Path) -> None:
-    """Refuse a model zip whose ``data`` pickles name a global outside :func:`allowed_global`, before SB3 unpickles
-    anything in it.
+#: The largest member a model zip may hold, uncompressed (a model of the paper's largest team is a few MB).
+MAX_MEMBER_BYTES = 1 << 31
 
-    :param path: the zip
-    :raise ValueError: one line naming the file, the entry and the global
+
+def check_zip_sizes(archive: zipfile.ZipFile, path: object) -> None:
+    """Refuse a zip with a member larger than :data:`MAX_MEMBER_BYTES` uncompressed, before anything is read.
+
+    :raise ValueError: one line naming the file, the member and its size
+    """
+    for info in archive.infolist():
+        if info.file_size > MAX_MEMBER_BYTES:
+            raise ValueError(f"{path}: refusing to load: its member {info.filename!r} is {info.file_size} bytes "
+                             f"uncompressed (at most {MAX_MEMBER_BYTES})")
+
+
+def read_data(path: str | Path | io.IOBase) -> dict[str, Any] | None:
+    """A model zip's ``data`` entry as JSON (nothing unpickled), or None if the zip has none.
+
+    :raise ValueError: one line naming the file when it is not a readable zip, a member is too large, or the entry is
+        not a JSON mapping (nested too deep included)
     """
     try:
         with zipfile.ZipFile(path) as archive:
+            check_zip_sizes(archive, path)
             if "data" not in archive.namelist():
-                return  # not a model: check_model_file says so
+                return None  # not a model: check_model_file says so
             data = json.loads(archive.read("data"))
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError, UnicodeDecodeError) as error:
+    except (zipfile.BadZipFile, OSError, EOFError, UnicodeDecodeError, RecursionError) as error:
         raise ValueError(f"{path} is not a readable model zip ({type(error).__name__})") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: its 'data' entry is not JSON ({error})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: its 'data' entry is not a mapping")
+    return data
+
+
+def _decoded(path: object, entry: str, text: str) -> bytes:
+    try:
+        return base64.b64decode(text.encode(), validate=True)
+    except (binascii.Error, ValueError):
+        raise ValueError(f"{path}: refusing to load: its entry {entry!r} is not base64") from None
+
+
+def safe_data_objects(path: str | Path | io.IOBase, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Every pickled entry of a model zip's ``data``, unpickled as data only
+    (:func:`~sb3_emmarl.common.safe_pickle.loads`), as SB3's ``custom_objects``: given to ``load`` or
+    ``load_from_zip_file``, SB3 takes them in place of unpickling the entries itself.
+
+    :param path: the zip
+    :param custom_objects: the caller's own objects, which win
+    :raise ValueError: one line naming the file, the entry and what it names, calls or allocates
+    """
+    from sb3_emmarl.common.safe_pickle import loads
+
+    if isinstance(path, (str, os.PathLike)) and not Path(path).exists() and Path(f"{path}.zip").exists():
+        path = f"{path}.zip"  # as SB3's load finds it
+    start = path.tell() if isinstance(path, io.IOBase) else None
+    try:
+        data = check_zip_pickles(path)
+        objects: dict[str, Any] = {}
+        for key, value in (data or {}).items():
+            if custom_objects and key in custom_objects:
+                continue
+            if isinstance(value, dict) and isinstance(value.get(":serialized:"), str):
+                objects[key] = loads(_decoded(path, key, value[":serialized:"]), f"{path}: its entry {key!r}")
+    finally:
+        if start is not None:
+            cast(io.IOBase, path).seek(start)
+    return {**objects, **(custom_objects or {})}
+
+
+def check_zip_pickles(path: str | Path | io.IOBase) -> dict[str, Any] | None:
+    """Refuse a model zip whose ``data`` pickles name a global outside :func:`allowed_global`, before anything in it
+    is unpickled (:func:`safe_data_objects` then unpickles them as data only).
+
+    :param path: the zip (a path or an open binary file)
+    :return: the zip's ``data`` as JSON, or None if it has none
+    :raise ValueError: one line naming the file, the entry and the global
+    """
+    data = read_data(path)
+    if data is None:
+        return None
     for key, value in data.items():
         for entry, text in _serialized(value, str(key)):
-            try:
-                blob = base64.b64decode(text.encode(), validate=True)
-            except (binascii.Error, ValueError):
-                raise ValueError(f"{path}: refusing to load: its entry {entry!r} is not base64") from None
+            blob = _decoded(path, entry, text)
             try:
                 names = pickle_globals(blob)
             except ValueError as error:
@@ -180,3 +249,4 @@ def check_zip_pickles(path: str | Path) -> None:
                 if not allowed_global(module, name):
                     raise ValueError(f"{path}: refusing to load: its entry {entry!r} names {module}.{name}, which a "
                                      "model of this package never holds (a zip from an unknown source is code)")
+    return data

@@ -17,6 +17,8 @@ import numpy as np
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.safe_zip import safe_data_objects
+
 if TYPE_CHECKING:  # the type checker sees the SB3 algorithm the mixin is placed before; at run time it is a plain class
     from stable_baselines3.common.base_class import BaseAlgorithm as _AlgorithmBase
 else:
@@ -51,7 +53,10 @@ class WrapsEnv(_AlgorithmBase):
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> Any:
-        """As SB3's ``load``; ``env`` (a plain environment is fine) gets the wrapper the model was trained with."""
+        """As SB3's ``load``, the zip's pickled data read as data only
+        (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`: nothing in the file runs); ``env`` (a plain
+        environment is fine) gets the wrapper the model was trained with."""
+        custom_objects = safe_data_objects(path, custom_objects)
         if env is not None:
             data, _, _ = load_from_zip_file(path, device="cpu", custom_objects=custom_objects)
             env = cls._wrap_saved_env(env, data or {})

@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_emmarl.common.checkpoints import load_model
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.safe_config import load_yaml_text
@@ -147,7 +148,7 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
         "train_seconds": seconds, "peak_rss_mib": max(s["peak_rss_mib"] for s in runs),
         "cpu_percent": 100.0 * sum(s.get("cpu_seconds", 0.0) for s in runs) / max(seconds, 1e-9),
         "agent_steps_per_second": steps / max(seconds, 1e-9), "n_timesteps": float(steps)}
-    model = ZOO_ALGOS[variant.algo].load(run / f"{spec.env}.zip", device="cpu")
+    model = load_model(ZOO_ALGOS[variant.algo], run / f"{spec.env}.zip", device="cpu")
     records = evaluate_team(model, plan.eval_episodes, seed=plan.eval_seed, env_kwargs=cond.eval_kwargs, env_id=spec.env)
     for metric in EPISODE_METRICS:
         if all(metric in r for r in records):

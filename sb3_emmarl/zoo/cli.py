@@ -17,6 +17,7 @@ import shutil
 import sys
 import time
 import uuid
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -32,6 +33,7 @@ from sb3_emmarl.common.checkpoints import (
     check_saved_algorithm,
     companion,
     list_checkpoints,
+    network_shapes,
     vec_normalize_stats,
     write_text,
 )
@@ -194,15 +196,23 @@ def newest_loadable_checkpoint(checkpoints: list[tuple[int, Path]]) -> tuple[int
     :param checkpoints: ``(steps, zip)`` oldest first (:func:`~sb3_emmarl.common.checkpoints.list_checkpoints`)
     :raise ValueError: if none loads, naming the newest and why
     """
-    skipped = []
+    skipped, complete = [], []
     for steps, path in reversed(checkpoints):
         try:
             check_checkpoint(path)
+            complete.append((steps, path, network_shapes(path)))
         except ValueError as error:
             skipped.append(f"{path.name}: {error}")
-            continue
-        return steps, path, skipped
-    raise ValueError(f"none of the run's {len(checkpoints)} checkpoints loads (the newest, {skipped[0]})")
+    if not complete:
+        raise ValueError(f"none of the run's {len(checkpoints)} checkpoints loads (the newest, {skipped[0]})")
+    # A checkpoint of another run (a valid zip whose networks differ from the run's other checkpoints) is passed over.
+    counts = Counter(shapes for _, _, shapes in complete)
+    usual = max(counts, key=lambda shapes: (counts[shapes], shapes == complete[-1][2]))  # (a tie: the oldest's)
+    for steps, path, shapes in complete:
+        if shapes == usual:
+            return steps, path, skipped
+        skipped.append(f"{path.name}: its networks' shapes differ from the run's other checkpoints (another run's?)")
+    raise AssertionError("unreachable: the usual shapes are some checkpoint's")
 
 
 def _check_train_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -250,9 +260,16 @@ def _resume_args(parser: argparse.ArgumentParser, args: argparse.Namespace,
     if differ:
         parser.error(f"--resume continues {run} with its own settings, and these differ from them: {'; '.join(differ)} "
                      "(to train on from one of its checkpoints with other settings, give it with -i: a new run)")
-    if (run / f"{env_id}.zip").is_file():
-        print(f"{run} has finished (its final model {env_id}.zip exists): nothing to resume")
-        return None
+    final = run / f"{env_id}.zip"
+    if final.exists():
+        try:
+            check_model_file(final)
+        except ValueError as error:  # a final model cut short or damaged: the run is resumed, and writes a new one
+            print(f"warning: {final.name} does not load ({error}); resuming {run} from its checkpoints",
+                  file=sys.stderr)
+        else:
+            print(f"{run} has finished (its final model {env_id}.zip exists): nothing to resume")
+            return None
     for leftover in run.rglob(".*.tmp"):  # a file being written when the run stopped (its previous version is intact)
         leftover.unlink()
     checkpoints = list_checkpoints(run)

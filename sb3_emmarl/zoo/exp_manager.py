@@ -52,7 +52,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.callbacks import EvalCallback as TeamEvalCallback
 from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
@@ -77,6 +77,8 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
+from sb3_emmarl.common.safe_pickle import load_data_pickle, load_vec_normalize
+from sb3_emmarl.common.safe_zip import safe_data_objects
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO
@@ -466,7 +468,7 @@ class ReserveExperimentManager(ExperimentManager):
         stats = companion(self.trained_agent, VEC_NORMALIZE) if self.trained_agent else None
         if stats is None or not stats.is_file():
             return super()._maybe_normalize(env, eval_env)
-        env = VecNormalize.load(str(stats), env)
+        env = load_vec_normalize(stats, env)
         if eval_env:
             env.training, env.norm_reward = False, False
         return env
@@ -523,12 +525,13 @@ class ReserveExperimentManager(ExperimentManager):
             key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
         model = ZOO_ALGOS[self.algo].load(self.trained_agent, env=env, seed=self.seed, device=self.device,
                                           tensorboard_log=self.tensorboard_log, verbose=self.verbose,
-                                          force_reset=not resuming, **overrides)
+                                          force_reset=not resuming,
+                                          custom_objects=safe_data_objects(self.trained_agent), **overrides)
         buffer_file = companion(self.trained_agent, REPLAY_BUFFER)
         if buffer_file is None:
             buffer_file = Path(self.trained_agent).parent / "replay_buffer.pkl"
         if buffer_file.is_file() and hasattr(model, "replay_buffer"):
-            model.replay_buffer = load_pickle(buffer_file)
+            model.replay_buffer = load_data_pickle(buffer_file)
             model.replay_buffer.device = model.device
         elif self.resume_run is not None and getattr(model, "replay_buffer", None) is not None:
             # Without its replay buffer (--save-replay-buffer) the run refills an empty one before learning again.

@@ -62,7 +62,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import threading
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -72,6 +71,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
+from wildlife_reserve.checks import check_action_dict, check_agent, check_options, check_seed, discrete_action
 from wildlife_reserve.reserve import actors, kernels, sensing
 from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve import terrain as terrain_lib
@@ -115,6 +115,8 @@ from wildlife_reserve.reserve.stream import Stream
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.rendering import ReserveRenderer
 
+#: The keys ``reset(options=...)`` takes.
+RESET_OPTIONS = ("mode", "uav_positions")
 _NO_CHOICES = np.zeros(0, dtype=np.int64)  # continuous actions: decoded before the step's compiled call
 _NO_JAMMER = np.zeros(2)  # what the step's compiled call gets for the jammer's cell without one (never written)
 
@@ -278,10 +280,12 @@ class ReserveParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------ spaces
     @functools.cache  # noqa: B019 (one space object per agent, as PettingZoo requires)
     def observation_space(self, agent: str) -> spaces.Box:
+        check_agent(agent, self.possible_agents)
         return spaces.Box(low=-1.0, high=1.0, shape=(self.obs_dim,), dtype=np.float32)
 
     @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Space:
+        check_agent(agent, self.possible_agents)
         if self.config.continuous_actions:
             return spaces.Box(low=-1.0, high=1.0, shape=(3,), dtype=np.float32)
         return spaces.Discrete(N_MOVES * N_COMMS)
@@ -373,8 +377,7 @@ class ReserveParallelEnv(ParallelEnv):
 
         :param seed: seeds every random draw of the episode (and of later unseeded resets)
         :param options: ``{"mode": int}`` fixes the hidden mode for this episode;
-            ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col).
-            Other keys are ignored.
+            ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col); no other key.
         :raise ValueError: for a bad seed or option, before anything changes (the previous episode, if any, is left as
             it was)
         """
@@ -517,26 +520,21 @@ class ReserveParallelEnv(ParallelEnv):
     def _check_reset(self, seed: Any, options: dict | None) -> tuple[int | None, int | None, np.ndarray | None]:
         """``reset``'s arguments checked before anything changes: the seed (an int >= 0, numpy's included, or None),
         the mode (``options["mode"]``, else the configuration's) and the UAVs' start cells (floored), or None."""
-        if seed is not None:
-            if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
-                raise ValueError(f"seed must be an int >= 0 or None, got {seed!r}")
-            seed = int(seed)
-        if options is not None and not isinstance(options, Mapping):
-            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
-        options = options or {}
-        mode = options.get("mode", self.config.mode)
+        seed = check_seed(seed)
+        given = check_options(options, RESET_OPTIONS)
+        mode = given.get("mode", self.config.mode)
         if mode is not None:
             mode = check_int("mode", mode, 0, N_MODES - 1)
         start = None
-        if "uav_positions" in options:
+        if "uav_positions" in given:
             shape = (self.height, self.width)
             try:
-                start = np.asarray(options["uav_positions"], dtype=np.float64)
+                start = np.asarray(given["uav_positions"], dtype=np.float64)
             except (TypeError, ValueError):
                 start = np.full(0, np.nan)
             if start.shape != (self.n, 2) or not np.isfinite(start).all() or (start < 0).any() or (start >= shape).any():
                 raise ValueError(f"options['uav_positions'] must be {self.n} (row, col) cells inside {shape}, "
-                                 f"got {options['uav_positions']!r}")
+                                 f"got {given['uav_positions']!r}")
             start = np.floor(start)
         return seed, mode, start
 
@@ -712,10 +710,10 @@ class ReserveParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ helpers
     def _decode_actions(self, actions: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`_action_arrays` of the action dict (a missing or None action means "stay, no message"); each action
-        is checked as :meth:`step_arrays` checks its rows, and a bad one is refused naming its agent."""
-        if not isinstance(actions, Mapping):
-            raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
+        """:meth:`_action_arrays` of the action dict (a missing or None action means "stay, no message"; a key that is
+        no live agent is refused); each action is checked as :meth:`step_arrays` checks its rows, and a bad one is
+        refused naming its agent."""
+        check_action_dict(actions, self.agents)
         if self.config.continuous_actions:
             act = np.zeros((self.n, 3))
             for i, agent in enumerate(self.agents):
@@ -728,18 +726,10 @@ class ReserveParallelEnv(ParallelEnv):
                     act[i] = row
             return self._action_arrays(act)
         choices = np.zeros(self.n, dtype=np.int64)  # 0: stay, no message
-        top = N_MOVES * N_COMMS - 1
         for i, agent in enumerate(self.agents):
             value = actions.get(agent)
-            if value is None:
-                continue
-            choice = np.asarray(value)
-            kind = choice.dtype.kind
-            if choice.size != 1 or not (kind in "iu" or (kind == "f" and np.isfinite(choice).all()
-                                                          and float(choice.flat[0]).is_integer())) \
-                    or not 0 <= choice.flat[0] <= top:
-                raise ValueError(f"the action of {agent} must be an int in [0, {top}] or None, got {value!r}")
-            choices[i] = int(choice.flat[0])
+            if value is not None:
+                choices[i] = discrete_action(agent, value, N_MOVES * N_COMMS, none_too=True)
         return self._action_arrays(choices)
 
     def _action_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

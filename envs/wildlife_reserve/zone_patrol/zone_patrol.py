@@ -76,11 +76,14 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
+from wildlife_reserve.checks import check_action_dict, check_agent, check_options, check_seed, discrete_action
 from wildlife_reserve.extras import requires
 from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, ZonePatrolConfig, ZonePatrolWorld
 
 #: The render modes (``metadata["render_modes"]``).
 RENDER_MODES = ("human", "rgb_array")
+#: The keys ``reset(options=...)`` takes.
+RESET_OPTIONS = ("mode",)
 #: The current version (``zone_patrol_v1``), whose defaults are :class:`ZonePatrolConfig`'s.
 VERSION = 1
 #: Each former version's defaults that differ from the current version's (its module passes them under the caller's
@@ -135,10 +138,12 @@ class ZonePatrolParallelEnv(ParallelEnv):
 
     @functools.cache  # noqa: B019 (PettingZoo's habit: one space object per agent)
     def observation_space(self, agent: str) -> spaces.Box:
+        check_agent(agent, self.possible_agents)
         return spaces.Box(-1.0, 1.0, (self.config.obs_dim,), np.float32)
 
     @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Discrete:
+        check_agent(agent, self.possible_agents)
         return spaces.Discrete(N_MOVES * N_SENSORS)
 
     @property
@@ -163,14 +168,23 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return int(self.world.modes[0])
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode.
+
+        :param seed: an int >= 0 seeds the episode's draws (and later unseeded resets'), or None
+        :param options: ``{"mode": int}`` fixes the hidden mode for this episode; no other key
+        :raise ValueError: for a bad seed or option, before anything changes
+        """
+        seed = check_seed(seed)
+        given = check_options(options, RESET_OPTIONS)
         mode = None
-        if options is not None and "mode" in options:
-            mode = options["mode"]
-            if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < self.config.n_modes:
+        if "mode" in given:
+            mode = given["mode"]
+            if isinstance(mode, (bool, np.bool_)) or not isinstance(mode, (int, np.integer)) \
+                    or not 0 <= mode < self.config.n_modes:
                 raise ValueError(f"options['mode'] must be an int in [0, {self.config.n_modes - 1}], got {mode!r}")
             mode = np.array([mode])
         if seed is not None:
-            self._rng, _ = seeding.np_random(int(seed))
+            self._rng, _ = seeding.np_random(seed)
         self.world.reset(self._rng, mode)
         self.agents = list(self.possible_agents)
         self._started = True
@@ -180,12 +194,16 @@ class ZonePatrolParallelEnv(ParallelEnv):
         return {a: observations[i] for i, a in enumerate(self.agents)}, infos
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
-        if not isinstance(actions, dict):
-            raise ValueError(f"actions must be a dict of agent -> action, got {type(actions).__name__}")
+        """Advance every UAV one step.
+
+        :param actions: an int in ``[0, 10)`` per live agent (one left out takes action 0: stay, first sensor); a key
+            that is no live agent is refused
+        """
         self._check_running()
+        check_action_dict(actions, self.agents)
         joint = np.zeros(self.config.n_uavs, dtype=np.int64)
         for i, agent in enumerate(self.agents):
-            joint[i] = self._check_action(agent, actions.get(agent, 0))
+            joint[i] = discrete_action(agent, actions.get(agent, 0), N_MOVES * N_SENSORS)
         agents = list(self.agents)
         observations, rewards, terminated, truncated, info, heard = self.step_arrays(joint)
         infos = {a: {**info, "heard_from": heard[i]} for i, a in enumerate(agents)}
@@ -208,6 +226,8 @@ class ZonePatrolParallelEnv(ParallelEnv):
         if joint.shape != (n,) or not np.issubdtype(joint.dtype, np.integer) or joint.min() < 0 \
                 or joint.max() >= N_MOVES * N_SENSORS:
             raise ValueError(f"actions must be {n} ints in [0, {N_MOVES * N_SENSORS - 1}], got {actions!r}")
+        if out is not None and (out.shape != (n, self.obs_dim) or out.dtype != np.float32):
+            raise ValueError(f"out must be a float32 array of shape {(n, self.obs_dim)}, got {out.dtype} {out.shape}")
         reward = float(self.world.step(joint[None], self._rng)[0])
         observations = self.world.observations()[0]
         if out is not None:
@@ -225,13 +245,6 @@ class ZonePatrolParallelEnv(ParallelEnv):
             raise RuntimeError("call reset() before step()")
         if not self.agents:
             raise RuntimeError("the episode is over: call reset()")
-
-    def _check_action(self, agent: str, action: Any) -> int:
-        value = np.asarray(action)
-        n_actions = N_MOVES * N_SENSORS
-        if value.shape != () or not np.issubdtype(value.dtype, np.integer) or not 0 <= int(value) < n_actions:
-            raise ValueError(f"action of {agent} must be an int in [0, {n_actions - 1}], got {action!r}")
-        return int(value)
 
     def state(self) -> np.ndarray:
         if not self._started:

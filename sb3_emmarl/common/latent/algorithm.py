@@ -267,7 +267,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         """As SB3's; an archive that keeps the E-step's state among its data (as older archives do) has no E-step among
         its parameters, and :meth:`load` restores it from the data."""
         if not isinstance(load_path_or_dict, dict):
-            _, load_path_or_dict, _ = load_from_zip_file(load_path_or_dict, device=device)
+            _, load_path_or_dict, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
         self._e_step_in_data = "e_step" not in load_path_or_dict
         try:
             super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
