@@ -57,7 +57,8 @@ def main(argv: list[str] | None = None, prog: str = "emmarl") -> int:
 
     :param argv: the arguments after the program's name (default: ``sys.argv[1:]``)
     :param prog: the program's name in messages and in the subcommands' usage lines
-    :return: the exit code: the subcommand's; 2 for a missing or unknown command; 1 for a missing extra
+    :return: the exit code: the subcommand's; 2 for a missing or unknown command; 1 for a missing extra, or a file
+        that cannot be read or written (a full disk, a read-only folder: one line naming the path) or memory run out
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -78,6 +79,13 @@ def main(argv: list[str] | None = None, prog: str = "emmarl") -> int:
         return int(getattr(importlib.import_module(module), function)(rest) or 0)
     except MissingExtra as error:
         print(f"{prog} {name}: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:  # a full disk, a read-only or special path: one line naming it (writes are atomic)
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"{prog} {name}: error: {where}{error.strerror or error}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        print(f"{prog} {name}: error: out of memory", file=sys.stderr)
         return 1
     finally:
         sys.argv[0] = program

@@ -404,7 +404,7 @@ def train_main(argv: list[str] | None = None) -> int:
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
         manager.learn(model)
-    except (ValueError, RuntimeError, FloatingPointError) as error:
+    except (ValueError, RuntimeError, FloatingPointError, OSError) as error:  # OSError: a checkpoint on a full disk
         print(f"error: training stopped at step {model.num_timesteps}: {error}\n"
               f"{_after_failed_training(manager, model, args.tensorboard_log)}", file=sys.stderr)
         return 1
