@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.metrics import format_summary, summarize
-from sb3_emmarl.common.validation import int_flag
+from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, int_flag
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.scripted import SCRIPTED_PATROLS, run_patrol
 
@@ -16,8 +16,8 @@ def patrol_parser() -> OneLineParser:
     """The flags of ``emmarl patrol``."""
     parser = OneLineParser(description="Run a scripted patrol on the reserve and print the team metrics.")
     parser.add_argument("--policy", choices=sorted(SCRIPTED_PATROLS), default="stalest_block", help="scripted patrol")
-    parser.add_argument("--episodes", type=int, default=3, help="episodes to play")
-    parser.add_argument("--seed", type=int_flag(0, 2**32 - 1), default=0,
+    parser.add_argument("--episodes", type=int_flag(1, MAX_EPISODES), default=3, help="episodes to play")
+    parser.add_argument("--seed", type=int_flag(0, MAX_SEED), default=0,
                         help="seed of the first episode (and of the random patrol)")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, default={},
                         help="reserve arguments as key:value, e.g. n_uavs:20")
@@ -32,8 +32,6 @@ def patrol_main(argv: list[str] | None = None) -> int:
     """
     parser = patrol_parser()
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be >= 1, got {args.episodes}")
     try:
         env = reserve_v1.parallel_env(**args.env_kwargs)
     except (TypeError, ValueError) as error:

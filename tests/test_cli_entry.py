@@ -63,7 +63,8 @@ def test_a_command_runs_under_its_own_name(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["patrol", "--episodes", "0"])
     assert stop.value.code == 2
-    assert capsys.readouterr().err == "emmarl patrol: error: --episodes must be >= 1, got 0 (--help for usage)\n"
+    assert capsys.readouterr().err == ("emmarl patrol: error: argument --episodes: must be an int in [1, 10000], got 0 "
+                                       "(--help for usage)\n")
 
 
 def test_the_zoo_scripts_are_thin_calls_of_the_command():

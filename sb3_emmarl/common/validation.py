@@ -37,6 +37,8 @@ MAX_N_ENVS = 256
 MAX_LAYER = 4096
 MAX_BUFFER = 10**7
 MAX_STEPS = 10**6
+MAX_EPISODES = 10_000  # evaluation episodes a command plays
+MAX_SEED = 2**32 - 1
 #: Keys of ``normalize`` (SB3's ``VecNormalize`` arguments) and of ``monitor_kwargs`` (SB3's ``Monitor``'s).
 NORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon", "norm_obs_keys")
 MONITOR_KEYS = ("allow_early_resets", "reset_keywords", "info_keywords", "override_existing")

@@ -12,12 +12,14 @@ from typing import Any, NamedTuple
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.arguments import OneLineParser
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import check_model_file, vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.statistics import paired_p_value
+from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
 from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
@@ -36,12 +38,14 @@ def paired_comparison(trained: list[dict], reference: list[dict], metric: str) -
 
 
 def benchmark_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description="Train each algorithm, then compare it with the random team.")
+    parser = OneLineParser(description="Train each algorithm, then compare it with the random team.")
     parser.add_argument("--algos", nargs="+", default=["ppo"], choices=sorted(ZOO_ALGOS), help="algorithms")
-    parser.add_argument("-n", "--n-timesteps", type=int, default=3_000_000, help="training budget in agent-steps")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="training seeds")
-    parser.add_argument("--eval-episodes", type=int, default=20, help="evaluation episodes (the same for every team)")
-    parser.add_argument("--eval-seed", type=int, default=50_000, help="seed of the evaluation episodes")
+    parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS), default=3_000_000,
+                        help="training budget in agent-steps")
+    parser.add_argument("--seeds", type=int_flag(0, MAX_SEED), nargs="+", default=[0], help="training seeds")
+    parser.add_argument("--eval-episodes", type=int_flag(2, MAX_EPISODES), default=20,
+                        help="evaluation episodes (the same for every team; a paired test needs two)")
+    parser.add_argument("--eval-seed", type=int_flag(0, MAX_SEED), default=50_000, help="seed of the evaluation episodes")
     parser.add_argument("-f", "--log-folder", default="logs/benchmark", help="where the trained runs are saved")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
     parser.add_argument("-params", "--hyperparams", type=str, nargs="+", action=KeyValues, help="hyperparameter overrides")
@@ -52,8 +56,6 @@ def benchmark_main(argv: list[str] | None = None) -> int:
     """Train, evaluate trained and random teams on the same episodes, print the table."""
     parser = benchmark_parser()
     args = parser.parse_args(argv)
-    if args.n_timesteps < 1 or args.eval_episodes < 2:
-        parser.error("-n must be >= 1 and --eval-episodes >= 2 (a paired test needs two episodes)")
     env_kwargs = args.env_kwargs or {}
     rows = []
     for algo in args.algos:
@@ -186,13 +188,15 @@ def check_compare_arguments(parser: argparse.ArgumentParser, args: argparse.Name
 def add_run_arguments(parser: argparse.ArgumentParser, n_timesteps: int, seeds: list[int], eval_episodes: int,
                       log_folder: str) -> None:
     """The flags of every multi-seed comparison: budget, seeds, evaluation, folder, environment, parallel jobs."""
-    parser.add_argument("-n", "--n-timesteps", type=int, default=n_timesteps, help="budget of every run, agent-steps")
-    parser.add_argument("--seeds", type=int, nargs="+", default=seeds, help="training seeds")
-    parser.add_argument("--eval-episodes", type=int, default=eval_episodes, help="evaluation episodes per run")
-    parser.add_argument("--eval-seed", type=int, default=50_000, help="seed of the evaluation episodes")
+    parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS), default=n_timesteps,
+                        help="budget of every run, agent-steps")
+    parser.add_argument("--seeds", type=int_flag(0, MAX_SEED), nargs="+", default=seeds, help="training seeds")
+    parser.add_argument("--eval-episodes", type=int_flag(1, MAX_EPISODES), default=eval_episodes,
+                        help="evaluation episodes per run")
+    parser.add_argument("--eval-seed", type=int_flag(0, MAX_SEED), default=50_000, help="seed of the evaluation episodes")
     parser.add_argument("-f", "--log-folder", default=log_folder, help="where the runs are saved")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="reserve arguments, key:value")
-    parser.add_argument("--n-jobs", type=int, default=1,
+    parser.add_argument("--n-jobs", type=int_flag(1, 64), default=1,
                         help="runs trained at once, each in its own process with one torch thread")
     parser.add_argument("--reuse-runs", action="store_true",
                         help="evaluate the runs already finished in the log folder instead of training them again "
@@ -202,13 +206,7 @@ def add_run_arguments(parser: argparse.ArgumentParser, n_timesteps: int, seeds: 
 
 
 def check_run_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Reject bad values of :func:`add_run_arguments`' flags, naming them."""
-    if args.n_timesteps < 1:
-        parser.error(f"-n/--n-timesteps must be >= 1, got {args.n_timesteps}")
-    if args.eval_episodes < 1:
-        parser.error(f"--eval-episodes must be >= 1, got {args.eval_episodes}")
-    if args.n_jobs < 1:
-        parser.error(f"--n-jobs must be >= 1, got {args.n_jobs}")
+    """Reject bad values of :func:`add_run_arguments`' flags that one flag's range does not say, naming them."""
     if len(set(args.seeds)) != len(args.seeds):
         parser.error(f"--seeds must be distinct, got {args.seeds}")
 

@@ -41,7 +41,7 @@ from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, 
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.safe_config import wrapper_from_config
-from sb3_emmarl.common.validation import MAX_TIMESTEPS, device_flag, int_flag
+from sb3_emmarl.common.validation import MAX_EPISODES, MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
@@ -110,14 +110,14 @@ def train_parser() -> argparse.ArgumentParser:
                              "from its newest checkpoint, with the run's own settings, up to its n_timesteps")
     parser.add_argument("--eval-freq", type=int_flag(-1, MAX_TIMESTEPS), default=25000,
                         help="evaluate every n steps (0 or -1: never)")
-    parser.add_argument("--eval-episodes", type=int_flag(1, 10_000), default=5, help="episodes per periodic evaluation")
+    parser.add_argument("--eval-episodes", type=int_flag(1, MAX_EPISODES), default=5, help="episodes per periodic evaluation")
     parser.add_argument("--n-eval-envs", type=int_flag(1, 64), default=1, help="environments for periodic evaluation")
     parser.add_argument("--save-freq", type=int_flag(-1, MAX_TIMESTEPS), default=-1,
                         help="checkpoint every n agent-steps, as -n counts them (0 or -1: never); checkpoints are atomic "
                              "and resumable")
     parser.add_argument("--save-replay-buffer", action="store_true",
                         help="save the replay buffer with the final model and every checkpoint (off-policy algorithms)")
-    parser.add_argument("--team-eval-episodes", type=int_flag(0, 10_000), default=5,
+    parser.add_argument("--team-eval-episodes", type=int_flag(0, MAX_EPISODES), default=5,
                         help="evaluation episodes whose team metrics are printed after training (0: none)")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues, help="environment arguments, key:value")
     parser.add_argument("--eval-env-kwargs", type=str, nargs="+", action=KeyValues, help="evaluation environment arguments")
@@ -457,7 +457,7 @@ def enjoy_parser() -> argparse.ArgumentParser:
     parser.add_argument("--load-best", action="store_true", help="the best model of the periodic evaluations")
     parser.add_argument("--load-checkpoint", type=int_flag(1, MAX_TIMESTEPS), default=None,
                         help="the checkpoint of this step")
-    parser.add_argument("--episodes", type=int_flag(1, 10_000), default=3, help="evaluation episodes")
+    parser.add_argument("--episodes", type=int_flag(1, MAX_EPISODES), default=3, help="evaluation episodes")
     parser.add_argument("--seed", type=int_flag(0, 2**32 - 1), default=0, help="evaluation seed")
     parser.add_argument("--deterministic", action="store_true",
                         help="the most likely actions instead of sampled ones (identical UAVs then tend to move in lockstep)")
