@@ -180,7 +180,8 @@ def test_the_benchmark_runs_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     assert [row[0] for row in rows] == ["0", "1"] and all(float(x) > 0 for row in rows for x in row[2:])
 
 
-@pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"), (["-n", "0"], "n-timesteps: must be an int in [1, "),
+@pytest.mark.parametrize("flags, message", [(["--seeds", "0"], "at least 2 seeds"),
+                                            (["-n", "0"], "n-timesteps: must be an int in [1, "),
                                             (["--n-jobs", "0"], "n-jobs: must be an int in [1, 64]"),
                                             (["--seeds", "1", "1"], "must be distinct"),
                                             (["--patrol-episodes", "1"], "--patrol-episodes must be 0 or >= 2"),

@@ -330,3 +330,20 @@ def test_classes_only_where_they_belong_and_import_names_only_from_the_allow_lis
         check_imports("vec_env_wrapper", {"sb3_emmarl.common.masking.HideObservationParts": {"cmd": "x"}})
     with pytest.raises(ValueError, match="env_wrapper must name one of the allowed classes: none"):
         check_imports("env_wrapper", "gymnasium.wrappers.TimeLimit")
+
+
+def test_a_yaml_path_that_is_no_regular_file_is_refused_without_reading_it(tmp_path):
+    """A folder, a FIFO or a device (a run's config.yml linked to /dev/zero read without end) is refused in one line."""
+    import os
+
+    from sb3_emmarl.common.safe_config import load_yaml
+
+    (tmp_path / "folder.yml").mkdir()
+    os.mkfifo(tmp_path / "fifo.yml")
+    (tmp_path / "zero.yml").symlink_to("/dev/zero")
+    for name in ("folder.yml", "fifo.yml", "zero.yml"):
+        with pytest.raises(ValueError, match=rf"{name}: the run's config must be a regular file"):
+            load_yaml(tmp_path / name, "the run's config")
+    (tmp_path / "big.yml").write_text("a: " + "x" * (2 << 20))
+    with pytest.raises(ValueError, match=r"big\.yml: refusing the run's config of more than"):
+        load_yaml(tmp_path / "big.yml", "the run's config")

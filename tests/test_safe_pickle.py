@@ -200,3 +200,15 @@ def test_run_folder_pickles_read_as_data(tmp_path):
     with pytest.raises(ValueError, match="is not a regular file"):
         load_data_pickle(tmp_path)
     assert not marker.exists()
+
+
+def test_weights_that_are_not_the_models_are_refused_in_one_line(model_zip, tmp_path):
+    other = tmp_path / "other.zip"
+    PPO("MlpPolicy", "CartPole-v1", policy_kwargs={"net_arch": [7]}).save(other)
+    for name, weights in (("foreign", zipfile.ZipFile(other).read("policy.pth")), ("garbage", b"not torch")):
+        with zipfile.ZipFile(model_zip) as source, zipfile.ZipFile(tmp_path / f"{name}.zip", "w") as target:
+            for member in source.namelist():
+                target.writestr(member, weights if member == "policy.pth" else source.read(member))
+        with pytest.raises(ValueError, match=rf"{name}\.zip does not load into PPO \(its weights") as error:
+            load_model(PPO, tmp_path / f"{name}.zip", device="cpu")
+        assert "\n" not in str(error.value)

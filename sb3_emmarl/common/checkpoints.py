@@ -300,7 +300,17 @@ def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str
     if candidates:
         check_saved_algorithm(path, algo, candidates)
     custom_objects = safe_data_objects(path, kwargs.pop("custom_objects", None))
-    return algo.load(path, custom_objects=custom_objects, **kwargs)
+    try:
+        return algo.load(path, custom_objects=custom_objects, **kwargs)
+    except (RuntimeError, KeyError, TypeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile) as error:
+        # weights that are not the model's (another model's shapes, garbage in policy.pth), said in one line
+        if isinstance(error, pickle.UnpicklingError):
+            why = "its weights are not tensors only: torch.load(weights_only=True) refuses them"
+        elif isinstance(error, RuntimeError) and "state_dict" in str(error):
+            why = "its weights do not fit the networks its settings build (another model's weights?)"
+        else:
+            why = f"{type(error).__name__}: {(str(error).strip().splitlines() or [''])[0][:300]}"
+        raise ValueError(f"{path} does not load into {algo.__name__} ({why})") from None
 
 
 # ---------------------------------------------------------------------------------------------- training state

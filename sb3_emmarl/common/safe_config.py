@@ -333,10 +333,13 @@ def load_yaml(path: str | Path, what: str = "a YAML file") -> Any:
     """
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_YAML_BYTES:
-            raise ValueError(f"{path}: refusing {what} of {size} bytes (at most {MAX_YAML_BYTES})")
-        text = path.read_text()
+        if not path.is_file():  # a folder, a FIFO or a device (/dev/zero reads without end) is no YAML file
+            raise ValueError(f"{path}: {what} must be a regular file")
+        with open(path, "rb") as file:
+            data = file.read(MAX_YAML_BYTES + 1)  # (not the size the file claims: it may grow or lie)
+        if len(data) > MAX_YAML_BYTES:
+            raise ValueError(f"{path}: refusing {what} of more than {MAX_YAML_BYTES} bytes")
+        text = data.decode()
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"{path}: cannot read {what} ({error})") from None
     try:

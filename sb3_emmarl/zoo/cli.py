@@ -490,7 +490,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
                                                  args.load_best, checkpoint)
         params_path = Path(log_path) / saved
         config_file = params_path / "config.yml"
-        config = read_yaml(config_file, "the run's config") if config_file.is_file() else {}
+        config = read_yaml(config_file, "the run's config") if config_file.exists() else {}  # (a folder is refused)
         if not isinstance(config, dict):
             raise ValueError(f"{config_file} must hold a mapping of hyperparameters, got {type(config).__name__}")
         env_kwargs = {**dict(config.get("env_kwargs") or {}), **(args.env_kwargs or {})}
