@@ -515,7 +515,7 @@ def seed_bars(ax: Axes, values_by_arm: Mapping[str, Sequence[float]], *, ylabel:
 def plot_parser() -> argparse.ArgumentParser:
     """The flags of ``emmarl plot`` (rl-baselines3-zoo's ``plot_train`` / ``all_plots`` names where they fit)."""
     from sb3_emmarl.common.environments import ENV_MODULES
-    from sb3_emmarl.common.validation import int_flag
+    from sb3_emmarl.common.validation import float_flag, int_flag
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
     from sb3_emmarl.zoo.cli import OneLineParser
 
@@ -542,8 +542,8 @@ def plot_parser() -> argparse.ArgumentParser:
     parser.add_argument("-o", "--output", default=None,
                         help="the figure; its extension decides the format: .png, .pdf or .svg (default: "
                              "curves.png, or bars.png with --bars)")
-    parser.add_argument("--figsize", nargs=2, type=float, default=[6.4, 4.2], metavar=("W", "H"),
-                        help="figure size in inches")
+    parser.add_argument("--figsize", nargs=2, type=float_flag(1.0, 60.0), default=[6.4, 4.2], metavar=("W", "H"),
+                        help="figure size in inches (1 to 60; at 120 dpi)")
     return parser
 
 
@@ -648,7 +648,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, MissingExtra) as error:
         parser.error(str(error))
     output.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(output, dpi=120)
+    from sb3_emmarl.common.checkpoints import write_atomic  # (a full disk leaves no half-written figure)
+
+    write_atomic(output, lambda file: figure.savefig(file, format=output.suffix.lower().lstrip("."), dpi=120))
     print(f"wrote {output}")
     return 0
 

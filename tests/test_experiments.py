@@ -122,7 +122,7 @@ def test_the_listing_keeps_its_columns_apart_and_gives_each_budget_s_cost(capsys
 
 def test_unknown_experiment_and_bad_flags_are_refused(capsys):
     for argv, message in ((["table99"], "unknown experiment 'table99'"), ([], "name experiments or give --all"),
-                          (["table5_latent", "--n-jobs", "0"], "--n-jobs must be >= 1"),
+                          (["table5_latent", "--n-jobs", "0"], "--n-jobs: must be an int in [1, 1024], got 0"),
                           (["table5_latent", "--conditions", "zone_raids"],
                            "--conditions: conditions of table5_latent are ['default'], got ['zone_raids']")):
         with pytest.raises(SystemExit):

@@ -259,3 +259,11 @@ def test_module_entry_point():
     done = subprocess.run([sys.executable, "-m", "sb3_emmarl.plots", "--help"], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0 and "--episode-window" in done.stdout
+
+
+def test_a_huge_figure_is_refused_before_drawing(capsys):
+    from sb3_emmarl.plots import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--figsize", "100000", "4", "-o", "never.png"])
+    assert stop.value.code == 2 and "--figsize: must be a number in [1.0, 60.0], got 100000" in capsys.readouterr().err

@@ -442,6 +442,22 @@ def int_flag(low: int, high: int, extra: tuple[int, ...] = ()) -> Callable[[str]
     return parse
 
 
+def float_flag(low: float, high: float) -> Callable[[str], float]:
+    """An argparse ``type``: a finite float in ``[low, high]`` (see :func:`int_flag`)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number in [{low}, {high}], got {text!r}") from None
+        if not low <= value <= high:  # (NaN fails too)
+            raise argparse.ArgumentTypeError(f"must be a number in [{low}, {high}], got {text}")
+        return value
+
+    parse.__name__ = "float"
+    return parse
+
+
 def device_flag(text: str) -> str:
     """An argparse ``type`` for ``--device``: ``auto`` or a torch device name."""
     if text == "auto":

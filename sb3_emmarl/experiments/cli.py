@@ -19,6 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from sb3_emmarl.common.validation import int_flag
 from sb3_emmarl.experiments.runner import BACKENDS, hardware, run_experiment
 from sb3_emmarl.experiments.spec import BUDGETS, ExperimentSpec, list_specs, load_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore
@@ -43,7 +44,7 @@ def experiment_parser() -> argparse.ArgumentParser:
     parser.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
     parser.add_argument("--gather", action="store_true",
                         help="Ray: bring the run folders of cells run on other nodes to this machine's --root")
-    parser.add_argument("--n-jobs", type=int, default=None,
+    parser.add_argument("--n-jobs", type=int_flag(1, 1024), default=None,
                         help="cells at once (default: this machine's cores; on Ray the cluster's CPUs)")
     parser.add_argument("-f", "--root", default=DEFAULT_ROOT,
                         help="results folder: the cells' runs, the store and the reports")
@@ -103,8 +104,6 @@ def experiment_main(argv: list[str] | None = None) -> int:
     if args.list:
         print("\n".join(_listing()))
         return 0
-    if args.n_jobs is not None and args.n_jobs < 1:
-        parser.error(f"--n-jobs must be >= 1, got {args.n_jobs}")
     if not args.lease > 0:
         parser.error(f"--lease must be > 0 seconds, got {args.lease}")
     if not args.update_docs and (args.page != DOCS_PAGE or args.figures is not None):
