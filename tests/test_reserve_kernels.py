@@ -273,9 +273,9 @@ def test_compile_kernels_plays_once_per_arguments_and_touches_no_other_random_st
     reserve_module.compile_kernels(n_uavs=3, max_cycles=30, continuous_actions=True)
     assert built == [{"n_uavs": 3, "max_cycles": 30}, {"n_uavs": 3, "max_cycles": 30, "continuous_actions": True}]
     assert np.array_equal(np.random.get_state()[1], before)
-    # Every kernel a step calls has machine code now.
-    for kernel in (kernels.decode_actions, kernels.advance_world):
-        assert kernel.signatures, kernel
+    # The kernel a step calls has machine code now (the kernels it calls in turn, e.g. decode_actions, are compiled
+    # into it: when it is loaded from numba's cache, written by another process, they get no signatures of their own).
+    assert kernels.advance_world.signatures
 
 
 def test_compile_kernels_rejects_bad_arguments_as_the_reserve_does_and_remembers_nothing(monkeypatch):

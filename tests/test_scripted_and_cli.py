@@ -71,7 +71,7 @@ def test_patrol_script_prints_the_team_metrics():
         (["--env-kwargs", "n_drones:3"], "n_drones"),
         (["--env-kwargs", "n_uavs=3"], "expects key:value pairs"),
         (["--env-kwargs", "region:forest"], "is not a valid Python value"),
-        (["--episodes", "0"], "--episodes must be >= 1"),
+        (["--episodes", "0"], "--episodes: must be an int in [1, 10000], got 0"),
     ],
 )
 def test_patrol_script_rejects_bad_arguments(args, message):
