@@ -368,6 +368,73 @@ class HostileCase:
     config: dict | None = None
     enjoy: bool = False
     corrupt: bool = False
+    gadget: tuple[str, str] | None = None  # (data entry, :data:`GADGETS` name): planted in the copy's model zips
+
+
+class _Call:
+    """Pickles as ``func(*args)``, as a hostile file would."""
+
+    def __init__(self, func, *args):
+        self.func, self.args = func, args
+
+    def __reduce__(self):
+        return self.func, self.args
+
+
+class _Touch:
+    def __init__(self, path: str):
+        self.path = path
+
+    def __reduce__(self):
+        import os
+
+        return os.system, (f"touch {self.path}",)
+
+
+def _gadget(name: str, marker: str) -> bytes:
+    """The pickle of the gadget ``name`` (issue 65's families: torch, numpy, copyreg, builtins, the opcodes), built to
+    create ``marker`` where it runs code, else to allocate without bound."""
+    import copyreg
+    import pickle
+
+    import numpy as np
+    import torch as th
+    from numpy.random._pickle import __bit_generator_ctor, __generator_ctor, __randomstate_ctor
+    from stable_baselines3.common.buffers import RolloutBuffer
+    from stable_baselines3.common.utils import ConstantSchedule
+    from torch.storage import _load_from_bytes
+
+    if name.startswith("torch"):
+        buffer = io.BytesIO()
+        th.save(_Touch(marker), buffer, _use_new_zipfile_serialization=name == "torch new format")
+        return pickle.dumps(_Call(_load_from_bytes, buffer.getvalue()))
+    space = [_Call(np.zeros, 1)]
+    calls = {
+        "numpy generator ctor": _Call(__generator_ctor, 10 ** 12, bytearray),
+        "numpy randomstate ctor": _Call(__randomstate_ctor, range(10 ** 10), list),
+        "numpy bit generator class": _Call(__bit_generator_ctor, RolloutBuffer),
+        "copyreg base": _Call(copyreg._reconstructor, ConstantSchedule, bytearray, 10 ** 12),
+        "builtins bytearray": _Call(bytearray, 10 ** 12),
+        "builtins list of range": _Call(list, range(10 ** 11)),
+        "a buffer built": _Call(RolloutBuffer, 10 ** 9, space, space),
+    }
+    if name in calls:
+        return pickle.dumps(calls[name])
+    raw = {  # opcodes by hand: BYTEARRAY8 declaring 64 GiB; BUILD on a class; OBJ calling bytearray
+        "opcode bytearray8": b"\x80\x05\x96" + (1 << 36).to_bytes(8, "little") + b".",
+        "opcode build on a class": b"\x80\x02cstable_baselines3.common.utils\nConstantSchedule\nN}X\x03\x00\x00\x00valN"
+                                   b"s\x86b.",
+        "opcode obj": b"(cbuiltins\nbytearray\nL99999999999\no.",
+    }
+    return raw[name]
+
+
+#: The gadget families planted in model zips by :func:`hostile_cases` (none may run or allocate).
+GADGETS = ("torch new format", "torch legacy format", "numpy generator ctor", "numpy randomstate ctor",
+           "numpy bit generator class", "copyreg base", "builtins bytearray", "builtins list of range", "a buffer built",
+           "opcode bytearray8", "opcode build on a class", "opcode obj")
+#: The data entries they are planted in.
+GADGET_ENTRIES = ("observation_space", "lr_schedule", "clip_range", "policy_class", "_last_obs", "action_space")
 
 
 def _fill(value, marker: str):
@@ -420,7 +487,35 @@ def hostile_cases() -> list[HostileCase]:
     for flags in RESUME_FLAGS:
         out.append(HostileCase(f"--resume {' '.join(flags)}", flags, config={}))
     out.append(HostileCase("--resume with every checkpoint cut short", [], config={}, corrupt=True))
+    return out + _gadget_cases()
+
+
+def _gadget_cases() -> list[HostileCase]:
+    """Each gadget family planted in two of a finished run's data entries, played by enjoy (the final zip) and
+    resumed (the checkpoints)."""
+    out = []
+    for i, gadget in enumerate(GADGETS):
+        for j, enjoy in enumerate((True, False)):
+            entry = GADGET_ENTRIES[(2 * i + j) % len(GADGET_ENTRIES)]
+            out.append(HostileCase(f"{'enjoy' if enjoy else '--resume'} zip {entry} {gadget}", [], config={},
+                                   enjoy=enjoy, gadget=(entry, gadget)))
     return out
+
+
+def _plant(path: Path, entry: str, blob: bytes) -> None:
+    """Replace the ``data`` entry ``entry`` of the model zip ``path`` by the pickle ``blob``."""
+    import base64
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(members["data"])
+    data[entry] = {":type:": "<class 'object'>", ":serialized:": base64.b64encode(blob).decode()}
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
 
 
 def train_template_run(folder: Path) -> Path:
@@ -475,6 +570,11 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
         if case.corrupt:
             for path in run.glob("rl_model_*_steps.zip"):
                 path.write_bytes(path.read_bytes()[:100])
+        if case.gadget is not None:
+            entry, gadget = case.gadget
+            for path in [run / "WildlifeReserve-v1.zip", *run.glob("rl_model_*_steps.zip")]:
+                if path.exists():
+                    _plant(path, entry, _gadget(gadget, marker))
         argv = (["--algo", "ppo", "-f", str(logs), "--episodes", "1", "--no-record"] if case.enjoy else
                 ["--algo", "ppo", "--resume", str(run), "--verbose", "0", *argv])
     else:
