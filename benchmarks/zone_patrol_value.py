@@ -513,20 +513,25 @@ def main(argv: list[str] | None = None) -> int:
                             help="ZonePatrol or the reserve with scenario='zone_raids'")
     run_parser.add_argument("--env-kwargs", default="{}",
                             help="the task's arguments as JSON, e.g. '{\"zone_cue\": 0.2}' (ZonePatrol)")
-    report_parser = commands.add_parser("report", help="the tables of the runs in --folder")
-    report_parser.add_argument("--folder", required=True)
+    report_parser = commands.add_parser("report", help="the tables of the runs in --folder (several: their runs "
+                                                       "together, e.g. a protocol's seeds and its confirmation's)")
+    report_parser.add_argument("--folder", required=True, nargs="+")
     args = parser.parse_args(argv)
-    folder = Path(args.folder)
     if args.command == "report":
-        runs = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
+        runs = [json.loads(p.read_text()) for folder in args.folder for p in sorted(Path(folder).glob("*.json"))]
         if not runs:
-            raise SystemExit(f"no runs in {folder}: run `zone_patrol_value.py run --folder {folder}` first")
+            raise SystemExit(f"no runs in {' '.join(args.folder)}: run `zone_patrol_value.py run --folder F` first")
+        keys = [(run["variant"], run["seed"]) for run in runs]
+        if len(set(keys)) != len(keys):
+            twice = sorted({key for key in keys if keys.count(key) > 1})
+            raise SystemExit(f"the folders hold the same runs twice (variant, seed): {twice[:5]}")
         episodes = len(runs[0]["team_reward"])
         task = runs[0].get("task", "zone_patrol")
         random_team = float(np.mean(play(None, make_env(EVAL_SEED, env_kwargs=runs[0].get("env_kwargs"), task=task),
                                          episodes, EVAL_SEED, random=True)[0]))
         print(report(runs, random_team))
         return 0
+    folder = Path(args.folder)
     if args.n < 1 or args.eval_episodes < 2 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds):
         parser.error("-n and --n-jobs must be >= 1, --eval-episodes >= 2 and --seeds distinct")
     try:

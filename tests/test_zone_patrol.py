@@ -261,6 +261,8 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert "settings: em_ppo (em_ppo): n_envs 8, n_steps 128, batch_size 1024" in text  # PROTOCOL item 10
     with pytest.raises(SystemExit, match="no runs in"):
         bench.main(["report", "--folder", str(tmp_path / "empty")])
+    with pytest.raises(SystemExit, match=r"the same runs twice \(variant, seed\): \[\('control', 0\)"):
+        bench.main(["report", "--folder", str(tmp_path), str(tmp_path)])  # (a protocol and its confirmation: together)
     assert all(r["env_kwargs"] == {} for r in runs)
     cue = {**runs[0], "env_kwargs": {"zone_cue": 0.2}}
     assert bench.heading([cue]).startswith('ZonePatrol {"zone_cue": 0.2}, 4,096 agent-steps per run')
