@@ -75,6 +75,9 @@ def _gadgets(marker):
         # BUILD on a class: setattr(FloatSchedule, "__call__", None) for the whole process
         "BUILD on a class": (b"\x80\x02cstable_baselines3.common.utils\nFloatSchedule\nN}X\x08\x00\x00\x00__call__N"
                              b"s\x86b."),
+        # BUILD on a function the pickle may call (its defaults rewritten for the whole process), object named too
+        "BUILD on a function": (b"\x80\x02cbuiltins\nobject\n0cnumpy._core.numeric\n_frombuffer\n"
+                                b"N}X\x0c\x00\x00\x00__defaults__)s\x86b."),
     }
     return found
 

@@ -232,8 +232,9 @@ class DataUnpickler(_PythonUnpickler):
     def _allowed_instance(self, obj: Any) -> bool:
         from numpy.random.bit_generator import BitGenerator, SeedSequence
 
-        return isinstance(obj, (*self.classes, *_DATA_TYPES, np.ndarray, BitGenerator, SeedSequence,
-                                np.random.Generator, np.random.RandomState))
+        named = tuple(cls for cls in self.classes if cls is not object)  # (every function is an object instance)
+        return isinstance(obj, (*named, *_DATA_TYPES, np.ndarray, BitGenerator, SeedSequence, np.random.Generator,
+                                np.random.RandomState))
 
     def load_reduce(self) -> None:
         args = self.stack.pop()
