@@ -258,3 +258,17 @@ def test_the_runner_compiles_the_kernels_for_every_reserve_of_a_condition_before
     regions = [(c["region"], c["continuous_actions"]) for c in calls]
     # Trained on the source, fine-tuned and evaluated on the target: each with discrete and continuous actions.
     assert set(regions) == {("mixed", False), ("mixed", True), ("forest", False), ("forest", True)}
+
+
+def test_a_ray_address_no_cluster_answers_at_is_refused_at_once(tmp_path, capsys):
+    """ray.init retries such an address for minutes; the command refuses it in one line before writing anything."""
+    import socket
+
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with pytest.raises(SystemExit) as stop:
+        experiment_main(["table5_latent", "--backend", "ray", "--address", f"127.0.0.1:{port}", "-f",
+                         str(tmp_path / "runs")])
+    assert stop.value.code == 2 and f"--address 127.0.0.1:{port}: no Ray cluster answers there" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from sb3_emmarl.common.validation import int_flag
-from sb3_emmarl.experiments.runner import BACKENDS, hardware, run_experiment
+from sb3_emmarl.experiments.runner import BACKENDS, check_ray_address, hardware, run_experiment
 from sb3_emmarl.experiments.spec import BUDGETS, ExperimentSpec, list_specs, load_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore
 
@@ -98,18 +98,28 @@ def _listing() -> list[str]:
     return lines
 
 
-def experiment_main(argv: list[str] | None = None) -> int:
-    parser = experiment_parser()
-    args = parser.parse_args(argv)
-    if args.list:
-        print("\n".join(_listing()))
-        return 0
+def _check_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse flags that do not go together, and a Ray address no cluster answers at, before anything is written."""
     if not args.lease > 0:
         parser.error(f"--lease must be > 0 seconds, got {args.lease}")
     if not args.update_docs and (args.page != DOCS_PAGE or args.figures is not None):
         parser.error("--page and --figures name what --update-docs rewrites: give --update-docs with them")
     if args.gather and args.backend != "ray":
         parser.error("--gather brings run folders from Ray's nodes: give --backend ray with it")
+    if args.backend == "ray" and not args.report_only and not args.list:
+        try:
+            check_ray_address(args.address)
+        except ValueError as error:
+            parser.error(str(error))
+
+
+def experiment_main(argv: list[str] | None = None) -> int:
+    parser = experiment_parser()
+    args = parser.parse_args(argv)
+    if args.list:
+        print("\n".join(_listing()))
+        return 0
+    _check_flags(parser, args)
     specs = _specs(parser, args)
     root = Path(args.root)
     store = ResultStore(args.store or root / "results.sqlite")

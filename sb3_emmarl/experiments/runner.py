@@ -32,6 +32,7 @@ import os
 import platform
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tarfile
@@ -51,6 +52,26 @@ from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.safe_config import load_yaml_text
 from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec, parse_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore, RunnerId, code_version
+
+
+def check_ray_address(address: str | None, timeout: float = 5.0) -> None:
+    """Refuse a Ray cluster address that no one answers at, before anything starts (``ray.init`` retries such an
+    address for minutes). ``None`` and ``"auto"`` (a local instance, or the cluster this machine belongs to) pass.
+
+    :param address: ``--address``: ``host:port`` or ``ray://host:port``
+    :param timeout: seconds to wait for the connection
+    :raise ValueError: one line naming the address and why
+    """
+    if address is None or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"--address {address!r}: expected host:port or ray://host:port (or leave it out: a local Ray)")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as error:
+        raise ValueError(f"--address {address}: no Ray cluster answers there ({error.strerror or error}); start one "
+                         "with `ray start --head`, or leave --address out for a local Ray instance") from None
 
 #: The backends of :func:`run_experiment`.
 BACKENDS = ("local", "ray")
