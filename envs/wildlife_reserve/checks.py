@@ -85,7 +85,7 @@ def discrete_action(agent: str, value: Any, n_actions: int, none_too: bool = Fal
     :param none_too: the environment also takes None (its default action): the message says so
     :raise ValueError: naming the agent, the value and the range
     """
-    choice = np.asarray(value) if not isinstance(value, (bool, np.bool_)) else np.asarray(value, dtype=object)
+    choice = np.asarray(value)  # (a bool's kind is "b", a string's "U": refused with the floats)
     if choice.shape != () or choice.dtype.kind not in "iu" or not 0 <= int(choice) < n_actions:
         raise ValueError(f"the action of {agent} must be an int in [0, {n_actions - 1}]{' or None' if none_too else ''}, "
                          f"got {value!r}")

@@ -44,7 +44,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper,
 
 from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.pickling import ViewPickler, dumps, rebuild_view
-from sb3_emmarl.common.safe_zip import check_zip_sizes, pickle_globals, safe_data_objects
+from sb3_emmarl.common.safe_zip import check_zip_sizes, pickle_globals, read_data, safe_data_objects
 
 #: What checkpoints written before :mod:`sb3_emmarl.common.pickling` existed name to rebuild their numpy views.
 _view = rebuild_view
@@ -167,6 +167,13 @@ def check_model_file(path: str | Path) -> Path:
 
     :raise ValueError: naming the file when it is missing, truncated, corrupt, not a model, or names a foreign global
     """
+    _checked_data_objects(path)
+    return Path(path)
+
+
+def _checked_data_objects(path: str | Path) -> dict[str, Any]:
+    """:func:`check_model_file`'s checks, returning the zip's pickled data read as data only (SB3's ``custom_objects``,
+    :func:`~sb3_emmarl.common.safe_zip.safe_data_objects`)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"no model file {str(path)!r}")
@@ -182,8 +189,7 @@ def check_model_file(path: str | Path) -> Path:
         raise ValueError(f"{path} is corrupt (member {bad!r} fails its checksum): use an earlier checkpoint")
     if "data" not in names:
         raise ValueError(f"{path} is not a Stable-Baselines3 model (no 'data' in the zip)")
-    safe_data_objects(path)  # its names checked, then its pickles read as data only (a zip from anywhere is code)
-    return path
+    return safe_data_objects(path)  # its names checked, then its pickles read as data only (a zip from anywhere is code)
 
 
 def check_pickle_file(path: str | Path) -> Path:
@@ -279,13 +285,16 @@ def fitting_algorithms(data: dict[str, Any], candidates: dict[str, type[BaseAlgo
         if not issubclass(candidates[name], candidates[other]) and not issubclass(candidates[other], candidates[name]))]
 
 
-def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidates: dict[str, type[BaseAlgorithm]]) -> None:
+def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidates: dict[str, type[BaseAlgorithm]],
+                          data_objects: dict[str, Any] | None = None) -> None:
     """Refuse a model zip that ``algo`` did not save, judged by :func:`fitting_algorithms` over ``candidates``.
 
+    :param data_objects: the zip's pickled data already read as data only (default: read here)
     :raise ValueError: naming the file, the algorithm asked for and the ones that fit
     """
-    data, _, _ = load_from_zip_file(path, device="cpu", load_data=True, custom_objects=safe_data_objects(path))
-    fits = fitting_algorithms(data or {}, candidates)
+    objects = safe_data_objects(path) if data_objects is None else data_objects
+    data = {key: objects.get(key, value) for key, value in (read_data(path) or {}).items()}  # (as SB3 reads it)
+    fits = fitting_algorithms(data, candidates)
     if not any(candidates[name] is algo for name in fits):
         raise ValueError(f"{path} was not saved by {algo.__name__}: its settings fit "
                          f"{', '.join(sorted(fits)) or 'none of ' + str(sorted(candidates))}")
@@ -296,10 +305,9 @@ def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str
     """``algo.load(path, **kwargs)`` after :func:`check_model_file` (and :func:`check_saved_algorithm` if
     ``candidates`` are given), the zip's pickled data read as data only
     (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`, given to SB3 as ``custom_objects``)."""
-    check_model_file(path)
+    custom_objects = {**_checked_data_objects(path), **(kwargs.pop("custom_objects", None) or {})}
     if candidates:
-        check_saved_algorithm(path, algo, candidates)
-    custom_objects = safe_data_objects(path, kwargs.pop("custom_objects", None))
+        check_saved_algorithm(path, algo, candidates, custom_objects)
     try:
         return algo.load(path, custom_objects=custom_objects, **kwargs)
     except (RuntimeError, KeyError, TypeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile) as error:

@@ -41,7 +41,7 @@ from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, 
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.safe_config import wrapper_from_config
-from sb3_emmarl.common.validation import MAX_EPISODES, MAX_TIMESTEPS, device_flag, int_flag
+from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
@@ -99,7 +99,7 @@ def train_parser() -> argparse.ArgumentParser:
                         help="environment id (a former id gives its current one, with a warning)")
     parser.add_argument("-n", "--n-timesteps", type=int_flag(1, MAX_TIMESTEPS, extra=(-1,)), default=-1,
                         help="overwrite the YAML's n_timesteps (-1: the YAML's)")
-    parser.add_argument("--seed", type=int_flag(0, 2**32 - 1, extra=(-1,)), default=-1, help="random seed (-1: draw one)")
+    parser.add_argument("--seed", type=int_flag(0, MAX_SEED, extra=(-1,)), default=-1, help="random seed (-1: draw one)")
     parser.add_argument("-tb", "--tensorboard-log", default="", help="tensorboard log folder")
     parser.add_argument("-f", "--log-folder", default="logs", help="where runs are saved (logs/<algo>/<env>_<n>/)")
     parser.add_argument("-i", "--trained-agent", default="",
@@ -458,7 +458,7 @@ def enjoy_parser() -> argparse.ArgumentParser:
     parser.add_argument("--load-checkpoint", type=int_flag(1, MAX_TIMESTEPS), default=None,
                         help="the checkpoint of this step")
     parser.add_argument("--episodes", type=int_flag(1, MAX_EPISODES), default=3, help="evaluation episodes")
-    parser.add_argument("--seed", type=int_flag(0, 2**32 - 1), default=0, help="evaluation seed")
+    parser.add_argument("--seed", type=int_flag(0, MAX_SEED), default=0, help="evaluation seed")
     parser.add_argument("--deterministic", action="store_true",
                         help="the most likely actions instead of sampled ones (identical UAVs then tend to move in lockstep)")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=KeyValues,

@@ -377,7 +377,8 @@ class ReserveParallelEnv(ParallelEnv):
 
         :param seed: seeds every random draw of the episode (and of later unseeded resets)
         :param options: ``{"mode": int}`` fixes the hidden mode for this episode;
-            ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col); no other key.
+            ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col); a misspelling of these is
+            refused, another key is named in a warning and ignored (:func:`~wildlife_reserve.checks.check_options`).
         :raise ValueError: for a bad seed or option, before anything changes (the previous episode, if any, is left as
             it was)
         """

@@ -171,7 +171,8 @@ class ZonePatrolParallelEnv(ParallelEnv):
         """Start an episode.
 
         :param seed: an int >= 0 seeds the episode's draws (and later unseeded resets'), or None
-        :param options: ``{"mode": int}`` fixes the hidden mode for this episode; no other key
+        :param options: ``{"mode": int}`` fixes the hidden mode for this episode; a misspelling of it is refused,
+            another key is named in a warning and ignored (:func:`~wildlife_reserve.checks.check_options`)
         :raise ValueError: for a bad seed or option, before anything changes
         """
         seed = check_seed(seed)
