@@ -371,7 +371,7 @@ class HostileCase:
     gadget: tuple[str, str] | None = None  # (data entry, :data:`GADGETS` name): planted in the copy's model zips
 
 
-class _Call:
+class Call:
     """Pickles as ``func(*args)``, as a hostile file would."""
 
     def __init__(self, func, *args):
@@ -381,7 +381,9 @@ class _Call:
         return self.func, self.args
 
 
-class _Touch:
+class Touch:
+    """Pickles as ``os.system("touch <path>")``: code that leaves a marker where it runs."""
+
     def __init__(self, path: str):
         self.path = path
 
@@ -406,17 +408,17 @@ def _gadget(name: str, marker: str) -> bytes:
 
     if name.startswith("torch"):
         buffer = io.BytesIO()
-        th.save(_Touch(marker), buffer, _use_new_zipfile_serialization=name == "torch new format")
-        return pickle.dumps(_Call(_load_from_bytes, buffer.getvalue()))
-    space = [_Call(np.zeros, 1)]
+        th.save(Touch(marker), buffer, _use_new_zipfile_serialization=name == "torch new format")
+        return pickle.dumps(Call(_load_from_bytes, buffer.getvalue()))
+    space = [Call(np.zeros, 1)]
     calls = {
-        "numpy generator ctor": _Call(__generator_ctor, 10 ** 12, bytearray),
-        "numpy randomstate ctor": _Call(__randomstate_ctor, range(10 ** 10), list),
-        "numpy bit generator class": _Call(__bit_generator_ctor, RolloutBuffer),
-        "copyreg base": _Call(copyreg._reconstructor, ConstantSchedule, bytearray, 10 ** 12),
-        "builtins bytearray": _Call(bytearray, 10 ** 12),
-        "builtins list of range": _Call(list, range(10 ** 11)),
-        "a buffer built": _Call(RolloutBuffer, 10 ** 9, space, space),
+        "numpy generator ctor": Call(__generator_ctor, 10 ** 12, bytearray),
+        "numpy randomstate ctor": Call(__randomstate_ctor, range(10 ** 10), list),
+        "numpy bit generator class": Call(__bit_generator_ctor, RolloutBuffer),
+        "copyreg base": Call(copyreg._reconstructor, ConstantSchedule, bytearray, 10 ** 12),
+        "builtins bytearray": Call(bytearray, 10 ** 12),
+        "builtins list of range": Call(list, range(10 ** 11)),
+        "a buffer built": Call(RolloutBuffer, 10 ** 9, space, space),
     }
     if name in calls:
         return pickle.dumps(calls[name])
@@ -502,20 +504,28 @@ def _gadget_cases() -> list[HostileCase]:
     return out
 
 
-def _plant(path: Path, entry: str, blob: bytes) -> None:
+def write_data(path: Path, text: str) -> None:
+    """Replace the ``data`` entry of the model zip ``path`` by ``text``."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    members["data"] = text.encode()
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+
+
+def plant(path: Path, entry: str, blob: bytes) -> None:
     """Replace the ``data`` entry ``entry`` of the model zip ``path`` by the pickle ``blob``."""
     import base64
     import json
     import zipfile
 
     with zipfile.ZipFile(path) as archive:
-        members = {name: archive.read(name) for name in archive.namelist()}
-    data = json.loads(members["data"])
+        data = json.loads(archive.read("data"))
     data[entry] = {":type:": "<class 'object'>", ":serialized:": base64.b64encode(blob).decode()}
-    members["data"] = json.dumps(data).encode()
-    with zipfile.ZipFile(path, "w") as archive:
-        for name, content in members.items():
-            archive.writestr(name, content)
+    write_data(path, json.dumps(data))
 
 
 def train_template_run(folder: Path) -> Path:
@@ -574,7 +584,7 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
             entry, gadget = case.gadget
             for path in [run / "WildlifeReserve-v1.zip", *run.glob("rl_model_*_steps.zip")]:
                 if path.exists():
-                    _plant(path, entry, _gadget(gadget, marker))
+                    plant(path, entry, _gadget(gadget, marker))
         argv = (["--algo", "ppo", "-f", str(logs), "--episodes", "1", "--no-record"] if case.enjoy else
                 ["--algo", "ppo", "--resume", str(run), "--verbose", "0", *argv])
     else:

@@ -2,12 +2,10 @@
 call or deserialise what they are given, data types that allocate what an argument asks for, state set on a class)
 are refused in one line before anything runs or is allocated, and what SB3 and numpy write reads back equal."""
 
-import base64
 import collections
 import io
-import json
-import os
 import pickle
+import shutil
 import struct
 import zipfile
 
@@ -15,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from fuzz_zoo import Call, Touch, plant, write_data
 from stable_baselines3 import PPO
 
 from sb3_emmarl.common.checkpoints import check_model_file, load_model
@@ -22,27 +21,9 @@ from sb3_emmarl.common.safe_pickle import MAX_BYTES, loads
 from sb3_emmarl.common.safe_zip import MAX_MEMBER_BYTES, safe_data_objects
 
 
-class _Call:
-    """Pickles as ``func(*args)`` (what a hostile file writes)."""
-
-    def __init__(self, func, *args):
-        self.func, self.args = func, args
-
-    def __reduce__(self):
-        return self.func, self.args
-
-
-class _Touch:
-    def __init__(self, path):
-        self.path = path
-
-    def __reduce__(self):
-        return os.system, (f"touch {self.path}",)
-
-
 def _torch_payload(marker) -> bytes:
     buffer = io.BytesIO()
-    th.save(_Touch(marker), buffer)
+    th.save(Touch(marker), buffer)
     return buffer.getvalue()
 
 
@@ -57,17 +38,17 @@ def _gadgets(marker):
 
     box = gym.spaces.Box(-1, 1, (2,))
     found = {
-        "torch _load_from_bytes running a pickle": pickle.dumps(_Call(_load_from_bytes, _torch_payload(marker))),
-        "numpy __generator_ctor calling bytearray": pickle.dumps(_Call(__generator_ctor, 10 ** 11, bytearray)),
-        "numpy __randomstate_ctor calling a buffer": pickle.dumps(_Call(__randomstate_ctor, 10 ** 9, ReplayBuffer)),
-        "numpy __bit_generator_ctor building any class": pickle.dumps(_Call(__bit_generator_ctor, ReplayBuffer)),
+        "torch _load_from_bytes running a pickle": pickle.dumps(Call(_load_from_bytes, _torch_payload(marker))),
+        "numpy __generator_ctor calling bytearray": pickle.dumps(Call(__generator_ctor, 10 ** 11, bytearray)),
+        "numpy __randomstate_ctor calling a buffer": pickle.dumps(Call(__randomstate_ctor, 10 ** 9, ReplayBuffer)),
+        "numpy __bit_generator_ctor building any class": pickle.dumps(Call(__bit_generator_ctor, ReplayBuffer)),
         "copyreg _reconstructor with a bytearray base": pickle.dumps(
-            _Call(copyreg._reconstructor, FloatSchedule, bytearray, 10 ** 11)),
-        "bytearray of 10**11": pickle.dumps(_Call(bytearray, 10 ** 11)),
-        "list of range(10**10)": pickle.dumps(_Call(list, range(10 ** 10))),
-        "a policy-kind class called": pickle.dumps(_Call(ReplayBuffer, 10 ** 12, box, box)),
+            Call(copyreg._reconstructor, FloatSchedule, bytearray, 10 ** 11)),
+        "bytearray of 10**11": pickle.dumps(Call(bytearray, 10 ** 11)),
+        "list of range(10**10)": pickle.dumps(Call(list, range(10 ** 10))),
+        "a policy-kind class called": pickle.dumps(Call(ReplayBuffer, 10 ** 12, box, box)),
         "numpy _reconstruct of 10**12 items": pickle.dumps(
-            _Call(np._core.multiarray._reconstruct, np.ndarray, (10 ** 6, 10 ** 6), b"b")),
+            Call(np._core.multiarray._reconstruct, np.ndarray, (10 ** 6, 10 ** 6), b"b")),
         # BYTEARRAY8 declaring 100 GB, followed by nothing
         "BYTEARRAY8 of 100 GB": b"\x80\x05\x96" + struct.pack("<Q", 10 ** 11) + b".",
         # INST (protocol 0): builtins.bytearray called with 10**11
@@ -120,17 +101,13 @@ def test_what_sb3_and_numpy_write_reads_back_equal():
     assert loads(pickle.dumps(space), "space").sample() is not None
 
 
-def _zip_with(source, target, entry, blob=None, data_text=None):
-    with zipfile.ZipFile(source) as archive:
-        members = {name: archive.read(name) for name in archive.namelist()}
+def _zip_with(source, target, entry=None, blob=None, data_text=None):
+    """A copy of the zip ``source`` whose ``data`` entry ``entry`` is ``blob``, or whose ``data`` is ``data_text``."""
+    shutil.copyfile(source, target)
     if data_text is None:
-        data = json.loads(members["data"])
-        data[entry] = {":type:": "<class 'x'>", ":serialized:": base64.b64encode(blob).decode()}
-        data_text = json.dumps(data)
-    members["data"] = data_text.encode()
-    with zipfile.ZipFile(target, "w") as archive:
-        for name, content in members.items():
-            archive.writestr(name, content)
+        plant(target, entry, blob)
+    else:
+        write_data(target, data_text)
     return target
 
 
@@ -193,7 +170,7 @@ def test_run_folder_pickles_read_as_data(tmp_path):
     assert buffer.size() == model.replay_buffer.size() and np.array_equal(buffer.observations,
                                                                           model.replay_buffer.observations)
     marker = tmp_path / "marker"
-    (tmp_path / "hostile.pkl").write_bytes(pickle.dumps(_Touch(marker)))
+    (tmp_path / "hostile.pkl").write_bytes(pickle.dumps(Touch(marker)))
     for load in (load_data_pickle, lambda path: load_vec_normalize(path, None)):
         with pytest.raises(ValueError, match=r"hostile\.pkl: refusing to load: it names (posix|os)\.system"):
             load(tmp_path / "hostile.pkl")

@@ -1,14 +1,13 @@
 """Model zips are checked before anything in them is unpickled (issue 52, item 3): every zip the zoo writes loads, a zip
 whose pickles name a foreign global is refused with one line naming the entry and the global, before it runs."""
 
-import base64
-import json
 import os
 import pickle
-import zipfile
+import shutil
 
 import pytest
 import torch as th
+from fuzz_zoo import Touch, plant
 
 from sb3_emmarl.common.checkpoints import list_checkpoints, load_model
 from sb3_emmarl.common.safe_zip import allowed_global, check_zip_pickles, pickle_globals
@@ -46,31 +45,17 @@ def test_every_zip_the_zoo_writes_passes_the_check_and_loads(runs):
             load_model(ZOO_ALGOS[algo], path, candidates=ZOO_ALGOS, device="cpu")
 
 
-class _Touch:
-    def __init__(self, path):
-        self.path = path
-
-    def __reduce__(self):
-        return os.system, (f"touch {self.path}",)
-
-
 def _tampered(source, target, entry, obj):
     """A copy of the zip ``source`` whose ``data`` entry ``entry`` is the pickle of ``obj``."""
-    with zipfile.ZipFile(source) as archive:
-        members = {name: archive.read(name) for name in archive.namelist()}
-    data = json.loads(members["data"])
-    data[entry] = {":type:": "<class 'x'>", ":serialized:": base64.b64encode(pickle.dumps(obj)).decode()}
-    members["data"] = json.dumps(data).encode()
-    with zipfile.ZipFile(target, "w") as archive:
-        for name, content in members.items():
-            archive.writestr(name, content)
+    shutil.copyfile(source, target)
+    plant(target, entry, pickle.dumps(obj))
     return target
 
 
 def test_a_zip_with_a_foreign_global_is_refused_before_it_runs(runs, tmp_path, capsys):
     marker = tmp_path / "marker"
     run = runs / "ppo" / f"{ENV}_1"
-    hostile = _tampered(run / f"{ENV}.zip", tmp_path / "hostile.zip", "lr_schedule", _Touch(marker))
+    hostile = _tampered(run / f"{ENV}.zip", tmp_path / "hostile.zip", "lr_schedule", Touch(marker))
     with pytest.raises(ValueError, match=r"entry 'lr_schedule' names (posix|os)\.system"):
         check_zip_pickles(hostile)
     # -i: refused in one line before training (before the change, the algorithm check unpickled it: the marker)
