@@ -52,6 +52,24 @@ def usage(prog: str) -> str:
     return "\n".join(lines)
 
 
+def os_error_text(error: OSError) -> str:
+    """``path: reason`` of a failed read or write (``No space left on device``), or the reason alone."""
+    where = f"{error.filename}: " if error.filename else ""
+    return f"{where}{error.strerror or error}"
+
+
+def child_failure(stderr: str, limit: int = 3000) -> str:
+    """What a failed child command (a training run, an experiment cell) said, for its parent's one-line error: its
+    traceback's last ``limit`` characters on lines of their own if it crashed, else its ``error:`` line and any after
+    it (or its last line), on the parent's line."""
+    text = stderr.strip()
+    if "Traceback" in text:
+        return f"\n{text[-limit:]}"
+    lines = text.splitlines()
+    start = max((i for i, line in enumerate(lines) if "error:" in line), default=max(len(lines) - 1, 0))
+    return f" {' '.join(lines[start:])[:limit]}".rstrip()
+
+
 def main(argv: list[str] | None = None, prog: str = "emmarl") -> int:
     """Run ``emmarl <command> [arguments]``.
 
@@ -81,8 +99,7 @@ def main(argv: list[str] | None = None, prog: str = "emmarl") -> int:
         print(f"{prog} {name}: {error}", file=sys.stderr)
         return 1
     except OSError as error:  # a full disk, a read-only or special path: one line naming it (writes are atomic)
-        where = f"{error.filename}: " if error.filename else ""
-        print(f"{prog} {name}: error: {where}{error.strerror or error}", file=sys.stderr)
+        print(f"{prog} {name}: error: {os_error_text(error)}", file=sys.stderr)
         return 1
     except MemoryError:
         print(f"{prog} {name}: error: out of memory", file=sys.stderr)

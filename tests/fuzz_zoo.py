@@ -369,6 +369,7 @@ class HostileCase:
     enjoy: bool = False
     corrupt: bool = False
     gadget: tuple[str, str] | None = None  # (data entry, :data:`GADGETS` name): planted in the copy's model zips
+    state_gadget: tuple[str, str] | None = None  # (:data:`STATE_PLACES` name, gadget): planted in its training states
 
 
 class Call:
@@ -420,6 +421,18 @@ def _gadget(name: str, marker: str) -> bytes:
         "builtins list of range": Call(list, range(10 ** 11)),
         "a buffer built": Call(RolloutBuffer, 10 ** 9, space, space),
     }
+    if name == "an environment module's function":  # a function of a module whose classes a training state may hold
+        from sb3_emmarl.common.vec_env import make_vec_env
+
+        return pickle.dumps(Call(make_vec_env, Touch(marker)))
+    if name == "a class outside the environments":  # an instance of a class with methods that write files
+        from stable_baselines3.common.logger import Logger
+
+        logger = Logger.__new__(Logger)
+        logger.__dict__.update(dir=marker, output_formats=[])
+        return pickle.dumps({"venv": logger, "copy_seeds": [], "never_reset": [], "reset_infos": []})
+    if name == "other copies":  # data only, but not this environment's copies
+        return pickle.dumps({"venv": {"envs": [np.zeros(3)]}, "copy_seeds": [], "never_reset": [], "reset_infos": []})
     if name in calls:
         return pickle.dumps(calls[name])
     raw = {  # opcodes by hand: BYTEARRAY8 declaring 64 GiB; BUILD on a class; OBJ calling bytearray
@@ -437,6 +450,10 @@ GADGETS = ("torch new format", "torch legacy format", "numpy generator ctor", "n
            "opcode bytearray8", "opcode build on a class", "opcode obj")
 #: The data entries they are planted in.
 GADGET_ENTRIES = ("observation_space", "lr_schedule", "clip_range", "policy_class", "_last_obs", "action_space")
+#: Gadgets that only a training state's environments could carry (planted there besides :data:`GADGETS`).
+STATE_GADGETS = ("an environment module's function", "a class outside the environments", "other copies")
+#: Where a training state gets its gadget: the whole file, or its environment copies' state (a pickle in the pickle).
+STATE_PLACES = ("file", "environment")
 
 
 def _fill(value, marker: str):
@@ -501,7 +518,25 @@ def _gadget_cases() -> list[HostileCase]:
             entry = GADGET_ENTRIES[(2 * i + j) % len(GADGET_ENTRIES)]
             out.append(HostileCase(f"{'enjoy' if enjoy else '--resume'} zip {entry} {gadget}", [], config={},
                                    enjoy=enjoy, gadget=(entry, gadget)))
+    for i, gadget in enumerate((*GADGETS, *STATE_GADGETS)):
+        place = "environment" if gadget in STATE_GADGETS else STATE_PLACES[i % len(STATE_PLACES)]
+        out.append(HostileCase(f"--resume training state {place} {gadget}", [], config={},
+                               state_gadget=(place, gadget)))
     return out
+
+
+def plant_state(path: Path, place: str, blob: bytes) -> None:
+    """Put the pickle ``blob`` in the training state ``path``: as the whole file, or as the state of its innermost
+    environment layer (the reserve copies)."""
+    import pickle
+
+    if place == "file":
+        path.write_bytes(blob)
+        return
+    with open(path, "rb") as file:
+        state = pickle.load(file)  # (the template run's own file)
+    state["env"][-1] = blob
+    path.write_bytes(pickle.dumps(state))
 
 
 def write_data(path: Path, text: str) -> None:
@@ -585,6 +620,10 @@ def run_hostile_case(case: HostileCase, folder: Path, template: Path | None = No
             for path in [run / "WildlifeReserve-v1.zip", *run.glob("rl_model_*_steps.zip")]:
                 if path.exists():
                     plant(path, entry, _gadget(gadget, marker))
+        if case.state_gadget is not None:
+            place, gadget = case.state_gadget
+            for path in run.glob("rl_model_training_state_*_steps.pkl"):
+                plant_state(path, place, _gadget(gadget, marker))
         argv = (["--algo", "ppo", "-f", str(logs), "--episodes", "1", "--no-record"] if case.enjoy else
                 ["--algo", "ppo", "--resume", str(run), "--verbose", "0", *argv])
     else:

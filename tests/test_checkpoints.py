@@ -1,7 +1,7 @@
 """Atomic files, checked loading, and training that resumes from a checkpoint exactly as if it had not stopped."""
 
+import io
 import pickle
-import pickletools
 import zipfile
 
 import numpy as np
@@ -20,12 +20,14 @@ from sb3_emmarl.common.checkpoints import (
     dumps,
     list_checkpoints,
     load_model,
-    load_pickle,
+    load_training_state,
     restore_training_state,
     save_model,
     write_atomic,
     write_text,
 )
+from sb3_emmarl.common.pickling import rebuild_view
+from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, loads
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
@@ -69,9 +71,12 @@ def test_truncated_or_foreign_zips_are_refused_with_the_file_named(tmp_path):
         check_model_file(other)
     with pytest.raises(ValueError, match="no model file"):
         check_model_file(tmp_path / "missing.zip")
-    with pytest.raises(ValueError, match=r"state\.pkl is incomplete or corrupt"):
+    with pytest.raises(ValueError, match=r"state\.pkl is not a readable pickle"):
         (tmp_path / "state.pkl").write_bytes(pickle.dumps({"a": np.zeros(100)})[:50])
-        load_pickle(tmp_path / "state.pkl")
+        load_training_state(tmp_path / "state.pkl")
+    with pytest.raises(ValueError, match=r"state\.pkl is not a training state"):
+        (tmp_path / "state.pkl").write_bytes(pickle.dumps({"a": np.zeros(100)}))
+        load_training_state(tmp_path / "state.pkl")
 
 
 def test_a_zip_of_another_algorithm_is_refused(tmp_path):
@@ -98,14 +103,31 @@ def test_pickled_views_stay_views():
         assert copy["base"][0, 1, 2] == 5.0 + round_trip and copy["base"][0, 0, 0] == 7.0 + round_trip
 
 
-def test_views_pickled_before_the_pickling_module_still_load():
+def test_views_pickled_before_the_pickling_module_still_load(monkeypatch):
+    """Checkpoints of 0.20 rebuilt their numpy views with sb3_emmarl.common.checkpoints._view (since removed): the
+    training-state loader still reads them, as data."""
+    import sb3_emmarl.common.checkpoints as checkpoints
+
+    def _view(*args):
+        return rebuild_view(*args)
+
+    _view.__module__, _view.__qualname__ = checkpoints.__name__, "_view"
+    monkeypatch.setattr(checkpoints, "_view", _view, raising=False)
+
+    class OldPickler(pickle.Pickler):  # (what checkpoints.py's pickler wrote, protocol 5)
+        def reducer_override(self, obj):
+            if type(obj) is np.ndarray and obj.base is not None:
+                return _view, (obj.base, obj.__array_interface__["data"][0] - obj.base.__array_interface__["data"][0],
+                               obj.shape, obj.strides, obj.dtype, True)
+            return NotImplemented
+
     base = np.arange(12.0).reshape(3, 4)
-    # What checkpoints.py's pickler wrote: a view rebuilt by sb3_emmarl.common.checkpoints._view (protocol 2, by hand)
-    arguments = pickle.dumps((base, 32, (4,), (8,), base.dtype, True), protocol=2)[2:-1]
-    old = b"\x80\x02csb3_emmarl.common.checkpoints\n_view\n" + arguments + b"R."
-    assert ("sb3_emmarl.common.checkpoints", "_view") in {(g.split()[0], g.split()[1]) for op, g, _ in
-                                                          pickletools.genops(old) if op.name == "GLOBAL"}
-    view = pickle.loads(old)
+    buffer = io.BytesIO()
+    OldPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(base.reshape(-1)[4:8])
+    old = buffer.getvalue()
+    assert b"sb3_emmarl.common.checkpoints" in old and b"_view" in old
+    monkeypatch.delattr(checkpoints, "_view")
+    view = loads(old, "an old checkpoint", class_modules=ENV_STATE_MODULES)  # (how training states are read)
     assert np.array_equal(view, [4.0, 5.0, 6.0, 7.0]) and view.base is not None
 
 
@@ -129,7 +151,7 @@ def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, num_cpus):
     resumed = algo.load(path, env=make_vec_env(2, seed=0, env_kwargs=TINY), force_reset=False)
     if algo is EMPPO:
         assert resumed.e_step.n_updates == 2 and len(resumed.e_step.memory) == 2
-    restore_training_state(resumed, load_pickle(companion(path, TRAINING_STATE)))
+    restore_training_state(resumed, load_training_state(companion(path, TRAINING_STATE)))
     resumed.learn(total - resumed.num_timesteps, reset_num_timesteps=False)
     assert resumed.num_timesteps == total
     for key, value in resumed.policy.state_dict().items():

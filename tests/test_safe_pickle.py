@@ -192,3 +192,44 @@ def test_weights_that_are_not_the_models_are_refused_in_one_line(model_zip, tmp_
         with pytest.raises(ValueError, match=rf"{name}\.zip does not load into PPO \(its weights") as error:
             load_model(PPO, tmp_path / f"{name}.zip", device="cpu")
         assert "\n" not in str(error.value)
+
+
+def test_training_states_read_as_the_environments_data(tmp_path):
+    """A training state holds the reserve copies mid-episode: read back as data (instances of the environments'
+    classes only, :data:`ENV_STATE_MODULES`) they continue exactly; a function of those modules, a class outside them,
+    or copies of another kind are refused in one line."""
+    from stable_baselines3.common.logger import Logger
+
+    from sb3_emmarl.common.checkpoints import load_training_state, save_pickle
+    from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES
+    from sb3_emmarl.common.vec_env import make_vec_env
+
+    kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
+    venv, twin = (make_vec_env(2, seed=3, env_kwargs=kwargs) for _ in range(2))
+    venv.reset()
+    actions = np.random.default_rng(0).integers(0, venv.action_space.n, size=(7, venv.num_envs))
+    for step in actions[:4]:
+        venv.step(step)
+    save_pickle(tmp_path / "state.pkl", {"num_timesteps": 4, "torch_rng": th.get_rng_state(),
+                                         "numpy_rng": np.random.get_state(), "python_rng": (3, (1, 2), None),
+                                         "env": [venv.get_state()]})
+    state = load_training_state(tmp_path / "state.pkl")
+    twin.reset()
+    twin.set_state(state["env"][0])
+    for step in actions[4:]:
+        assert all(np.array_equal(a, b) for a, b in zip(venv.step(step)[:3], twin.step(step)[:3]))
+    marker = tmp_path / "marker"
+    logger = Logger.__new__(Logger)
+    logger.__dict__.update(dir=str(marker), output_formats=[])
+    refused = {"it names sb3_emmarl.common.vec_env.make_vec_env, which is not a class": Call(make_vec_env,
+                                                                                           Touch(marker)),
+               "it names stable_baselines3.common.logger.Logger": {"venv": logger},
+               "it names (posix|os).system": Touch(marker)}
+    for message, obj in refused.items():
+        with pytest.raises(ValueError, match=f"copies: refusing to load: {message}"):
+            twin.set_state(pickle.dumps(obj))
+        with pytest.raises(ValueError, match=message):
+            loads(pickle.dumps(obj), "state", class_modules=ENV_STATE_MODULES)
+    with pytest.raises(ValueError, match="holds dict copies, this environment _SteppedCopies"):
+        twin.set_state(pickle.dumps({"venv": {}, "copy_seeds": [], "never_reset": [], "reset_infos": []}))
+    assert not marker.exists()

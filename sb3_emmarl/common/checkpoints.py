@@ -23,6 +23,7 @@ of the environment's state in a checkpoint; this module adds both without changi
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import io
 import os
@@ -43,11 +44,10 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
 from sb3_emmarl.common.callbacks import EvalCallback
-from sb3_emmarl.common.pickling import ViewPickler, dumps, rebuild_view
+from sb3_emmarl.common.pickling import ViewPickler, dumps
+from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, DataUnpickler, load_data_pickle, loads
 from sb3_emmarl.common.safe_zip import check_zip_sizes, pickle_globals, read_data, safe_data_objects
 
-#: What checkpoints written before :mod:`sb3_emmarl.common.pickling` existed name to rebuild their numpy views.
-_view = rebuild_view
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
     VecMonitor: ("episode_returns", "episode_lengths", "episode_count"),
@@ -96,16 +96,25 @@ def _dumps_with_files(obj: Any) -> tuple[bytes, list[Any]]:
     return buffer.getvalue(), pickler.files
 
 
+class _LiveFilesUnpickler(DataUnpickler):
+    """:class:`~sb3_emmarl.common.safe_pickle.DataUnpickler` that puts the live environment's open files in the place
+    of the references :class:`_FileReferencePickler` wrote (``files``, set by :func:`_loads_with_files`)."""
+
+    files: list[Any] = []
+
+    def persistent_load(self, pid: Any) -> Any:
+        if not isinstance(pid, int) or not 0 <= pid < len(self.files):
+            raise ValueError(f"the saved environment refers to open file {pid!r}; this one has {len(self.files)}")
+        return self.files[pid]
+
+
 def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
-    """Unpickle :func:`_dumps_with_files`'s bytes, the open files taken from ``files`` (the live ones, same order)."""
-
-    class _Unpickler(pickle.Unpickler):
-        def persistent_load(self, pid: Any) -> Any:
-            if not isinstance(pid, int) or not 0 <= pid < len(files):
-                raise ValueError(f"the saved environment refers to open file {pid!r}; this one has {len(files)}")
-            return files[pid]
-
-    return _Unpickler(io.BytesIO(blob)).load()
+    """Unpickle :func:`_dumps_with_files`'s bytes as data only (instances of the environments' classes,
+    :data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`), the open files taken from ``files`` (the live ones,
+    same order)."""
+    unpickler = type("_Unpickler", (_LiveFilesUnpickler,), {"files": files})
+    return loads(blob, "the training state's environment wrapper", class_modules=ENV_STATE_MODULES,
+                 unpickler=unpickler)
 
 
 # ---------------------------------------------------------------------------------------------- atomic files
@@ -117,6 +126,7 @@ def write_atomic(path: str | Path, write: Callable[[io.BufferedWriter], Any]) ->
     :param path: the file to write
     :param write: writes the content into the open binary file
     :return: ``path``
+    :raise OSError: naming ``path`` when it cannot be written (a full disk, a folder it may not write in)
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -126,6 +136,12 @@ def write_atomic(path: str | Path, write: Callable[[io.BufferedWriter], Any]) ->
             file.flush()
             os.fsync(file.fileno())
         os.replace(tmp, path)
+    except OSError as error:  # (a write on a full disk names no file, a read-only folder the temporary one: say which)
+        with contextlib.suppress(OSError):  # (nothing to remove in a read-only folder, which refuses even that)
+            tmp.unlink(missing_ok=True)
+        if (error.filename is None or str(error.filename) == str(tmp)) and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(path)) from error
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -150,14 +166,18 @@ def save_model(model: BaseAlgorithm, path: str | Path) -> Path:
     return write_atomic(path, model.save)
 
 
-def load_pickle(path: str | Path) -> Any:
-    """Unpickle a file written by :func:`save_pickle`; a truncated file fails with a message naming it. Unrestricted:
-    for a run's training state only (its environments' objects), which the run itself wrote."""
-    try:
-        with open(path, "rb") as file:
-            return pickle.load(file)
-    except (EOFError, pickle.UnpicklingError, ValueError) as error:
-        raise ValueError(f"{path} is incomplete or corrupt ({error}); it may have been cut short by a crash") from None
+def load_training_state(path: str | Path) -> dict[str, Any]:
+    """Read a :func:`training_state` file as data only (its environments' states stay pickles, read as data by the
+    layers they belong to, :func:`set_vec_env_state`).
+
+    :raise ValueError: one line naming the file: cut short, not a training state, or naming, calling or allocating
+        what data does not
+    """
+    state = load_data_pickle(path)
+    if not isinstance(state, dict) or not TRAINING_STATE_KEYS <= set(state):
+        raise ValueError(f"{path} is not a training state (it holds a {type(state).__name__} without "
+                         f"{sorted(TRAINING_STATE_KEYS)})")
+    return state
 
 
 # ---------------------------------------------------------------------------------------------- checked loading
@@ -383,6 +403,10 @@ def set_vec_env_state(venv: VecEnv | None, states: list[Any]) -> None:
                 setattr(layer, name, value)
 
 
+#: What :func:`training_state` holds.
+TRAINING_STATE_KEYS = frozenset({"num_timesteps", "torch_rng", "numpy_rng", "python_rng", "env"})
+
+
 def training_state(model: BaseAlgorithm) -> dict[str, Any]:
     """The random generators and the environment's state: with the model zip, everything the next steps depend on."""
     return {
@@ -397,10 +421,24 @@ def training_state(model: BaseAlgorithm) -> dict[str, Any]:
 def restore_training_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
     """Restore :func:`training_state` into a model loaded from the checkpoint saved with it (call it last, right
     before ``learn``: building and loading a model draws from the random generators)."""
+    restore_environment_state(model, state)
+    restore_random_generators(state)
+
+
+def restore_environment_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
+    """The environment's part of :func:`restore_training_state` (the zoo calls it as soon as the checkpoint is loaded,
+    so that a state that is not this run's is refused before anything else starts).
+
+    :raise ValueError: if the state is of another step than the model, or not this environment's
+    """
     if int(state["num_timesteps"]) != model.num_timesteps:
         raise ValueError(f"the training state is of step {state['num_timesteps']}, the model of step "
                          f"{model.num_timesteps}: they come from different checkpoints")
     set_vec_env_state(model.get_env(), state["env"])
+
+
+def restore_random_generators(state: dict[str, Any]) -> None:
+    """The random generators' part of :func:`restore_training_state` (right before ``learn``)."""
     th.set_rng_state(state["torch_rng"])
     np.random.set_state(state["numpy_rng"])
     random.setstate(state["python_rng"])
@@ -476,18 +514,29 @@ class ResumableCheckpointCallback(CheckpointCallback):
             self.save_checkpoint()
 
     def save_checkpoint(self) -> Path:
-        """Write the checkpoint of the current step now (companions first, the zip last)."""
+        """Write the checkpoint of the current step now (companions first, the zip last); if a write fails (a full
+        disk) the step's companions already written are removed, so that no step is left half saved.
+
+        :raise OSError: naming the file that could not be written
+        """
         steps = self.model.num_timesteps
         folder, prefix = self.save_path, self.name_prefix
         replay_buffer = getattr(self.model, "replay_buffer", None)
-        if self.save_replay_buffer and replay_buffer is not None:
-            save_pickle(checkpoint_path(folder, prefix, steps, REPLAY_BUFFER), replay_buffer)
         vec_normalize = self.model.get_vec_normalize_env()
-        if self.save_vecnormalize and vec_normalize is not None:
-            save_pickle(checkpoint_path(folder, prefix, steps, VEC_NORMALIZE), vec_normalize)
-        if self.save_training_state:
-            save_pickle(checkpoint_path(folder, prefix, steps, TRAINING_STATE), training_state(self.model))
-        path = save_model(self.model, checkpoint_path(folder, prefix, steps))
+        companions = {REPLAY_BUFFER: self.save_replay_buffer and replay_buffer is not None,
+                      VEC_NORMALIZE: self.save_vecnormalize and vec_normalize is not None,
+                      TRAINING_STATE: self.save_training_state}
+        written: list[Path] = []
+        try:
+            for kind in (kind for kind, wanted in companions.items() if wanted):
+                obj = {REPLAY_BUFFER: replay_buffer, VEC_NORMALIZE: vec_normalize}.get(kind)
+                written.append(save_pickle(checkpoint_path(folder, prefix, steps, kind),
+                                           training_state(self.model) if kind == TRAINING_STATE else obj))
+            path = save_model(self.model, checkpoint_path(folder, prefix, steps))
+        except BaseException:
+            for file in written:
+                file.unlink(missing_ok=True)
+            raise
         if self.verbose >= 1:
             print(f"Saving model checkpoint to {path}")
         return path

@@ -4,17 +4,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import numpy as np
 import torch as th
 
+from sb3_emmarl.common.checkpoints import write_atomic
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
 from sb3_emmarl.common.extras import requires
-
-if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
 
 
 def _play(model: Predictor, venv: Any, seed: int, deterministic: bool, observe: Callable[[int], Any]) -> dict[str, Any]:
@@ -122,10 +120,11 @@ def record_episode(
         from PIL import Image
 
         images = [Image.fromarray(frame) for frame in frames]
-        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0, optimize=True)
+        write_atomic(path, lambda file: images[0].save(file, format="GIF", save_all=True, append_images=images[1:],
+                                                      duration=int(1000 / fps), loop=0, optimize=True))
     else:
         with requires("imageio", "render", "an MP4 recording"):
-            import imageio.v2 as imageio
+            import imageio.v3 as iio
 
-        imageio.mimwrite(path, cast("list[ArrayLike]", frames), fps=fps)  # (imageio annotates an invariant list)
+        write_atomic(path, lambda file: iio.imwrite(file, np.stack(frames), extension=".mp4", fps=fps))
     return metrics

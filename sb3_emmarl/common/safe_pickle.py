@@ -159,6 +159,7 @@ def _substitutes() -> dict[tuple[str, str], Callable[..., Any]]:
         ("numpy.random._pickle", "__randomstate_ctor"): _generator(np.random.RandomState),
         ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"): _seed_sequence,
         ("sb3_emmarl.common.pickling", "rebuild_view"): _view,
+        ("sb3_emmarl.common.checkpoints", "_view"): _view,  # what checkpoints before the pickling module named
     }
     for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
         table[(module, "_reconstruct")] = _reconstruct_array
@@ -200,18 +201,21 @@ class DataUnpickler(_PythonUnpickler):
     :param file: the pickle, opened for binary reading
     :param source: what the pickle is, for messages (a file and an entry)
     :param extra: further ``(module, name)`` classes this kind of file holds (``VecNormalize`` statistics)
+    :param class_modules: modules (and their submodules) any of whose classes it may hold, never their functions
+        (:data:`ENV_STATE_MODULES` for an environment's state)
     """
 
     dispatch: dict[int, Callable[..., None]] = dict(_PythonUnpickler.dispatch)
 
     def __init__(self, file: io.BufferedIOBase | io.BytesIO, source: str,
-                 extra: Iterable[tuple[str, str]] = ()) -> None:
+                 extra: Iterable[tuple[str, str]] = (), class_modules: Iterable[str] = ()) -> None:
         super().__init__(file)
         position = file.tell()
         self.size = file.seek(0, io.SEEK_END) - position  # what the pickle holds: no opcode may declare more
         file.seek(position)
         self.source = source
         self.extra = frozenset(extra)
+        self.class_modules = tuple(class_modules)
         self.classes: set[type] = set()
 
     def find_class(self, module: str, name: str) -> Any:
@@ -219,9 +223,15 @@ class DataUnpickler(_PythonUnpickler):
 
         if (module, name) in SUBSTITUTES:
             return SUBSTITUTES[(module, name)]
-        if (module, name) not in self.extra and not allowed_global(module, name):
+        if any(module == root or module.startswith(root + ".") for root in self.class_modules) \
+                and "__" not in name and name.isidentifier():
+            obj = super().find_class(module, name)
+            if not isinstance(obj, type):
+                raise UnsafePickle(f"it names {module}.{name}, which is not a class")
+        elif (module, name) in self.extra or allowed_global(module, name):
+            obj = super().find_class(module, name)
+        else:
             raise UnsafePickle(f"it names {module}.{name}, which data of this package never holds")
-        obj = super().find_class(module, name)
         if isinstance(obj, type):
             self.classes.add(obj)
         return obj
@@ -292,16 +302,19 @@ class DataUnpickler(_PythonUnpickler):
     dispatch[pickle.BYTEARRAY8[0]] = load_bytearray8
 
 
-def loads(blob: bytes | io.BufferedIOBase, source: str, extra: Iterable[tuple[str, str]] = ()) -> Any:
+def loads(blob: bytes | io.BufferedIOBase, source: str, extra: Iterable[tuple[str, str]] = (),
+          class_modules: Iterable[str] = (), unpickler: type[DataUnpickler] = DataUnpickler) -> Any:
     """Unpickle ``blob`` with :class:`DataUnpickler`.
 
     :param blob: the pickle, or a file opened for binary reading at its start
     :param source: what it is, for the message (a file and an entry)
     :param extra: further ``(module, name)`` classes it may hold
+    :param class_modules: modules any of whose classes it may hold (:class:`DataUnpickler`)
+    :param unpickler: :class:`DataUnpickler` or a subclass (one that puts back a live environment's open files)
     :raise ValueError: one line naming ``source`` and what it names, calls or allocates, or why it does not parse
     """
     try:
-        return DataUnpickler(io.BytesIO(blob) if isinstance(blob, bytes) else blob, source, extra).load()
+        return unpickler(io.BytesIO(blob) if isinstance(blob, bytes) else blob, source, extra, class_modules).load()
     except UnsafePickle as error:
         raise ValueError(f"{source}: refusing to load: {error} (a file from an unknown source is code)") from None
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError,
@@ -310,17 +323,29 @@ def loads(blob: bytes | io.BufferedIOBase, source: str, extra: Iterable[tuple[st
         raise ValueError(f"{source} is not a readable pickle ({type(error).__name__}: {first})") from None
 
 
+#: The modules whose classes an environment's state is made of: the reserve and ZonePatrol, this package's vector
+#: environments, belief and centralised (one-agent) reserve, SuperSuit's and SB3's vector environments, Gymnasium's
+#: spaces, wrappers and environment specs, PettingZoo's wrappers. A training state
+#: (:func:`~sb3_emmarl.common.checkpoints.load_training_state`) may build instances of their classes, and names no
+#: function of them.
+ENV_STATE_MODULES = ("wildlife_reserve", "sb3_emmarl.common.vec_env", "sb3_emmarl.common.latent",
+                     "sb3_emmarl.common.centralized", "supersuit.vector", "gymnasium.spaces", "gymnasium.wrappers",
+                     "gymnasium.envs.registration", "pettingzoo.utils", "stable_baselines3.common.running_mean_std",
+                     "stable_baselines3.common.vec_env", "stable_baselines3.common.monitor")
+
 #: The classes a ``VecNormalize`` statistics file holds beyond what a model's data may (see :func:`load_data_pickle`).
 VEC_NORMALIZE_CLASSES = (("stable_baselines3.common.vec_env.vec_normalize", "VecNormalize"),
                          ("stable_baselines3.common.running_mean_std", "RunningMeanStd"))
 
 
-def load_data_pickle(path: str | Path, extra: tuple[tuple[str, str], ...] = ()) -> Any:
-    """Unpickle a file of data (a replay buffer, ``VecNormalize`` statistics) as data only: nothing in it runs
-    (:func:`loads`).
+def load_data_pickle(path: str | Path, extra: tuple[tuple[str, str], ...] = (), class_modules: tuple[str, ...] = ()
+                     ) -> Any:
+    """Unpickle a file of data (a replay buffer, ``VecNormalize`` statistics, a training state) as data only: nothing
+    in it runs (:func:`loads`).
 
     :param path: the file (a regular file)
     :param extra: further ``(module, name)`` classes it may hold
+    :param class_modules: modules any of whose classes it may hold (:data:`ENV_STATE_MODULES`)
     :raise ValueError: one line naming the file: not a regular file, cut short, or naming, calling or allocating what
         data does not
     """
@@ -328,7 +353,7 @@ def load_data_pickle(path: str | Path, extra: tuple[tuple[str, str], ...] = ()) 
         raise ValueError(f"{path} is not a regular file")
     try:
         with open(path, "rb") as file:
-            return loads(file, str(path), extra)
+            return loads(file, str(path), extra, class_modules)
     except OSError as error:
         raise ValueError(f"{path} cannot be read ({error.strerror or error})") from None
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_emmarl.common.checkpoints import write_text
+from sb3_emmarl.common.checkpoints import write_atomic, write_text
 from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec
@@ -194,7 +194,7 @@ def _save(figure: Figure, path: str | Path) -> Figure:
     path.parent.mkdir(parents=True, exist_ok=True)
     # The figure was never registered with pyplot: there is nothing to close, and it is freed with the caller's
     # last reference.
-    figure.savefig(path, format="png", dpi=120)
+    write_atomic(path, lambda file: figure.savefig(file, format="png", dpi=120))
     return figure
 
 

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_emmarl.cli import child_failure, os_error_text
 from sb3_emmarl.common.checkpoints import load_model
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.extras import requires
@@ -267,8 +268,8 @@ def run_cell_process(spec_name: str, spec_text: str | None, budget: str, algorit
             _CELLS.pop(cell.pid, None)
         _kill_group(cell)  # anything the cell left running in its group
     if cell.returncode != 0 or not result_file.is_file():
-        raise RuntimeError(f"cell {algorithm} / {condition} / seed {seed} failed (exit code {cell.returncode}):\n"
-                           f"{stderr[-3000:]}")
+        raise RuntimeError(f"cell {algorithm} / {condition} / seed {seed} failed (exit code {cell.returncode}):"
+                           f"{child_failure(stderr)}")
     result = json.loads(result_file.read_text())
     result_file.unlink()
     result["hardware"] = hardware()
@@ -530,10 +531,14 @@ def _cell_main(argv: list[str] | None = None) -> int:
     if args.parent_pid is not None:
         _die_with_parent(args.parent_pid)
     spec = spec_from(args.spec, sys.stdin.read() if args.spec_stdin else None)
-    result = run_cell(spec, args.budget, args.algorithm, args.condition, args.seed, args.root)
     from sb3_emmarl.common.checkpoints import write_text
 
-    write_text(args.result_file, json.dumps(result))
+    try:
+        result = run_cell(spec, args.budget, args.algorithm, args.condition, args.seed, args.root)
+        write_text(args.result_file, json.dumps(result))
+    except OSError as error:  # a full disk, a folder it may not write in: one line naming the file
+        print(os_error_text(error), file=sys.stderr)
+        return 1
     return 0
 
 

@@ -15,6 +15,7 @@ the columns existed, and for the commit outside a git checkout).
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import socket
@@ -72,6 +73,20 @@ CREATE TABLE IF NOT EXISTS claims (
 ADDED_COLUMNS = {"version": f"TEXT NOT NULL DEFAULT '{UNKNOWN}'", "git_commit": f"TEXT NOT NULL DEFAULT '{UNKNOWN}'"}
 
 Cell = tuple[str, str, int]
+
+
+#: The errno of the SQLite errors that are the file system's (a full disk, a read-only or unopenable file).
+_SQLITE_ERRNO = {sqlite3.SQLITE_FULL: errno.ENOSPC, sqlite3.SQLITE_READONLY: errno.EROFS,
+                 sqlite3.SQLITE_CANTOPEN: errno.EACCES, sqlite3.SQLITE_IOERR: errno.EIO, sqlite3.SQLITE_PERM: errno.EACCES}
+
+
+def _os_error(error: sqlite3.OperationalError, path: Path) -> Exception:
+    """``error`` as the ``OSError`` naming the store that it is when the file system refused a write (the commands
+    report those in one line), else ``error`` itself."""
+    code = getattr(error, "sqlite_errorcode", None)
+    if code in _SQLITE_ERRNO:
+        return OSError(_SQLITE_ERRNO[code], f"{os.strerror(_SQLITE_ERRNO[code])} ({error})", str(path))
+    return error
 
 
 def _stat(pid: int) -> list[str] | None:
@@ -188,9 +203,12 @@ class ResultStore:
             try:
                 yield db
             except BaseException:
-                db.execute("ROLLBACK")
+                if db.in_transaction:  # (SQLite has rolled back itself after a full disk)
+                    db.execute("ROLLBACK")
                 raise
             db.execute("COMMIT")
+        except sqlite3.OperationalError as error:
+            raise _os_error(error, self.path) from error
         finally:
             db.close()
 

@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.cli import child_failure
 from sb3_emmarl.common.arguments import OneLineParser
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import check_model_file, vec_normalize_stats
@@ -317,7 +318,7 @@ def _train_and_evaluate(name: str, algo: str, params: list[str], seed: int, args
                    "0", *env_flags, *(["-params", *params] if params else [])]
         done = subprocess.run(command, capture_output=True, text=True)
         if done.returncode != 0:
-            raise RuntimeError(f"training {name} (seed {seed}) failed:\n{done.stderr[-2000:]}")
+            raise RuntimeError(f"training {name} (seed {seed}) failed:{child_failure(done.stderr, 2000)}")
         run = latest_run(folder, algo)
     stats = json.loads((run / "run_stats.json").read_text())
     records = evaluators.submit(evaluate_run, algo, run, args.eval_episodes, args.eval_seed).result()

@@ -11,19 +11,23 @@ while training (e.g. at a non-finite value) says why and where its checkpoints a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import resource
 import shutil
 import sys
+import threading
 import time
 import uuid
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import yaml
 
+from sb3_emmarl.cli import os_error_text
 from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.arguments import parse_key_values as parse_key_values
 from sb3_emmarl.common.checkpoints import (
@@ -354,6 +358,23 @@ def make_manager(args: argparse.Namespace, resume_run: Path | None = None) -> An
     )
 
 
+@contextlib.contextmanager
+def _writer_thread_failures_quiet() -> Iterator[None]:
+    """Leave unprinted the traceback of tensorboard's writer thread when a write fails (a full disk): the thread hands
+    the error to the training thread at its next write, which reports it in one line."""
+    previous = threading.excepthook
+
+    def hook(args: Any) -> None:
+        if not (isinstance(args.exc_value, OSError) and type(args.thread).__name__ == "_AsyncWriterThread"):
+            previous(args)
+
+    threading.excepthook = hook
+    try:
+        yield
+    finally:
+        threading.excepthook = previous
+
+
 def train_main(argv: list[str] | None = None) -> int:
     """Train, save the run in rl-zoo's layout, and print the team metrics of an evaluation on seeded episodes
     (actions sampled, as ``evaluate_team`` does)."""
@@ -391,7 +412,8 @@ def train_main(argv: list[str] | None = None) -> int:
         if manager is not None:  # nothing half-written is left behind
             manager.remove_created_folders()
         _remove_new_files(resume_run, resumed_files)
-        print(f"error: {' '.join(str(error).split())}", file=sys.stderr)
+        text = os_error_text(error) if isinstance(error, OSError) else str(error)
+        print(f"error: {' '.join(text.split())}", file=sys.stderr)
         return 2
     if results is None:
         if default_storage:
@@ -403,13 +425,28 @@ def train_main(argv: list[str] | None = None) -> int:
         compile_reserve(env_kwargs)  # numba compiles (or loads) the reserve's kernels here, not in the timed training
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
-        manager.learn(model)
+        with _writer_thread_failures_quiet():
+            manager.learn(model)
     except (ValueError, RuntimeError, FloatingPointError, OSError) as error:  # OSError: a checkpoint on a full disk
-        print(f"error: training stopped at step {model.num_timesteps}: {error}\n"
+        reason = os_error_text(error) if isinstance(error, OSError) else error
+        if isinstance(error, OSError) and not error.filename:  # (tensorboard's and SB3's log writers name no file)
+            logs = " or ".join(str(path) for path in (args.tensorboard_log, manager.save_path) if path)
+            reason = f"{reason} (writing the logs under {logs})"
+        print(f"error: training stopped at step {model.num_timesteps}: {reason}\n"
               f"{_after_failed_training(manager, model, args.tensorboard_log)}", file=sys.stderr)
         return 1
-    train_seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
-    manager.save_trained_model(model)
+    return _finish_run(args, manager, model, time.perf_counter() - start, time.process_time() - cpu_start)
+
+
+def _finish_run(args: argparse.Namespace, manager: Any, model: Any, train_seconds: float, cpu_seconds: float) -> int:
+    """Save a trained run (model, ``run_stats.json``, the team's evaluation) and say what to do next; 1 (with one
+    line) if the model cannot be saved."""
+    try:
+        manager.save_trained_model(model)
+    except OSError as error:  # (each file is written whole or not at all)
+        print(f"error: the trained model was not saved: {os_error_text(error)}\n"
+              f"{_after_failed_training(manager, model, args.tensorboard_log)}", file=sys.stderr)
+        return 1
     stats = {"train_seconds": train_seconds, "cpu_seconds": cpu_seconds, "n_timesteps": int(model.num_timesteps),
              "peak_rss_mib": peak_rss_mib()}
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))

@@ -68,8 +68,9 @@ from sb3_emmarl.common.checkpoints import (
     check_model_file,
     check_saved_algorithm,
     companion,
-    load_pickle,
-    restore_training_state,
+    load_training_state,
+    restore_environment_state,
+    restore_random_generators,
     save_model,
     save_pickle,
     write_text,
@@ -541,7 +542,11 @@ class ReserveExperimentManager(ExperimentManager):
                   f"exactly); learning resumes after {model.learning_starts} steps", file=sys.stderr)
         if resuming:
             assert state_file is not None  # (resuming)
-            self._training_state = load_pickle(state_file)
+            self._training_state = load_training_state(state_file)
+            try:  # (a state not this run's is refused now, before anything else starts)
+                restore_environment_state(model, self._training_state)
+            except ValueError as error:
+                raise ValueError(f"{state_file}: {error}") from None
         elif self.resume_run is not None:
             print(f"warning: {self.trained_agent} has no training state; the run resumes with new episodes",
                   file=sys.stderr)
@@ -552,7 +557,7 @@ class ReserveExperimentManager(ExperimentManager):
         if self.resume_run is None:
             return super().learn(model)
         if self._training_state is not None:
-            restore_training_state(model, self._training_state)
+            restore_random_generators(self._training_state)
         remaining = self.n_timesteps - model.num_timesteps
         kwargs: dict[str, Any] = {"reset_num_timesteps": False, "callback": self.callbacks}
         if self.log_interval > -1:

@@ -2,7 +2,12 @@
 
 import sys
 
+from sb3_emmarl.cli import os_error_text
 from sb3_emmarl.zoo.cli import train_main
 
 if __name__ == "__main__":
-    sys.exit(train_main())
+    try:
+        sys.exit(train_main())
+    except OSError as error:  # (as the emmarl command: one line naming the file that could not be written)
+        print(f"error: {os_error_text(error)}", file=sys.stderr)
+        sys.exit(1)

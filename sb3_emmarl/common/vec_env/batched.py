@@ -70,6 +70,9 @@ class ReserveVecEnv(SharedPolicyVecEnv):
         """Always: worker processes hand their copies over."""
         return True
 
+    def _copies_type(self) -> type:
+        return _SteppedCopies
+
     def _portable_copies(self) -> Any:
         return self.venv.portable()
 

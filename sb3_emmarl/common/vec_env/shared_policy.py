@@ -4,7 +4,6 @@ PettingZoo parallel environment, one vector entry per agent of each copy), the i
 
 from __future__ import annotations
 
-import pickle
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any, cast
@@ -16,6 +15,8 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvO
 from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv, ProcConcatVec
 
 from sb3_emmarl.common.pickling import dumps
+from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, loads
+from sb3_emmarl.common.vec_env.memory import check_copies_fit
 
 #: Key of the ``reset`` options that carries one seed per reserve copy.
 COPY_SEEDS_KEY = "sb3_emmarl_copy_seeds"
@@ -107,6 +108,7 @@ class SharedPolicyVecEnv(VecEnv):
         if isinstance(num_cpus, bool) or not isinstance(num_cpus, (int, np.integer)) or num_cpus < 0:
             raise ValueError(f"num_cpus must be an int >= 0, got {num_cpus!r}")
         self.prototype = env_fn()  # also validates the environment's arguments, here and now
+        check_copies_fit(self.prototype, int(n_copies))
         self.possible_agents = list(self.prototype.possible_agents)
         self.agents_per_copy = len(self.possible_agents)
         self.n_copies = int(n_copies)
@@ -212,8 +214,18 @@ class SharedPolicyVecEnv(VecEnv):
                       "never_reset": self._never_reset, "reset_infos": self.reset_infos})
 
     def set_state(self, state: bytes) -> None:
-        """Restore :meth:`get_state` (the copies then continue their episodes)."""
-        saved = pickle.loads(state)
+        """Restore :meth:`get_state` (the copies then continue their episodes), read as data only: a checkpoint may
+        hold instances of the environments' own classes (:data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`)
+        and nothing else.
+
+        :raise ValueError: if the state is not this environment's (other copies, a foreign or unsafe pickle)
+        """
+        saved = loads(state, "the training state's environment copies", class_modules=ENV_STATE_MODULES)
+        if not isinstance(saved, dict) or set(saved) != {"venv", "copy_seeds", "never_reset", "reset_infos"} \
+                or type(saved["venv"]) is not self._copies_type():
+            held = type(saved.get("venv") if isinstance(saved, dict) else saved).__name__
+            raise ValueError(f"the training state holds {held} copies, this environment {self._copies_type().__name__}:"
+                             " build it as the run did")
         self._adopt_copies(saved["venv"])
         self._copy_seeds = saved["copy_seeds"]
         self._never_reset, self.reset_infos = saved["never_reset"], saved["reset_infos"]
@@ -222,6 +234,10 @@ class SharedPolicyVecEnv(VecEnv):
     def checkpointable(self) -> bool:
         """Whether :meth:`get_state` can read the copies (not in SuperSuit's worker processes)."""
         return not self.multiprocess
+
+    def _copies_type(self) -> type:
+        """The class of :meth:`_portable_copies`'s object (what :meth:`set_state` accepts)."""
+        return type(self.venv)
 
     def _portable_copies(self) -> Any:
         """The copies as one picklable object (for :meth:`get_state`)."""

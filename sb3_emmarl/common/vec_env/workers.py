@@ -175,7 +175,8 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
                 reply = dumps(copies.envs)
             elif command == "set_envs":
                 copies.close()
-                copies.envs, copies.with_state = pickle.loads(data)
+                copies.envs, copies.with_state = pickle.loads(data)  # (the parent's live objects: a file's were read
+                # as data before, by the training-state loader)
             elif command == "apply":  # get_attr, set_attr, env_method on some of the copies
                 kind, name, payload, indices = data
                 try:
