@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     budget = BUDGETS[args.algo] if args.budget is None else args.budget
     if budget < 1 or args.eval_episodes < 1:
         parser.error("--budget and --eval-episodes must be >= 1")
-    from sb3_emmarl.common.checkpoints import write_text
+    from sb3_emmarl.common.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     folder.mkdir(parents=True, exist_ok=True)

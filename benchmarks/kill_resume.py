@@ -63,7 +63,8 @@ def max_difference(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> float:
 
 def trial(algo: str, root: Path, reference: dict[str, np.ndarray], duration: float, rng: np.random.Generator,
           args: argparse.Namespace) -> dict:
-    from sb3_emmarl.common.checkpoints import list_checkpoints, load_model
+    from sb3_emmarl.common.checkpoints import list_checkpoints
+    from sb3_emmarl.common.model_files import load_model
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
     folder = root / "trial"

@@ -19,8 +19,8 @@ import sys
 import numpy as np
 import torch as th
 
-from sb3_emmarl.common.checkpoints import load_model
 from sb3_emmarl.common.evaluation import evaluate_team
+from sb3_emmarl.common.model_files import load_model
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
 METRICS = ("team_reward", "detection_rate", "coverage_efficiency", "collisions")

@@ -303,7 +303,7 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
     if path.exists():
         return f"{path.name}: kept"
     record = run(variant, seed, budget, episodes, env_kwargs, task)
-    from sb3_emmarl.common.checkpoints import write_text
+    from sb3_emmarl.common.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))

@@ -648,7 +648,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, MissingExtra) as error:
         parser.error(str(error))
     output.parent.mkdir(parents=True, exist_ok=True)
-    from sb3_emmarl.common.checkpoints import write_atomic  # (a full disk leaves no half-written figure)
+    from sb3_emmarl.common.atomic_files import write_atomic
 
     write_atomic(output, lambda file: figure.savefig(file, format=output.suffix.lower().lstrip("."), dpi=120))
     print(f"wrote {output}")

@@ -11,23 +11,17 @@ from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_emmarl import EMPPO, MessagePPO
+from sb3_emmarl.common.atomic_files import save_model, write_atomic, write_text
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     ResumableCheckpointCallback,
-    check_model_file,
-    check_saved_algorithm,
     companion,
-    dumps,
     list_checkpoints,
-    load_model,
-    load_training_state,
-    restore_training_state,
-    save_model,
-    write_atomic,
-    write_text,
 )
-from sb3_emmarl.common.pickling import rebuild_view
+from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, load_model
+from sb3_emmarl.common.pickling import dumps, rebuild_view
 from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, loads
+from sb3_emmarl.common.training_state import load_training_state, restore_training_state
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
@@ -225,7 +219,7 @@ def test_finite_check_names_the_quantity_and_the_step():
 
 
 def test_eval_callback_files_are_atomic(tmp_path):
-    from sb3_emmarl.common.checkpoints import AtomicEvalCallback
+    from sb3_emmarl.common.callbacks import AtomicEvalCallback
 
     model = build(PPO)
     callback = AtomicEvalCallback(make_vec_env(1, seed=9, env_kwargs=TINY), n_eval_episodes=1, eval_freq=32,

@@ -7,7 +7,7 @@ import os
 import torch as th
 
 from sb3_emmarl import cli
-from sb3_emmarl.common import checkpoints
+from sb3_emmarl.common import atomic_files
 from sb3_emmarl.common.checkpoints import check_checkpoint, list_checkpoints
 from sb3_emmarl.zoo.cli import train_main
 
@@ -25,7 +25,7 @@ def test_a_full_disk_mid_training_keeps_the_last_checkpoint_and_the_run_resumes(
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         real_fsync(fd)
 
-    monkeypatch.setattr(checkpoints.os, "fsync", fsync)
+    monkeypatch.setattr(atomic_files.os, "fsync", fsync)
     assert train_main([*RUN, "-n", "3000", "--save-freq", "500", "-f", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert "training stopped at step" in err and "rl_model_training_state_2048_steps.pkl: No space left on device" in err
@@ -33,7 +33,7 @@ def test_a_full_disk_mid_training_keeps_the_last_checkpoint_and_the_run_resumes(
     assert [steps for steps, _ in list_checkpoints(run)] == [1024]
     check_checkpoint(run / "rl_model_1024_steps.zip")
     assert not list(run.rglob(".*.tmp")) and not (run / f"{ENV}.zip").exists()
-    monkeypatch.setattr(checkpoints.os, "fsync", real_fsync)  # space again
+    monkeypatch.setattr(atomic_files.os, "fsync", real_fsync)  # space again
     assert train_main(["--algo", "ppo", "--resume", str(run), "--verbose", "0"]) == 0
     assert (run / f"{ENV}.zip").is_file()
 
@@ -64,7 +64,7 @@ def test_a_checkpoint_whose_zip_cannot_be_written_leaves_no_companion(tmp_path, 
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         real_fsync(fd)
 
-    monkeypatch.setattr(checkpoints.os, "fsync", fsync)
+    monkeypatch.setattr(atomic_files.os, "fsync", fsync)
     assert train_main([*RUN, "-n", "3000", "--save-freq", "500", "-f", str(tmp_path)]) == 1
     assert "rl_model_2048_steps.zip: No space left on device" in capsys.readouterr().err
     assert sorted(path.name for path in run.glob("rl_model_*")) == ["rl_model_1024_steps.zip",
@@ -157,13 +157,13 @@ def test_every_atomic_write_keeps_the_previous_file_and_names_the_path(tmp_path,
     import pytest
 
     path = tmp_path / "patrol.gif"
-    checkpoints.write_text(path, "the previous recording")
+    atomic_files.write_text(path, "the previous recording")
 
     def fill(file):
         file.write(b"half a GIF")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # (what a write on a full disk raises: no file named)
 
     with pytest.raises(OSError) as info:
-        checkpoints.write_atomic(path, fill)
+        atomic_files.write_atomic(path, fill)
     assert cli.os_error_text(info.value) == f"{path}: No space left on device"
     assert path.read_text() == "the previous recording" and sorted(tmp_path.iterdir()) == [path]

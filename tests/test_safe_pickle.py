@@ -16,7 +16,7 @@ import torch as th
 from fuzz_zoo import Call, Touch, plant, write_data
 from stable_baselines3 import PPO
 
-from sb3_emmarl.common.checkpoints import check_model_file, load_model
+from sb3_emmarl.common.model_files import check_model_file, load_model
 from sb3_emmarl.common.safe_pickle import MAX_BYTES, loads
 from sb3_emmarl.common.safe_zip import MAX_MEMBER_BYTES, safe_data_objects
 
@@ -151,7 +151,7 @@ def test_run_folder_pickles_read_as_data(tmp_path):
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_emmarl.common.checkpoints import save_pickle
+    from sb3_emmarl.common.atomic_files import save_pickle
     from sb3_emmarl.common.safe_pickle import load_data_pickle, load_vec_normalize
 
     venv = VecNormalize(make_vec_env("CartPole-v1", 2, seed=0))
@@ -200,8 +200,9 @@ def test_training_states_read_as_the_environments_data(tmp_path):
     or copies of another kind are refused in one line."""
     from stable_baselines3.common.logger import Logger
 
-    from sb3_emmarl.common.checkpoints import load_training_state, save_pickle
+    from sb3_emmarl.common.atomic_files import save_pickle
     from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES
+    from sb3_emmarl.common.training_state import load_training_state
     from sb3_emmarl.common.vec_env import make_vec_env
 
     kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}

@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import sb3_emmarl
 from sb3_emmarl import EMPPO, EvalCallback, OraclePPO, evaluate_policy
-from sb3_emmarl.common.checkpoints import AtomicEvalCallback
+from sb3_emmarl.common.callbacks import AtomicEvalCallback
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve import zone_patrol_v0

@@ -1,17 +1,20 @@
 """Callbacks: the reserve's team metrics (and the policy entropy) and the latent metrics in tensorboard; SB3's
-``EvalCallback`` counting team episodes."""
+``EvalCallback`` counting team episodes, and the same with its files written atomically (:class:`AtomicEvalCallback`).
+"""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common import callbacks as sb3_callbacks
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
+from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.atomic_files import save_model
 from sb3_emmarl.common.evaluation import check_episode_count, evaluate_policy
 from sb3_emmarl.common.metrics import team_metric_keys
 
@@ -168,90 +171,39 @@ class EvalCallback(sb3_callbacks.EvalCallback):
         super()._init_callback()
 
     def _on_step(self) -> bool:
-        """SB3's ``EvalCallback._on_step`` (stable-baselines3 2.x) with one change: the evaluation is this package's
-        ``evaluate_policy``."""
-        continue_training = True
+        """SB3's ``EvalCallback._on_step``, its evaluation this package's ``evaluate_policy`` (team episodes): SB3's
+        method calls the ``evaluate_policy`` of its module, which is this package's while the method runs."""
+        sb3_evaluate = sb3_callbacks.evaluate_policy
+        sb3_callbacks.evaluate_policy = evaluate_policy  # type: ignore[assignment]
+        try:
+            return super()._on_step()
+        finally:
+            sb3_callbacks.evaluate_policy = sb3_evaluate
 
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
-            # Sync training and eval env if there is VecNormalize
-            if self.model.get_vec_normalize_env() is not None:
-                try:
-                    sync_envs_normalization(self.training_env, self.eval_env)
-                except AttributeError as e:
-                    raise AssertionError(
-                        "Training and eval env are not wrapped the same way, "
-                        "see https://stable-baselines3.readthedocs.io/en/master/guide/callbacks.html#evalcallback "
-                        "and warning above."
-                    ) from e
 
-            # Reset success rate buffer
-            self._is_success_buffer = []
+class AtomicEvalCallback(EvalCallback):
+    """The team-counting ``EvalCallback`` (:class:`sb3_emmarl.common.callbacks.EvalCallback`: SB3's, whose evaluations
+    are team episodes) whose ``evaluations.npz`` and ``best_model.zip`` are written atomically (same arguments).
 
-            episode_rewards, episode_lengths = evaluate_policy(
-                self.model,
-                self.eval_env,
-                n_eval_episodes=self.n_eval_episodes,
-                render=self.render,
-                deterministic=self.deterministic,
-                return_episode_rewards=True,
-                warn=self.warn,
-                callback=self._log_success_callback,
-            )
+    SB3 writes both in place; here the evaluations go to a hidden temporary file renamed over
+    ``evaluations.npz``, and the best model is saved with :func:`save_model`.
+    """
 
-            if self.log_path is not None:
-                assert isinstance(episode_rewards, list)
-                assert isinstance(episode_lengths, list)
-                self.evaluations_timesteps.append(self.num_timesteps)
-                self.evaluations_results.append(episode_rewards)
-                self.evaluations_length.append(episode_lengths)
+    def _init_callback(self) -> None:
+        super()._init_callback()
+        self._best_folder, self.best_model_save_path = self.best_model_save_path, None
+        self._log_file = None
+        if self.log_path is not None:
+            self._log_file = Path(self.log_path).with_suffix(".npz")
+            self.log_path = str(self._log_file.with_name(f".{self._log_file.stem}.{os.getpid()}.tmp"))
 
-                kwargs = {}
-                # Save success log if present
-                if len(self._is_success_buffer) > 0:
-                    self.evaluations_successes.append(self._is_success_buffer)
-                    kwargs = dict(successes=self.evaluations_successes)
-
-                np.savez(
-                    self.log_path,
-                    timesteps=self.evaluations_timesteps,
-                    results=self.evaluations_results,
-                    ep_lengths=self.evaluations_length,
-                    **kwargs,  # type: ignore[arg-type]
-                )
-
-            mean_reward, std_reward = np.mean(episode_rewards), np.std(episode_rewards)
-            mean_ep_length, std_ep_length = np.mean(episode_lengths), np.std(episode_lengths)
-            self.last_mean_reward = float(mean_reward)
-
-            if self.verbose >= 1:
-                print(f"Eval num_timesteps={self.num_timesteps}, episode_reward={mean_reward:.2f} +/- {std_reward:.2f}")
-                print(f"Episode length: {mean_ep_length:.2f} +/- {std_ep_length:.2f}")
-            # Add to current Logger
-            self.logger.record("eval/mean_reward", float(mean_reward))
-            self.logger.record("eval/mean_ep_length", mean_ep_length)
-
-            if len(self._is_success_buffer) > 0:
-                success_rate = np.mean(self._is_success_buffer)
-                if self.verbose >= 1:
-                    print(f"Success rate: {100 * success_rate:.2f}%")
-                self.logger.record("eval/success_rate", success_rate)
-
-            # Dump log so the evaluation results are printed with the correct timestep
-            self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-            self.logger.dump(self.num_timesteps)
-
-            if mean_reward > self.best_mean_reward:
-                if self.verbose >= 1:
-                    print("New best mean reward!")
-                if self.best_model_save_path is not None:
-                    self.model.save(os.path.join(self.best_model_save_path, "best_model"))
-                self.best_mean_reward = float(mean_reward)
-                # Trigger callback on new best model, if needed
-                if self.callback_on_new_best is not None:
-                    continue_training = self.callback_on_new_best.on_step()
-
-            # Trigger callback after every evaluation, if needed
-            if self.callback is not None:
-                continue_training = continue_training and self._on_event()
-
-        return continue_training
+    def _on_step(self) -> bool:
+        best = self.best_mean_reward
+        result = super()._on_step()
+        if self._log_file is not None:
+            written = Path(f"{self.log_path}.npz")  # numpy's savez adds the suffix
+            if written.is_file():
+                os.replace(written, self._log_file)
+        if self._best_folder is not None and self.best_mean_reward > best:
+            save_model(self.model, Path(self._best_folder) / "best_model.zip")
+        return result

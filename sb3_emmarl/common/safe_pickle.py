@@ -326,7 +326,7 @@ def loads(blob: bytes | io.BufferedIOBase, source: str, extra: Iterable[tuple[st
 #: The modules whose classes an environment's state is made of: the reserve and ZonePatrol, this package's vector
 #: environments, belief and centralised (one-agent) reserve, SuperSuit's and SB3's vector environments, Gymnasium's
 #: spaces, wrappers and environment specs, PettingZoo's wrappers. A training state
-#: (:func:`~sb3_emmarl.common.checkpoints.load_training_state`) may build instances of their classes, and names no
+#: (:func:`~sb3_emmarl.common.training_state.load_training_state`) may build instances of their classes, and names no
 #: function of them.
 ENV_STATE_MODULES = ("wildlife_reserve", "sb3_emmarl.common.vec_env", "sb3_emmarl.common.latent",
                      "sb3_emmarl.common.centralized", "supersuit.vector", "gymnasium.spaces", "gymnasium.wrappers",

@@ -134,7 +134,7 @@ def experiment_main(argv: list[str] | None = None) -> int:
                 return 1
     if args.no_report:
         return 0
-    from sb3_emmarl.common.checkpoints import write_text
+    from sb3_emmarl.common.atomic_files import write_text
     from sb3_emmarl.experiments.report import check_versions, render_section, update_results_page
 
     rows = {spec.name: store.rows(spec.name, args.budget) for spec, _ in specs}

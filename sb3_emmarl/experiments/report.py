@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_emmarl.common.checkpoints import write_atomic, write_text
+from sb3_emmarl.common.atomic_files import write_atomic, write_text
 from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.experiments.spec import ExperimentSpec

@@ -15,9 +15,10 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.cli import child_failure
 from sb3_emmarl.common.arguments import OneLineParser
 from sb3_emmarl.common.centralized import ENV_ID
-from sb3_emmarl.common.checkpoints import check_model_file, vec_normalize_stats
+from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+from sb3_emmarl.common.model_files import check_model_file
 from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.statistics import paired_p_value
 from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag

@@ -30,20 +30,18 @@ import yaml
 from sb3_emmarl.cli import os_error_text
 from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.arguments import parse_key_values as parse_key_values
+from sb3_emmarl.common.atomic_files import write_text
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     check_checkpoint,
-    check_model_file,
-    check_saved_algorithm,
     companion,
     list_checkpoints,
-    network_shapes,
     vec_normalize_stats,
-    write_text,
 )
 from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, folder_ids, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
+from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, network_shapes
 from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
@@ -517,7 +515,7 @@ def enjoy_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.output is not None and Path(args.output).suffix not in (".gif", ".mp4"):
         parser.error(f"--output must end in .gif or .mp4, got {args.output!r}")
-    from sb3_emmarl.common.checkpoints import load_model
+    from sb3_emmarl.common.model_files import load_model
     from sb3_emmarl.zoo.exp_manager import read_yaml
 
     try:

@@ -24,9 +24,9 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 - ``-optimize`` of an EM algorithm merges the sampled E-step window into the YAML's ``e_step_kwargs`` and refits
   ``count_factors`` (:func:`~sb3_emmarl.zoo.algos.merge_latent_params`);
 - the periodic evaluations (``--eval-freq``) and optuna's trials count team episodes
-  (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.checkpoints.AtomicEvalCallback`
+  (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.callbacks.AtomicEvalCallback`
   and :class:`TeamTrialEvalCallback`), not the UAVs of one episode as SB3's does;
-- every file is written atomically (:mod:`sb3_emmarl.common.checkpoints`), ``config.yml`` and ``args.yml``
+- every file is written atomically (:mod:`sb3_emmarl.common.atomic_files`), ``config.yml`` and ``args.yml``
   as plain YAML (rl_zoo3 writes Python tags), checkpoints by
   :class:`~sb3_emmarl.common.checkpoints.ResumableCheckpointCallback` with the training state;
 - the training environment is wrapped in :class:`~sb3_emmarl.common.vec_env.FiniteCheck` (SB3's
@@ -54,32 +54,26 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.atomic_files import save_model, save_pickle, write_text
+from sb3_emmarl.common.callbacks import AtomicEvalCallback, LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.callbacks import EvalCallback as TeamEvalCallback
-from sb3_emmarl.common.callbacks import LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.centralized import register_envs
 from sb3_emmarl.common.checkpoints import (
     REPLAY_BUFFER,
     TRAINING_STATE,
     VEC_NORMALIZE,
     VEC_NORMALIZE_FILE,
-    AtomicEvalCallback,
     ResumableCheckpointCallback,
     SaveVecNormalize,
-    check_model_file,
-    check_saved_algorithm,
     companion,
-    load_training_state,
-    restore_environment_state,
-    restore_random_generators,
-    save_model,
-    save_pickle,
-    write_text,
 )
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
+from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm
 from sb3_emmarl.common.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
 from sb3_emmarl.common.safe_pickle import load_data_pickle, load_vec_normalize
 from sb3_emmarl.common.safe_zip import safe_data_objects
+from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
 from sb3_emmarl.common.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO

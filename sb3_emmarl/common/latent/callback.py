@@ -27,7 +27,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.checkpoints import write_atomic
+from sb3_emmarl.common.atomic_files import write_atomic
 from sb3_emmarl.common.latent.algorithm import (
     E_STEP_DEFAULTS,
     augmented_features,
