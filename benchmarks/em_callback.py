@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
+from sb3_emmarl.common.wrapping import find_wrapper
 
 #: Agent-steps per run of each algorithm (every arm alike), fixed in the protocol.
 BUDGETS = {"a2c": 50_000, "dqn": 30_000}
@@ -111,13 +112,13 @@ def gate(episodes: int, fit_episodes: int, seed: int = 0) -> dict:
 
     from sb3_emmarl.common.envs import ModeCueEnv
     from sb3_emmarl.common.latent.algorithm import augmented_features, e_step_and_log, make_transitions
-    from sb3_emmarl.common.latent.belief import find_belief_wrapper
+    from sb3_emmarl.common.latent.belief import BeliefWrapper
     from sb3_emmarl.common.latent.callback import EMCallback
 
     th.set_num_threads(1)
     callback = EMCallback(seed=seed)
     venv = callback.wrap_env(task_env("plain", 8, seed))
-    wrapper, rng = find_belief_wrapper(venv), np.random.default_rng(seed)
+    wrapper, rng = find_wrapper(venv, BeliefWrapper), np.random.default_rng(seed)
     obs, rows = venv.reset(), []
     for _ in range(fit_episodes * ModeCueEnv().length // 8):  # random-action episodes, every copy's
         actions = rng.integers(4, size=8)

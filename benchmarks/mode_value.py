@@ -67,7 +67,8 @@ from sb3_emmarl import OraclePPO
 from sb3_emmarl.common.initialization import tail_weight_norms
 from sb3_emmarl.common.masking import hidden_indices
 from sb3_emmarl.common.statistics import seeds_needed
-from sb3_emmarl.zoo.benchmark import (
+from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
+from sb3_emmarl.zoo.compare import (
     COMPARISON_EVAL_EPISODES,
     add_run_arguments,
     check_run_arguments,
@@ -76,7 +77,6 @@ from sb3_emmarl.zoo.benchmark import (
     run_folder,
     run_variants,
 )
-from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, decode_mode, next_strategy
 from wildlife_reserve.reserve.scripted import STATION_SPOTS, StationPlan, play_station_plan
@@ -101,7 +101,7 @@ def paired_table(results: dict[str, list[dict]], metrics: tuple[str, ...] = METR
 
     :param results: ``{variant: [record per seed, same seed order for every variant]}``, two variants
     :param metrics: the metrics to compare
-    :raises ValueError: if the two variants' seed lists differ (see :func:`~sb3_emmarl.zoo.benchmark.paired_over_seeds`)
+    :raises ValueError: if the two variants' seed lists differ (see :func:`~sb3_emmarl.zoo.compare.paired_over_seeds`)
     """
     (a_name, a_runs), (b_name, b_runs) = results.items()
     lines = [f"{'metric':<22}{a_name:>20}{b_name:>20}{'difference':>20}{'p (paired t)':>14}{'higher on':>11}"]

@@ -35,7 +35,7 @@ COMMANDS: dict[str, Command] = {
     "enjoy": Command("sb3_emmarl.zoo.cli:enjoy_main", "a trained team's metrics and a GIF of its patrol [zoo, render]"),
     "experiment": Command("sb3_emmarl.experiments.cli:experiment_main",
                           "the paper's experiments: run the missing cells, then their tables and figures [zoo]"),
-    "compare": Command("sb3_emmarl.zoo.benchmark:compare_main", "variants at one budget over seeds, paired tests [zoo]"),
+    "compare": Command("sb3_emmarl.zoo.compare:compare_main", "variants at one budget over seeds, paired tests [zoo]"),
     "plot": Command("sb3_emmarl.plots:main", "learning curves and per-seed bar figures of runs [zoo]"),
     "patrol": Command("sb3_emmarl.patrol:patrol_main", "a scripted patrol's team metrics on the reserve"),
     "benchmark": Command("sb3_emmarl.zoo.benchmark:benchmark_main", "trained teams against the random team [zoo]"),

@@ -9,7 +9,7 @@ from scipy import stats
 from scripts import load_benchmark, load_study
 
 from sb3_emmarl.common.vec_env import LINKS_KEY, make_vec_env
-from sb3_emmarl.zoo.benchmark import (
+from sb3_emmarl.zoo.compare import (
     DEFAULT_VARIANTS,
     compare_main,
     compare_parser,

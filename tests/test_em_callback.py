@@ -16,8 +16,9 @@ from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMCallback
 from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
-from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
+from sb3_emmarl.common.wrapping import find_wrapper
 
 EM_PAGE = Path(__file__).resolve().parents[1] / "docs" / "em.md"
 
@@ -77,7 +78,7 @@ def test_other_algorithms_train_and_evaluate_with_the_belief(algo):
     model.learn(128, callback=callback)
     assert callback.e_step.n_updates >= 1
     eval_env = callback.wrap_env(make_vec_env(env.envs[0].unwrapped.__class__, n_envs=2, seed=1))
-    assert find_belief_wrapper(eval_env).tracker.model is callback.latent_model
+    assert find_wrapper(eval_env, BeliefWrapper).tracker.model is callback.latent_model
     mean, _ = evaluate_policy(model, eval_env, n_eval_episodes=2)
     assert np.isfinite(mean)
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sb3_emmarl import EMPPO
-from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.latent.evidence import (
     PLUGINS,
     GenericEvidence,
@@ -23,6 +23,7 @@ from sb3_emmarl.common.latent.evidence import (
     register_evidence,
 )
 from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.wrapping import find_wrapper
 
 DATA = Path(__file__).parent / "data"
 #: The reserve the saved model was trained on.
@@ -199,7 +200,7 @@ def test_a_plug_in_s_counts_enter_the_beliefs_and_the_e_step(plugins):
     for _ in range(5):  # within one episode (32 steps)
         following = venv.step(np.zeros(venv.num_envs, dtype=np.int64))[0][:, :obs_dim]
         expected += 0.5 * CueCounts(4).log_likelihood(following, table.double().permute(1, 2, 0).numpy())
-    np.testing.assert_allclose(find_belief_wrapper(venv).tracker.evidence, expected, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(find_wrapper(venv, BeliefWrapper).tracker.evidence, expected, rtol=1e-4, atol=1e-3)
 
 
 # ---------------------------------------------------------------------------------------------- REVIEW 4

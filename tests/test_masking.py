@@ -8,8 +8,8 @@ from scripts import load_benchmark
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team
 from sb3_emmarl.common.masking import HideObservationParts, hidden_indices
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.zoo.benchmark import evaluate_run
 from sb3_emmarl.zoo.cli import enjoy_main, latest_run, train_main
+from sb3_emmarl.zoo.compare import evaluate_run
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.constants import CH_SIGN
 

@@ -385,19 +385,20 @@ def test_random_labels_reject_bad_values_and_relabel_beside_them():
 
 def test_oracle_ppo_with_a_random_label_keeps_it_through_saving_loading_and_evaluation(tmp_path):
     from sb3_emmarl.common.evaluation import evaluate_team
-    from sb3_emmarl.common.mode_aware import find_mode_wrapper
+    from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+    from sb3_emmarl.common.wrapping import find_wrapper
 
     model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0,
                       random_label=True)
-    assert find_mode_wrapper(model.get_env()).random_labels
+    assert find_wrapper(model.get_env(), ModeObservationWrapper).random_labels
     model.learn(64)
     model.save(tmp_path / "control")
     loaded = OraclePPO.load(tmp_path / "control", env=make_vec_env(1, seed=1, env_kwargs=SMALL), device="cpu")
-    assert loaded.random_label and find_mode_wrapper(loaded.get_env()).random_labels
-    assert find_mode_wrapper(loaded.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL))).random_labels
+    assert loaded.random_label and find_wrapper(loaded.get_env(), ModeObservationWrapper).random_labels
+    assert find_wrapper(loaded.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL)), ModeObservationWrapper).random_labels
     told = OraclePPO.load(tmp_path / "control", device="cpu")
     told.random_label = False  # the same networks, told the true mode: the wrapper follows the model's setting
-    assert not find_mode_wrapper(told.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL))).random_labels
+    assert not find_wrapper(told.wrap_env(make_vec_env(1, seed=1, env_kwargs=SMALL)), ModeObservationWrapper).random_labels
     records = evaluate_team(loaded, 3, seed=5, env_kwargs=SMALL)
     assert len(records) == 3 and all(np.isfinite(r["team_reward"]) for r in records)
 

@@ -6,8 +6,9 @@ import torch as th
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMVDN
-from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.wrapping import find_wrapper
 
 TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
 QUICK = {"learning_starts": 200, "buffer_size": 5000, "batch_size": 16, "e_step_interval": 5, "team_pooling": True,
@@ -23,7 +24,7 @@ def trained():
 
 def test_the_e_step_runs_on_the_replay_rows_and_the_agents_see_the_belief(trained):
     assert trained.e_step.n_updates >= 3  # about 80 train() calls, an E-step every 5 (from the first full window)
-    wrapper = find_belief_wrapper(trained.get_env())
+    wrapper = find_wrapper(trained.get_env(), BeliefWrapper)
     assert wrapper is not None and trained.replay_buffer.observations.shape[-1] == wrapper.obs_dim + 3
     beliefs = trained.replay_buffer.observations[: trained.replay_buffer.pos, :, wrapper.obs_dim:]
     assert np.allclose(beliefs.sum(-1), 1.0, atol=1e-5) and beliefs.std() > 0  # beliefs moved away from uniform
@@ -56,7 +57,7 @@ def test_save_load_gives_the_same_actions_and_e_step(trained, tmp_path):
     assert loaded.e_step.n_updates == trained.e_step.n_updates
     assert loaded._e_step_pos == trained._e_step_pos
     with_env = EMVDN.load(tmp_path / "vdn_em", env=make_vec_env(2, seed=1, env_kwargs=TINY), device="cpu")
-    assert find_belief_wrapper(with_env.get_env()) is not None
+    assert find_wrapper(with_env.get_env(), BeliefWrapper) is not None
     with_env.learn(200, reset_num_timesteps=False)
 
 

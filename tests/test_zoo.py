@@ -229,7 +229,8 @@ def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path,
 def test_the_zoos_oracle_ppo_trains_and_evaluates_on_what_its_random_label_asks(tmp_path, monkeypatch, random_label):
     """``-params random_label:True`` reaches the zoo's own environments (training and evaluation), not only the model:
     until 0.18.8 the zoo wrapped them told the true mode, which the model then kept, so its control trained told."""
-    from sb3_emmarl.common.mode_aware import find_mode_wrapper
+    from sb3_emmarl.common.mode_aware import ModeObservationWrapper
+    from sb3_emmarl.common.wrapping import find_wrapper
 
     seen = []
     learn = exp_manager.ReserveExperimentManager.learn
@@ -248,5 +249,5 @@ def test_the_zoos_oracle_ppo_trains_and_evaluates_on_what_its_random_label_asks(
                        *TINY]) == 0
     model, envs = seen[-1], seen[:-1]
     assert len(envs) == 2  # the training and the evaluation environment
-    assert find_mode_wrapper(model.get_env()).random_labels is random_label
-    assert all(find_mode_wrapper(env).random_labels is random_label for env in envs)
+    assert find_wrapper(model.get_env(), ModeObservationWrapper).random_labels is random_label
+    assert all(find_wrapper(env, ModeObservationWrapper).random_labels is random_label for env in envs)

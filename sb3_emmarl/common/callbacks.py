@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.atomic_files import save_model
 from sb3_emmarl.common.evaluation import check_episode_count, evaluate_policy
 from sb3_emmarl.common.metrics import team_metric_keys
+from sb3_emmarl.common.wrapping import find_wrapper
 
 if TYPE_CHECKING:
     from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin
@@ -78,13 +79,13 @@ class LatentMetricsCallback(BaseCallback):
     model: LatentAlgorithmMixin  # (an EM algorithm)
 
     def _init_callback(self) -> None:
-        from sb3_emmarl.common.latent.belief import find_belief_wrapper
+        from sb3_emmarl.common.latent.belief import BeliefWrapper
 
         #: (belief, mode, evidence reach) of every step of each entry's running episode, and of the episodes finished
         #: this rollout
         self.current: list[list[tuple[np.ndarray, int, float]]] = [[] for _ in range(self.training_env.num_envs)]
         self.finished: list[list[tuple[np.ndarray, int, float]]] = []
-        wrapper = find_belief_wrapper(self.training_env)
+        wrapper = find_wrapper(self.training_env, BeliefWrapper)
         self.tracker = wrapper.tracker if wrapper is not None and wrapper.tracker.agents_per_copy > 1 else None
 
     def _on_rollout_start(self) -> None:

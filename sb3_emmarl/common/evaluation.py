@@ -24,6 +24,7 @@ from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
 from sb3_emmarl.common.safe_pickle import load_vec_normalize
 from sb3_emmarl.common.safe_zip import safe_data_objects
 from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.wrapping import find_wrapper
 
 
 class Predictor(Protocol):
@@ -346,7 +347,7 @@ class LatentTracker:
     """
 
     def __init__(self, model: Any, vec_env: VecEnv) -> None:
-        from sb3_emmarl.common.latent.belief import find_belief_wrapper
+        from sb3_emmarl.common.latent.belief import BeliefWrapper
 
         self.model = model
         self.steps = np.zeros(vec_env.num_envs, dtype=np.int64)
@@ -354,7 +355,7 @@ class LatentTracker:
         self.modes: list[np.ndarray] = []
         self.episodes: list[np.ndarray] = []
         self.step_index: list[np.ndarray] = []
-        wrapper = find_belief_wrapper(vec_env)
+        wrapper = find_wrapper(vec_env, BeliefWrapper)
         self.tracker = wrapper.tracker if wrapper is not None and wrapper.tracker.agents_per_copy > 1 else None
         self.reach: list[np.ndarray] = []
         #: one augmented observation per step (the first entry's), for the policy's belief use

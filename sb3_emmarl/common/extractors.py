@@ -31,8 +31,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, Flatten
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
-from sb3_emmarl.common.messages import EDGE_DIM, MessageLayout, find_message_wrapper, message_summary
+from sb3_emmarl.common.messages import EDGE_DIM, MessageLayout, NeighbourMessageWrapper, message_summary
 from sb3_emmarl.common.validation import MAX_LAYER, integer
+from sb3_emmarl.common.wrapping import find_wrapper
 
 
 class SplitFeaturesExtractor(BaseFeaturesExtractor):
@@ -241,7 +242,7 @@ def message_policy_kwargs(venv: VecEnv, kind: str = "gat", net_arch: Any = None,
     """
     if kind not in EXTRACTORS:
         raise ValueError(f"kind must be one of {sorted(EXTRACTORS)}, got {kind!r}")
-    wrapper = find_message_wrapper(venv)
+    wrapper = find_wrapper(venv, NeighbourMessageWrapper)
     if wrapper is None:
         raise ValueError(f"venv must be wrapped in NeighbourMessageWrapper, got {type(venv).__name__}")
     policy_kwargs: dict[str, Any] = {"features_extractor_class": EXTRACTORS[kind],

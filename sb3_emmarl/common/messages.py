@@ -31,10 +31,10 @@ from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.vec_env import LINKS_KEY, TERMINAL_LINKS_KEY
+from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 
 #: Floats per message: own features (6) + window channel means (7) + coarse map means (3).
 MESSAGE_DIM = 16
@@ -129,7 +129,7 @@ def message_summary(observations: Any, layout: MessageLayout) -> Any:
     return th.cat(parts, dim=-1)
 
 
-class NeighbourMessageWrapper(VecEnvWrapper):
+class NeighbourMessageWrapper(AppendingVecEnvWrapper):
     """Append to each UAV's observation the messages of the teammates whose broadcasts reached it this step.
 
     :param venv: the parameter-sharing vector environment of the reserve (``make_vec_env``; entry ``i`` is agent
@@ -151,9 +151,7 @@ class NeighbourMessageWrapper(VecEnvWrapper):
         self.layout = MessageLayout.from_reserve(reserve, int(max_messages))
         self.agents_per_copy = int(inner.agents_per_copy)
         extra = self.layout.n_slots * self.layout.slot_dim
-        low = np.concatenate([space.low, np.full(extra, -np.inf, np.float32)]).astype(np.float32)
-        high = np.concatenate([space.high, np.full(extra, np.inf, np.float32)]).astype(np.float32)
-        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
+        super().__init__(venv, np.full(extra, -np.inf, np.float32), np.full(extra, np.inf, np.float32))
         self._last_links: list[tuple[int, ...]] = [() for _ in range(self.num_envs)]
 
     # ------------------------------------------------------------------ building the slots
@@ -186,10 +184,6 @@ class NeighbourMessageWrapper(VecEnvWrapper):
             out[row, :k, EDGE_DIM:] = messages[idx[order]]
         return out.reshape(len(entries), -1)
 
-    def _augment(self, observations: np.ndarray, links: Sequence[Sequence[int]]) -> np.ndarray:
-        observations = np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
-        return np.concatenate([observations, self.slots(observations, links)], axis=1)
-
     @staticmethod
     def _links(infos: Sequence[dict[str, Any]], key: str = LINKS_KEY) -> list[tuple[int, ...]]:
         return [tuple(info.get(key, ())) if isinstance(info, dict) else () for info in infos]
@@ -206,44 +200,31 @@ class NeighbourMessageWrapper(VecEnvWrapper):
             raise ValueError(f"the saved links are for {len(state)} entries, this environment has {self.num_envs}")
         self._last_links = [tuple(int(j) for j in links) for links in state]
 
-    # ------------------------------------------------------------------ VecEnv
-    def reset(self) -> VecEnvObs:
-        observations = self.venv.reset()
-        assert isinstance(observations, np.ndarray)  # (the reserve's flat observations)
+    # ------------------------------------------------------------------ the appended slots
+    def _reset_extra(self, observations: np.ndarray) -> np.ndarray:
         self.reset_infos = list(getattr(self.venv.unwrapped, "reset_infos", None) or self.reset_infos)
         infos = self.reset_infos if len(self.reset_infos) == self.num_envs else [{}] * self.num_envs
         self._last_links = self._links(infos)
-        return self._augment(observations, self._last_links)
+        return self.slots(self._rows(observations), self._last_links)
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self.venv.step_async(actions)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        observations, rewards, dones, infos = self.venv.step_wait()
-        assert isinstance(observations, np.ndarray)  # (the reserve's flat observations)
+    def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         links = self._links(infos)
-        done_idx = np.flatnonzero(dones)
-        if len(done_idx):
-            infos = list(infos)
-            copies = sorted({int(i) // self.agents_per_copy for i in done_idx})
-            for c in copies:  # a copy's UAVs end together: rebuild its terminal observations from one another's
-                start = c * self.agents_per_copy
-                members = range(start, start + self.agents_per_copy)
-                if not all("terminal_observation" in infos[i] for i in members):
-                    continue
-                terminal = np.zeros_like(observations, dtype=np.float32)
-                for i in members:
-                    terminal[i] = infos[i]["terminal_observation"]
-                final_links = [tuple(infos[i][TERMINAL_LINKS_KEY]) if TERMINAL_LINKS_KEY in infos[i]
-                               else self._last_links[i] for i in members]
-                extra = self.slots(terminal, final_links, list(members))
-                for row, i in enumerate(members):
-                    infos[i] = dict(infos[i])
-                    infos[i]["terminal_observation"] = np.concatenate([terminal[i], extra[row]]).astype(np.float32)
+        terminal: dict[int, np.ndarray] = {}
+        for c in sorted({int(i) // self.agents_per_copy for i in np.flatnonzero(dones)}):
+            # a copy's UAVs end together: rebuild its terminal observations from one another's
+            members = range(c * self.agents_per_copy, (c + 1) * self.agents_per_copy)
+            if not all(TERMINAL_OBSERVATION in infos[i] for i in members):
+                continue
+            final = np.zeros_like(observations, dtype=np.float32)
+            for i in members:
+                final[i] = infos[i][TERMINAL_OBSERVATION]
+            final_links = [tuple(infos[i][TERMINAL_LINKS_KEY]) if TERMINAL_LINKS_KEY in infos[i]
+                           else self._last_links[i] for i in members]
+            terminal.update(zip(members, self.slots(final, final_links, list(members))))
         self._last_links = links
-        return self._augment(observations, links), rewards, dones, infos
+        return self.slots(self._rows(observations), links), terminal
 
-
-def find_message_wrapper(venv: VecEnv) -> NeighbourMessageWrapper | None:
-    """The :class:`NeighbourMessageWrapper` inside a stack of vector wrappers, if any."""
-    return unwrap_vec_wrapper(venv, NeighbourMessageWrapper)
+    @staticmethod
+    def _rows(observations: np.ndarray) -> np.ndarray:
+        return np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)

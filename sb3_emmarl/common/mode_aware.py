@@ -11,16 +11,14 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.validation import boolean
+from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
 from wildlife_reserve.reserve.modes import N_MODES
 
 
-class ModeObservationWrapper(VecEnvWrapper):
+class ModeObservationWrapper(AppendingVecEnvWrapper):
     """Appends a one-hot of the true hidden mode (``n_modes`` floats) to each entry's observation.
 
     The mode comes from the infos: the reset infos of the innermost vector environment, and each step's
@@ -49,8 +47,6 @@ class ModeObservationWrapper(VecEnvWrapper):
     def __init__(self, venv: VecEnv, n_modes: int = N_MODES, relabel: Sequence[int] | None = None,
                  random_labels: bool = False, seed: int = 0) -> None:
         space = venv.observation_space
-        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-            raise ValueError(f"ModeObservationWrapper needs flat Box observations, got {space}")
         if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
             raise ValueError(f"n_modes must be an int >= 1, got {n_modes!r}")
         self.n_modes = int(n_modes)
@@ -58,9 +54,8 @@ class ModeObservationWrapper(VecEnvWrapper):
         self.random_labels = boolean()("random_labels", random_labels)
         if self.random_labels and relabel is not None:
             raise ValueError("give relabel or random_labels, not both: a random label replaces every mode")
-        low = np.concatenate([space.low, np.zeros(self.n_modes, dtype=space.dtype)])
-        high = np.concatenate([space.high, np.ones(self.n_modes, dtype=space.dtype)])
-        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
+        dtype = getattr(space, "dtype", np.float32)
+        super().__init__(venv, np.zeros(self.n_modes, dtype=dtype), np.ones(self.n_modes, dtype=dtype), dtype)
         self.modes = np.zeros(venv.num_envs, dtype=np.int64)
         self.per_copy = max(1, int(getattr(venv, "agents_per_copy", 1)))
         self.labels = np.zeros(venv.num_envs, dtype=np.int64)  # with random_labels: each entry's label this episode
@@ -101,30 +96,21 @@ class ModeObservationWrapper(VecEnvWrapper):
         except KeyError as error:
             raise KeyError("ModeObservationWrapper needs infos[i]['mode'] (the wildlife reserve's infos)") from error
 
-    def reset(self) -> VecEnvObs:
-        observations = self.venv.reset()
+    def _reset_extra(self, observations: np.ndarray) -> np.ndarray:
         self.modes = self._read_modes(self.venv.unwrapped.reset_infos)
         if self.random_labels:
             self._draw_labels(np.arange(self.num_envs))
-        return np.concatenate([observations, self._one_hot(self.modes)], axis=1)
+        return self._one_hot(self.modes)
 
-    def step_wait(self) -> VecEnvStepReturn:
-        observations, rewards, dones, infos = self.venv.step_wait()
+    def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         done = np.flatnonzero(dones)
-        for i in done:
-            if "terminal_observation" in infos[i]:
-                finished = np.array([infos[i]["metrics"]["mode"]])
-                infos[i]["terminal_observation"] = np.concatenate([infos[i]["terminal_observation"],
-                                                                   self._one_hot(finished, self.labels[i:i + 1])[0]])
+        terminal = {int(i): self._one_hot(np.array([infos[i]["metrics"]["mode"]]), self.labels[i:i + 1])[0]
+                    for i in done if TERMINAL_OBSERVATION in infos[i]}  # (the finished episode's mode)
         if self.random_labels and len(done):
             self._draw_labels(done)
         self.modes = self._read_modes(infos)
-        return np.concatenate([observations, self._one_hot(self.modes)], axis=1), rewards, dones, infos
-
-
-def find_mode_wrapper(venv: VecEnv) -> ModeObservationWrapper | None:
-    """The :class:`ModeObservationWrapper` in a chain of vector-env wrappers, if any."""
-    return unwrap_vec_wrapper(venv, ModeObservationWrapper)
+        return self._one_hot(self.modes), terminal
 
 
 def wrap_with_mode(env: Any, verbose: int = 0, random_labels: bool = False) -> VecEnv:
@@ -134,13 +120,14 @@ def wrap_with_mode(env: Any, verbose: int = 0, random_labels: bool = False) -> V
     A vector environment already wrapped is kept if its wrapper tells what is asked (the mode, or random labels), and
     refused otherwise: a model built to be told one would silently be trained or evaluated on the other.
     """
-    venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    wrapper = find_mode_wrapper(venv)
-    if wrapper is None:
-        return ModeObservationWrapper(venv, random_labels=random_labels)
-    if wrapper.random_labels != bool(random_labels):
-        told = {True: "a random label per episode", False: "the mode"}
-        raise ValueError(f"the environment is already wrapped to tell {told[wrapper.random_labels]}, but "
-                         f"random_labels={bool(random_labels)} asks for {told[bool(random_labels)]}: give the "
-                         f"environment without its ModeObservationWrapper, or one that tells what is asked")
-    return venv
+    told = {True: "a random label per episode", False: "the mode"}
+
+    def mismatch(wrapper: ModeObservationWrapper) -> str | None:
+        if wrapper.random_labels == bool(random_labels):
+            return None
+        return (f"the environment is already wrapped to tell {told[wrapper.random_labels]}, but "
+                f"random_labels={bool(random_labels)} asks for {told[bool(random_labels)]}: give the "
+                f"environment without its ModeObservationWrapper, or one that tells what is asked")
+
+    return ensure_wrapped(env, ModeObservationWrapper,
+                          lambda venv: ModeObservationWrapper(venv, random_labels=random_labels), mismatch, verbose)

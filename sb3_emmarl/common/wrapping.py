@@ -7,15 +7,23 @@ methods. Those whose policy acts only on the wrapped observations, and that give
 SB3 has no hook for this: its ``set_env`` and ``load`` take the environment as given, so each algorithm would otherwise
 override both (as the five did, each its own way). QMIX and VDN add nothing to their observations (their global state
 comes from the infos), so they keep SB3's wrapping; QMIX's ``set_env`` only checks that the teams are the model's.
+
+The wrappers themselves are one family: :class:`AppendingVecEnvWrapper` widens a flat ``Box`` by the values a
+subclass appends to every entry's observation (the mode, the messages, the global state, the belief), at reset, at
+each step and to each finished episode's ``terminal_observation``; :func:`ensure_wrapped` gives an environment a wrapper
+of a kind once (keeping one that is already there when it matches), and :func:`find_wrapper` finds it.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.save_util import load_from_zip_file
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 from sb3_emmarl.common.safe_zip import safe_data_objects
 
@@ -96,3 +104,94 @@ class WrapsObservations(WrapsEnv):
             raise ValueError(f"{type(self).__name__} acts on observations of {shape[-1]} values, got {obs.shape[-1]}: "
                              f"evaluate it on model.wrap_env(env), which adds what training added")
         return super().predict(observation, state, episode_start, deterministic)
+
+
+# ---------------------------------------------------------------------------------------------- the wrappers
+#: The key of a finished episode's last observation in a vector environment's step infos (SB3's).
+TERMINAL_OBSERVATION = "terminal_observation"
+
+
+class AppendingVecEnvWrapper(VecEnvWrapper):
+    """A vector wrapper that appends values to every entry's flat observation: the observation space is the inner one
+    widened by ``extra_low``/``extra_high``; a subclass says what it appends at reset (:meth:`_reset_extra`) and at each
+    step, for the current observations and for the terminal observations of the episodes that ended
+    (:meth:`_step_extra`).
+
+    :param venv: the vector environment (flat ``Box`` observations)
+    :param extra_low: the lower bounds of the appended values
+    :param extra_high: their upper bounds
+    :param dtype: the widened space's dtype (default: float32)
+    :raise ValueError: if the observations are not a flat ``Box``
+    """
+
+    def __init__(self, venv: VecEnv, extra_low: np.ndarray, extra_high: np.ndarray, dtype: Any = np.float32) -> None:
+        space = venv.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise ValueError(f"{type(self).__name__} needs flat Box observations, got {space}")
+        low = np.concatenate([space.low, extra_low]).astype(dtype)
+        high = np.concatenate([space.high, extra_high]).astype(dtype)
+        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=dtype))
+
+    def _reset_extra(self, observations: np.ndarray) -> np.ndarray:
+        """What to append to the observations of a reset, one row per entry."""
+        raise NotImplementedError
+
+    def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """What to append to a step's observations (one row per entry), and to the terminal observations of the entries
+        whose episode ended (by entry; an entry left out keeps its terminal observation as it is)."""
+        raise NotImplementedError
+
+    def _join(self, observations: Any, extra: np.ndarray) -> np.ndarray:
+        """Observations (as rows of the widened space's dtype) followed by ``extra``."""
+        rows = np.asarray(observations, dtype=self.observation_space.dtype)
+        return np.concatenate([rows.reshape(len(rows), -1), extra], axis=1)
+
+    def reset(self) -> VecEnvObs:
+        observations = self.venv.reset()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
+        return self._join(observations, self._reset_extra(observations))
+
+    def step_wait(self) -> VecEnvStepReturn:
+        observations, rewards, dones, infos = self.venv.step_wait()
+        assert isinstance(observations, np.ndarray)  # (flat Box observations)
+        extra, terminal = self._step_extra(observations, dones, list(infos))
+        if terminal:
+            infos = list(infos)
+            for i, values in terminal.items():
+                infos[i] = {**infos[i], TERMINAL_OBSERVATION: self._join(
+                    np.asarray(infos[i][TERMINAL_OBSERVATION])[None], values[None])[0]}
+        return self._join(observations, extra), rewards, dones, infos
+
+
+W = TypeVar("W", bound=VecEnvWrapper)
+
+
+def find_wrapper(venv: Any, kind: type[W]) -> W | None:
+    """The wrapper of class ``kind`` in a stack of vector wrappers (None if there is none, or ``venv`` is no vector
+    environment)."""
+    return unwrap_vec_wrapper(venv, kind) if isinstance(venv, VecEnv) else None  # type: ignore[return-value]
+
+
+def ensure_wrapped(env: Any, kind: type[W], build: Callable[[VecEnv], W], mismatch: Callable[[W], str | None],
+                   verbose: int = 0) -> VecEnv:
+    """``env`` as a vector environment (SB3's wrapping) with a ``kind`` wrapper: ``build(venv)`` if it has none; the
+    one it has if ``mismatch(wrapper)`` finds nothing wrong with it.
+
+    :param env: an environment (a Gymnasium one is wrapped as SB3 does)
+    :param kind: the wrapper's class
+    :param build: wraps a vector environment that has none
+    :param mismatch: why an existing wrapper does not do what is asked (None: it does)
+    :param verbose: SB3's wrapping's verbosity
+    :raise ValueError: with ``mismatch``'s reason
+    """
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    venv = env if isinstance(env, VecEnv) else BaseAlgorithm._wrap_env(env, verbose)
+    wrapper = find_wrapper(venv, kind)
+    if wrapper is None:
+        return build(venv)
+    problem = mismatch(wrapper)
+    if problem:
+        raise ValueError(problem)
+    return venv

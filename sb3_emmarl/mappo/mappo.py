@@ -41,9 +41,9 @@ from stable_baselines3.common.utils import explained_variance
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.validation import RULES, Rule, fail, no_schedule_string, number, optional
-from sb3_emmarl.common.wrapping import WrapsEnv
+from sb3_emmarl.common.wrapping import WrapsEnv, find_wrapper
 from sb3_emmarl.mappo.policies import VALUE_NORM_BETA, MAPPOPolicy, MlpPolicy
-from sb3_emmarl.mappo.wrappers import StateLayout, find_state_wrapper, wrap_with_state
+from sb3_emmarl.mappo.wrappers import GlobalStateWrapper, StateLayout, wrap_with_state
 
 SelfMAPPO = TypeVar("SelfMAPPO", bound="MAPPO")
 
@@ -172,7 +172,7 @@ class MAPPO(WrapsEnv, PPO):
         own: dict[str, Any] = {"value_norm": self.use_value_norm, "value_norm_beta": self.value_norm_beta}
         if env is not None:
             env = wrap_with_state(env, self.agent_id, verbose, strict=not loading)
-            state_wrapper = find_state_wrapper(env)
+            state_wrapper = find_wrapper(env, GlobalStateWrapper)
             assert state_wrapper is not None  # (wrap_with_state gives an environment with one)
             own["state_layout"] = state_wrapper.layout.to_dict()
         for key, value in own.items():

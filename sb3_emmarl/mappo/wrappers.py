@@ -20,11 +20,10 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.vec_env import STATE_KEY, TERMINAL_STATE_KEY, SharedPolicyVecEnv, require_state
+from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
 
 
 @dataclass(frozen=True)
@@ -81,7 +80,7 @@ def _flat_box(space: Any, what: str) -> spaces.Box:
     return space
 
 
-class GlobalStateWrapper(VecEnvWrapper):
+class GlobalStateWrapper(AppendingVecEnvWrapper):
     """Append the global state (and, with ``agent_id``, the agent's one-hot) to every entry's observation.
 
     Switches the global state on (:func:`~sb3_emmarl.common.vec_env.require_state`) from the next reset.
@@ -107,9 +106,7 @@ class GlobalStateWrapper(VecEnvWrapper):
         n_agents = int(inner.agents_per_copy)
         self.layout = StateLayout(int(observation_space.shape[0]), int(state_space.shape[0]), n_agents, bool(agent_id))
         id_low, id_high = np.zeros(self.layout.id_dim, np.float32), np.ones(self.layout.id_dim, np.float32)
-        low = np.concatenate([observation_space.low, state_space.low, id_low]).astype(np.float32)
-        high = np.concatenate([observation_space.high, state_space.high, id_high]).astype(np.float32)
-        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
+        super().__init__(venv, np.concatenate([state_space.low, id_low]), np.concatenate([state_space.high, id_high]))
         eye = np.eye(n_agents, dtype=np.float32)[:, : self.layout.id_dim]
         self.agent_ids = eye[np.arange(self.num_envs) % n_agents]  # (num_envs, id_dim)
 
@@ -124,38 +121,17 @@ class GlobalStateWrapper(VecEnvWrapper):
             raise ValueError(f"the global state is missing from the {where} (infos[i][{key!r}]): reset the "
                              "environment after wrapping it, or build it with make_vec_env(..., with_state=True)") from None
 
-    def _augment(self, observations: np.ndarray, states: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        flat = np.asarray(observations, dtype=np.float32).reshape(len(states), -1)
-        return np.concatenate([flat, states, ids], axis=1)
-
-    def reset(self) -> VecEnvObs:
-        observations = self.venv.reset()
-        assert isinstance(observations, np.ndarray)  # (flat Box observations)
+    def _reset_extra(self, observations: np.ndarray) -> np.ndarray:
         self.reset_infos = list(self.venv.unwrapped.reset_infos)  # the outer VecMonitor's own are empty
-        states = self._states(self.reset_infos, STATE_KEY, "reset infos")
-        return self._augment(observations, states, self.agent_ids)
+        return np.concatenate([self._states(self.reset_infos, STATE_KEY, "reset infos"), self.agent_ids], axis=1)
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self.venv.step_async(actions)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        observations, rewards, dones, infos = self.venv.step_wait()
-        assert isinstance(observations, np.ndarray)  # (flat Box observations)
-        infos = list(infos)
+    def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         states = self._states(infos, STATE_KEY, "step infos")
-        for i in np.flatnonzero(dones):
-            if infos[i].get("terminal_observation") is None:
-                continue
-            infos[i] = dict(infos[i])
-            terminal = self._states([infos[i]], TERMINAL_STATE_KEY, "infos of an episode's end")
-            infos[i]["terminal_observation"] = self._augment(infos[i]["terminal_observation"][None], terminal,
-                                                             self.agent_ids[i:i + 1])[0]
-        return self._augment(observations, states, self.agent_ids), rewards, dones, infos
-
-
-def find_state_wrapper(venv: VecEnv | None) -> GlobalStateWrapper | None:
-    """The :class:`GlobalStateWrapper` in a stack of vector wrappers, if any."""
-    return unwrap_vec_wrapper(venv, GlobalStateWrapper) if isinstance(venv, VecEnv) else None
+        terminal = {int(i): np.concatenate([self._states([infos[i]], TERMINAL_STATE_KEY, "infos of an episode's end")[0],
+                                            self.agent_ids[i]])
+                    for i in np.flatnonzero(dones) if infos[i].get(TERMINAL_OBSERVATION) is not None}
+        return np.concatenate([states, self.agent_ids], axis=1), terminal
 
 
 def wrap_with_state(env: Any, agent_id: bool, verbose: int = 0, strict: bool = True) -> VecEnv:
@@ -168,10 +144,10 @@ def wrap_with_state(env: Any, agent_id: bool, verbose: int = 0, strict: bool = T
     """
     if isinstance(env, str):
         raise ValueError(f"MAPPO needs the parameter-sharing vector environment (make_vec_env), got the id {env!r}")
-    venv = env if isinstance(env, VecEnv) else BaseAlgorithm._wrap_env(env, verbose)
-    wrapper = find_state_wrapper(venv)
-    if wrapper is None:
-        return GlobalStateWrapper(venv, agent_id)
-    if strict and wrapper.agent_id != bool(agent_id):
-        raise ValueError(f"the environment's GlobalStateWrapper has agent_id={wrapper.agent_id}, but agent_id={agent_id}")
-    return venv
+
+    def mismatch(wrapper: GlobalStateWrapper) -> str | None:
+        if not strict or wrapper.agent_id == bool(agent_id):
+            return None
+        return f"the environment's GlobalStateWrapper has agent_id={wrapper.agent_id}, but agent_id={agent_id}"
+
+    return ensure_wrapped(env, GlobalStateWrapper, lambda venv: GlobalStateWrapper(venv, agent_id), mismatch, verbose)

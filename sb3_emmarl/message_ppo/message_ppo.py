@@ -19,23 +19,22 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.extractors import message_policy_kwargs
-from sb3_emmarl.common.messages import NeighbourMessageWrapper, find_message_wrapper
+from sb3_emmarl.common.messages import NeighbourMessageWrapper
 from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsObservations
+from sb3_emmarl.common.wrapping import WrapsObservations, ensure_wrapped
 
 
 def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:
-    """``env`` as a vector environment whose observations end with the neighbour messages (kept if already wrapped)."""
-    from stable_baselines3.common.base_class import BaseAlgorithm
+    """``env`` as a vector environment whose observations end with the neighbour messages (kept if already wrapped
+    with as many slots)."""
 
-    venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    wrapper = find_message_wrapper(venv)
-    if wrapper is None:
-        return NeighbourMessageWrapper(venv, max_messages)
-    if wrapper.layout.n_slots != max_messages:
-        raise ValueError(f"the environment's NeighbourMessageWrapper has {wrapper.layout.n_slots} slots, "
-                         f"but max_messages={max_messages}")
-    return venv
+    def mismatch(wrapper: NeighbourMessageWrapper) -> str | None:
+        return None if wrapper.layout.n_slots == max_messages else (
+            f"the environment's NeighbourMessageWrapper has {wrapper.layout.n_slots} slots, but "
+            f"max_messages={max_messages}")
+
+    return ensure_wrapped(env, NeighbourMessageWrapper, lambda venv: NeighbourMessageWrapper(venv, max_messages),
+                          mismatch, verbose)
 
 
 class MessagePPO(WrapsObservations, PPO):

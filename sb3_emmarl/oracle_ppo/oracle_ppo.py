@@ -9,9 +9,9 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
-from sb3_emmarl.common.mode_aware import find_mode_wrapper, wrap_with_mode
+from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
 from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsObservations
+from sb3_emmarl.common.wrapping import WrapsObservations, find_wrapper
 from wildlife_reserve.reserve.modes import N_MODES
 
 
@@ -56,13 +56,14 @@ class OraclePPO(WrapsObservations, PPO):
         self.mode_input = RULES["mode_input"]("mode_input", mode_input)
         self.random_label = RULES["random_label"]("random_label", random_label)
         loading = not kwargs.get("_init_setup_model", True)  # SB3's load: env is wrapped as the saved model asks
-        if env is not None and not isinstance(env, str) and not (loading and find_mode_wrapper(env) is not None):
+        told = loading and find_wrapper(env, ModeObservationWrapper) is not None
+        if env is not None and not isinstance(env, str) and not told:
             env = wrap_with_mode(env, kwargs.get("verbose", 0), self.random_label)
         super().__init__(policy, env, *args, **kwargs)
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        wrapper = find_mode_wrapper(self.env) if self.env is not None else None
+        wrapper = find_wrapper(self.env, ModeObservationWrapper) if self.env is not None else None
         n_modes = wrapper.n_modes if wrapper is not None else N_MODES
         if self.zero_mode_weights:
             zero_tail_weights(self.policy, n_modes)

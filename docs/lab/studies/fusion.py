@@ -23,8 +23,8 @@ from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.vec_env import LINKS_KEY
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import COMPARISON_EVAL_EPISODES, paired_p_value, run_eval_env, run_settings
 from sb3_emmarl.zoo.cli import latest_run
+from sb3_emmarl.zoo.compare import COMPARISON_EVAL_EPISODES, paired_p_value, run_eval_env, run_settings
 
 METRICS = ("latent_accuracy_25", "latent_accuracy_50", "latent_accuracy_100", "team_reward")
 

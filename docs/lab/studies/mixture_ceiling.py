@@ -44,12 +44,13 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
 from em_speed import build  # benchmarks/em_speed.py: an algorithm with its zoo YAML's settings
 
-from sb3_emmarl.common.latent.belief import find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.latent.counts import PoissonMixture
 from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from sb3_emmarl.common.vec_env import make_vec_env
+from sb3_emmarl.common.wrapping import find_wrapper
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
 
 #: Points of the episode, as fractions of its length.
@@ -89,7 +90,7 @@ def collect(model, n_episodes: int, n_copies: int, seed: int) -> Episodes:
     """Play ``n_episodes`` (rounded up to whole rounds of ``n_copies``) of the default reserve with uniformly random
     actions; features and encoded actions as ``model``'s belief reads them."""
     venv = make_vec_env(n_copies=n_copies, seed=seed)
-    wrapper = find_belief_wrapper(model.get_env())
+    wrapper = find_wrapper(model.get_env(), BeliefWrapper)
     counter = ReadingCounter.from_env(venv.unwrapped.prototype)
     n, per_copy = venv.num_envs, venv.num_envs // n_copies
     length = venv.unwrapped.prototype.max_cycles
@@ -254,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
         rows["transitions", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
     factors = tuple(reader.count_factors or (len(STRATEGIES), len(WEATHERS)))  # em_ppo.yml's, or strategy x weather
-    rings = find_belief_wrapper(reader.get_env()).counter.n_rings
+    rings = find_wrapper(reader.get_env(), BeliefWrapper).counter.n_rings
     for family, family_factors in (("counts", None), ("factored", factors)):
         for fitting in ("em", "told"):
             runs = [count_accuracies(fit_counts(seed, train, fitting == "told", family_factors, rings), test)

@@ -32,8 +32,8 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
-from sb3_emmarl.zoo.benchmark import parse_variant, run_eval_env, run_settings
 from sb3_emmarl.zoo.cli import latest_run
+from sb3_emmarl.zoo.compare import parse_variant, run_eval_env, run_settings
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.actors import STEPS
 from wildlife_reserve.reserve.constants import N_MOVES

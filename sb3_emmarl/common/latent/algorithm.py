@@ -12,11 +12,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy, find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.counts import check_factors
 from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
@@ -25,7 +24,7 @@ from sb3_emmarl.common.latent.evidence import evidence_from_spec
 from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-from sb3_emmarl.common.wrapping import WrapsObservations
+from sb3_emmarl.common.wrapping import WrapsObservations, ensure_wrapped, find_wrapper
 
 if TYPE_CHECKING:
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
@@ -46,14 +45,13 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
 
     :param strict: reject an existing wrapper of another size (False while loading, which sets the sizes after)
     """
-    venv = BaseAlgorithm._wrap_env(env, verbose) if not isinstance(env, VecEnv) else env
-    wrapper = find_belief_wrapper(venv)
-    if wrapper is None:
-        return BeliefWrapper(venv, n_components)
-    if strict and wrapper.n_components != n_components:
-        raise ValueError(f"the environment's BeliefWrapper has {wrapper.n_components} components, "
-                         f"but n_components={n_components}")
-    return venv
+
+    def mismatch(wrapper: BeliefWrapper) -> str | None:
+        if not strict or wrapper.n_components == n_components:
+            return None
+        return f"the environment's BeliefWrapper has {wrapper.n_components} components, but n_components={n_components}"
+
+    return ensure_wrapped(env, BeliefWrapper, lambda venv: BeliefWrapper(venv, n_components), mismatch, verbose)
 
 
 def make_e_step(latent_model: LatentModel, estimator: str, likelihood_temperature: float,
@@ -209,7 +207,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         if env is None:  # loading without an environment: the saved policy_kwargs hold the layout
             return None, policy_kwargs
         venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
-        wrapper = find_belief_wrapper(venv)
+        wrapper = find_wrapper(venv, BeliefWrapper)
         assert wrapper is not None  # (wrap_with_belief gives an environment with one)
         self.feature_spec = wrapper.feature_spec
         layout = wrapper.layout(tuple(decoder_hidden), self.reading_counts)
@@ -246,7 +244,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         self._attach_beliefs(self.env)
 
     def _attach_beliefs(self, env: VecEnv | None) -> None:
-        wrapper = find_belief_wrapper(env) if env is not None else None
+        wrapper = find_wrapper(env, BeliefWrapper) if env is not None else None
         if wrapper is not None:
             wrapper.attach(self.policy.latent_model, self.likelihood_temperature, self.fusion)
 

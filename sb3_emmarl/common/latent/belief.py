@@ -37,8 +37,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from numba import njit
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.evidence import CountEvidence, evidence_of
 from sb3_emmarl.common.latent.features import encode_actions
@@ -46,6 +45,7 @@ from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
 from sb3_emmarl.common.validation import RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
+from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 
 #: Probabilities below this are 0 in the beliefs the policies read: sharp beliefs reached float32 subnormals
 #: (1e-45 seen), and a matrix product over inputs holding subnormals runs at about two thirds of its speed on
@@ -246,7 +246,7 @@ def agents_per_copy(venv: VecEnv) -> int:
     return int(getattr(venv, "agents_per_copy", 1))
 
 
-class BeliefWrapper(VecEnvWrapper):
+class BeliefWrapper(AppendingVecEnvWrapper):
     """Append each entry's belief ``q(z | o_{1:t}, a_{1:t-1})`` (``n_components`` floats) to its observation.
 
     Until :meth:`attach` hands it a latent model, every belief is uniform.
@@ -258,7 +258,7 @@ class BeliefWrapper(VecEnvWrapper):
     def __init__(self, venv: VecEnv, n_components: int) -> None:
         n_components = RULES["n_components"]("n_components", n_components)
         space = venv.observation_space
-        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:  # (before the evidence reads the space)
             raise ValueError(f"the latent algorithms need flat Box observations, got {space}")
         #: the environment's evidence (:func:`~sb3_emmarl.common.latent.evidence.evidence_of`): its features, the
         #: specification saved with a model, and its count evidence (None: the transition mixture alone)
@@ -267,9 +267,7 @@ class BeliefWrapper(VecEnvWrapper):
         self.feature_dim, self.counter = self.evidence.feature_dim, self.evidence.counts
         self.encode_action, self.action_dim = encode_actions(venv.action_space)
         self.obs_dim, self.n_components = int(space.shape[0]), int(n_components)
-        low = np.concatenate([space.low, np.zeros(n_components, np.float32)]).astype(np.float32)
-        high = np.concatenate([space.high, np.ones(n_components, np.float32)]).astype(np.float32)
-        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=np.float32))
+        super().__init__(venv, np.zeros(n_components, np.float32), np.ones(n_components, np.float32))
         self.tracker = BeliefTracker(self.num_envs, n_components, self.feature_dim, self.action_dim,
                                      agents_per_copy=agents_per_copy(venv), counter=self.counter)
 
@@ -301,44 +299,30 @@ class BeliefWrapper(VecEnvWrapper):
         """Restore :meth:`get_state`."""
         self.tracker.set_state(state)
 
-    def _augment(self, observations: np.ndarray, beliefs: np.ndarray) -> np.ndarray:
-        return np.concatenate([observations.reshape(len(observations), -1).astype(np.float32), beliefs], axis=1)
-
-    def reset(self) -> VecEnvObs:
-        observations = self.venv.reset()
-        assert isinstance(observations, np.ndarray)  # (flat Box observations)
+    def _reset_extra(self, observations: np.ndarray) -> np.ndarray:
         self.reset_infos = getattr(self.venv, "reset_infos", self.reset_infos)
         self.tracker.start(np.arange(self.num_envs), self.feature_fn(observations))
-        return self._augment(observations, self.tracker.beliefs())
+        return self.tracker.beliefs()
 
     def step_async(self, actions: np.ndarray) -> None:
         self.tracker.set_actions(self.encode_action(actions))
         self.venv.step_async(actions)
 
-    def step_wait(self) -> VecEnvStepReturn:
-        observations, rewards, dones, infos = self.venv.step_wait()
-        assert isinstance(observations, np.ndarray)  # (flat Box observations)
+    def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         features = self.feature_fn(observations)
         done_idx = np.flatnonzero(dones)
         tracker = self.tracker
         following, seen = features, observations
         if len(done_idx):  # the episode's last transition leads to its terminal observation
-            terminal = np.stack([infos[i]["terminal_observation"] for i in done_idx])
+            terminal = np.stack([infos[i][TERMINAL_OBSERVATION] for i in done_idx])
             following, seen = features.copy(), np.array(observations, copy=True)
             following[done_idx] = self.feature_fn(terminal)
             seen[done_idx] = terminal
         tracker.advance(np.arange(self.num_envs), following, seen if tracker.counter is not None else None)
         tracker.fuse(infos)
+        ended: dict[int, np.ndarray] = {}
         if len(done_idx):
-            terminal_beliefs = tracker.beliefs(done_idx, refresh=False)
-            infos = list(infos)
-            for row, i in enumerate(done_idx):
-                infos[i] = dict(infos[i])
-                infos[i]["terminal_observation"] = self._augment(terminal[row:row + 1], terminal_beliefs[row:row + 1])[0]
+            ended = dict(zip(done_idx.tolist(), tracker.beliefs(done_idx, refresh=False)))
             tracker.start(done_idx, features[done_idx])
-        return self._augment(observations, tracker.beliefs(refresh=False)), rewards, dones, infos
-
-
-def find_belief_wrapper(venv: VecEnv) -> BeliefWrapper | None:
-    """The :class:`BeliefWrapper` inside a stack of vector wrappers, if any."""
-    return unwrap_vec_wrapper(venv, BeliefWrapper)
+        return tracker.beliefs(refresh=False), ended

@@ -38,13 +38,14 @@ from sb3_emmarl.common.latent.algorithm import (
     rollout_transitions,
     wrap_with_belief,
 )
-from sb3_emmarl.common.latent.belief import BeliefWrapper, agents_per_copy, find_belief_wrapper
+from sb3_emmarl.common.latent.belief import BeliefWrapper, agents_per_copy
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
 from sb3_emmarl.common.validation import integer
+from sb3_emmarl.common.wrapping import find_wrapper
 
 Part = TypeVar("Part", Transitions, EpisodeCounts)
 
@@ -127,7 +128,7 @@ class EMCallback(BaseCallback):
         """``env`` (a vector or Gymnasium environment) with the belief appended to its observations, computed with the
         callback's latent model (built from the first environment wrapped; later ones must have its sizes)."""
         venv = wrap_with_belief(env, self.config.n_components, self.verbose)
-        wrapper = find_belief_wrapper(venv)
+        wrapper = find_wrapper(venv, BeliefWrapper)
         assert wrapper is not None  # (wrap_with_belief gives an environment with one)
         if self.latent_model is None:
             self._build(wrapper)
@@ -199,7 +200,7 @@ class EMCallback(BaseCallback):
     # ------------------------------------------------------------------ SB3's callback hooks
     def _init_callback(self) -> None:
         env = self.model.get_env()
-        wrapper = find_belief_wrapper(env) if env is not None else None
+        wrapper = find_wrapper(env, BeliefWrapper) if env is not None else None
         if env is None or wrapper is None:
             raise ValueError("EMCallback: the model's environment has no belief; build the model on "
                              "callback.wrap_env(env)")
