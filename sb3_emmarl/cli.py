@@ -36,7 +36,7 @@ COMMANDS: dict[str, Command] = {
     "experiment": Command("sb3_emmarl.experiments.cli:experiment_main",
                           "the paper's experiments: run the missing cells, then their tables and figures [zoo]"),
     "compare": Command("sb3_emmarl.zoo.compare:compare_main", "variants at one budget over seeds, paired tests [zoo]"),
-    "plot": Command("sb3_emmarl.plots:main", "learning curves and per-seed bar figures of runs [zoo]"),
+    "plot": Command("sb3_emmarl.plots.command:main", "learning curves and per-seed bar figures of runs [zoo]"),
     "patrol": Command("sb3_emmarl.patrol:patrol_main", "a scripted patrol's team metrics on the reserve"),
     "benchmark": Command("sb3_emmarl.zoo.benchmark:benchmark_main", "trained teams against the random team [zoo]"),
 }

@@ -1,4 +1,4 @@
-"""``emmarl plot`` (sb3_emmarl/plots.py): learning curves of team episodes from monitor files and of tensorboard
+"""``emmarl plot`` (sb3_emmarl/plots/): learning curves of team episodes from monitor files and of tensorboard
 scalars, mean and spread over runs; per-seed bars whose axis one outlying seed does not flatten; one-line errors."""
 
 import json

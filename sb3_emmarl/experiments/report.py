@@ -212,7 +212,7 @@ def figure_bars(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], metric: st
     :return: the figure
     :raise ValueError: when no finished cell has the metric
     """
-    from sb3_emmarl.plots import seed_bars
+    from sb3_emmarl.plots.drawing import seed_bars
 
     conditions = list(spec.conditions)
     algorithms = list(spec.algorithms)
@@ -253,7 +253,7 @@ def read_curve(run_dir: str | Path, tag: str) -> tuple[np.ndarray, np.ndarray] |
     :return: (steps, values) sorted by step, the last written value kept where a step repeats; None when no event
         file under ``run_dir`` has the tag
     """
-    from sb3_emmarl.plots import read_scalars
+    from sb3_emmarl.plots.reading import read_scalars
 
     scalar = read_scalars(run_dir).get(tag) if Path(run_dir).is_dir() else None
     return None if scalar is None else (scalar[0], scalar[2])
@@ -275,7 +275,7 @@ def figure_curves(spec: ExperimentSpec, rows: Sequence[dict[str, Any]], tag: str
     :return: the figure
     :raise ValueError: naming the tag when no row has it
     """
-    from sb3_emmarl.plots import aggregate_curves
+    from sb3_emmarl.plots.drawing import aggregate_curves
 
     curves: dict[tuple[str, str], list[tuple[np.ndarray, np.ndarray]]] = {}
     for (condition, algorithm), cell_rows in _cells(spec, rows).items():
