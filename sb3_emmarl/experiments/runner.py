@@ -389,51 +389,98 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
     if len(done) == len(cells):
         return 0
     name, text = _spec_source(spec, spec_path)
-    runner = RunnerId()
+    start = time.perf_counter()
     with _backend(backend, n_jobs, address, gather) as (slots, submit, wait_any, collect):
-        heartbeat = _Heartbeat(store, runner, lease_seconds / 4)
+        scheduler = _Scheduler(spec, budget, store, cells, (name, text, root), version, lease_seconds, current, log)
+        heartbeat = _Heartbeat(store, scheduler.runner, lease_seconds / 4)
         heartbeat.start()
-        running: dict[Any, tuple[str, str, int]] = {}
-        start, ran, waiting_said = time.perf_counter(), 0, False
         try:
             with _stopped_by_signals():
-                while True:
-                    while len(running) < slots:
-                        claim = store.claim(spec.name, budget, cells, runner, lease_seconds, current)
-                        if claim is None:
-                            break
-                        if claim.previous is not None:
-                            log(f"  taking over {' / '.join(map(str, claim.cell))} from runner {claim.previous[:8]}, "
-                                "which is gone")
-                        running[submit((name, text, budget, *claim.cell, root), version[0])] = claim.cell
-                    if not running:
-                        others = store.held_by_others(spec.name, budget, runner, lease_seconds) & set(cells)
-                        if not others:
-                            break
-                        if not waiting_said:
-                            log(f"  waiting for {len(others)} cell(s) that other runners are running")
-                            waiting_said = True
-                        time.sleep(POLL_SECONDS)
-                        continue
-                    for handle in wait_any(list(running), POLL_SECONDS):
-                        algorithm, condition, seed = running.pop(handle)
-                        result = collect(handle)
-                        if not store.record(spec.name, budget, (algorithm, condition, seed), result["metrics"],
-                                            result["episodes"], result["run_dir"], result["hardware"], runner=runner,
-                                            version=version):
-                            log(f"  dropped {algorithm} / {condition} / seed {seed}: its claim was taken over")
-                            continue
-                        ran += 1
-                        log(f"  finished {algorithm} / {condition} / seed {seed}: "
-                            + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in spec.metrics)
-                            + (f" (run folder gathered from node {result['gathered_from'][:12]})"
-                               if "gathered_from" in result else ""))
+                ran = scheduler.run(slots, submit, wait_any, collect)
         finally:
             heartbeat.stopped.set()
             kill_cells()
-            store.release(runner)
+            store.release(scheduler.runner)
     log(f"{spec.name} ({budget}): {ran} cells in {time.perf_counter() - start:.0f} s")
     return ran
+
+
+class _Scheduler:
+    """What one runner does with an experiment's cells on a backend's slots: claim free cells while slots are free,
+    record each cell as it finishes, and when nothing is left to claim wait for the cells other live runners hold
+    (taking over those of a runner that died).
+
+    :param spec: the experiment
+    :param budget: its budget
+    :param store: the store (claims and results)
+    :param cells: the cells to run
+    :param source: the specification's name and text (None: the package's own) and the results root, as a cell's
+        process is given them
+    :param version: the package's version and commit
+    :param lease_seconds: how long a claim of a runner on another host holds without a heartbeat
+    :param current: the version whose stored cells count as finished (None: any)
+    :param log: where progress lines go
+    """
+
+    def __init__(self, spec: ExperimentSpec, budget: str, store: ResultStore, cells: list[tuple[str, str, int]],
+                 source: tuple[str, str | None, str], version: tuple[str, str], lease_seconds: float,
+                 current: str | None, log: Callable[[str], None]) -> None:
+        self.spec, self.budget, self.store, self.cells, self.source = spec, budget, store, cells, source
+        self.version, self.lease_seconds, self.current, self.log = version, lease_seconds, current, log
+        self.runner = RunnerId()
+        self.running: dict[Any, tuple[str, str, int]] = {}
+        self.waiting_said = False
+
+    def run(self, slots: int, submit: Callable[..., Any], wait_any: Callable[..., Any],
+            collect: Callable[[Any], dict[str, Any]]) -> int:
+        """Run cells until none is left to this runner or to any other live one; the number this runner recorded."""
+        ran = 0
+        while True:
+            self._fill(slots, submit)
+            if not self.running:
+                if not self._others_running():
+                    return ran
+                continue
+            for handle in wait_any(list(self.running), POLL_SECONDS):
+                ran += self._record(self.running.pop(handle), collect(handle))
+
+    def _fill(self, slots: int, submit: Callable[..., Any]) -> None:
+        """Claim and start free cells while a slot is free."""
+        name, text, root = self.source
+        while len(self.running) < slots:
+            claim = self.store.claim(self.spec.name, self.budget, self.cells, self.runner, self.lease_seconds,
+                                     self.current)
+            if claim is None:
+                return
+            if claim.previous is not None:
+                self.log(f"  taking over {' / '.join(map(str, claim.cell))} from runner {claim.previous[:8]}, "
+                         "which is gone")
+            self.running[submit((name, text, self.budget, *claim.cell, root), self.version[0])] = claim.cell
+
+    def _others_running(self) -> bool:
+        """Whether other live runners hold cells of this experiment (waiting a poll's time if so)."""
+        others = self.store.held_by_others(self.spec.name, self.budget, self.runner, self.lease_seconds) \
+            & set(self.cells)
+        if not others:
+            return False
+        if not self.waiting_said:
+            self.log(f"  waiting for {len(others)} cell(s) that other runners are running")
+            self.waiting_said = True
+        time.sleep(POLL_SECONDS)
+        return True
+
+    def _record(self, cell: tuple[str, str, int], result: dict[str, Any]) -> int:
+        """Record a finished cell (1), or drop it if another runner took its claim over (0)."""
+        algorithm, condition, seed = cell
+        if not self.store.record(self.spec.name, self.budget, cell, result["metrics"], result["episodes"],
+                                 result["run_dir"], result["hardware"], runner=self.runner, version=self.version):
+            self.log(f"  dropped {algorithm} / {condition} / seed {seed}: its claim was taken over")
+            return 0
+        self.log(f"  finished {algorithm} / {condition} / seed {seed}: "
+                 + ", ".join(f"{k} {v:.3g}" for k, v in result["metrics"].items() if k in self.spec.metrics)
+                 + (f" (run folder gathered from node {result['gathered_from'][:12]})"
+                    if "gathered_from" in result else ""))
+        return 1
 
 
 @contextmanager
