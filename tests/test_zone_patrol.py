@@ -98,11 +98,12 @@ def test_zone_readings_carry_the_mode_s_zone_under_noise_and_a_blind_team_reads_
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"grid_size": 3}, "grid_size must be an int in"), ({"n_uavs": 0}, "n_uavs must be an int in"),
-    ({"spawn_prob": 1.5}, "spawn_prob must be a finite number in"), ({"wide_detect": (0.5,)}, "wide_detect must be a pair"),
+    ({"grid_size": 3}, r"grid_size must be in \[6, 256\], got 3$"), ({"n_uavs": 2.0}, "n_uavs must be an int in"),
+    ({"spawn_prob": 1.5}, r"spawn_prob must be in \[0.0, 1.0\]"), ({"wide_detect": (0.5,)}, "wide_detect must be a pair"),
     ({"narrow_detect": (0.2, float("nan"))}, r"narrow_detect\[1\] must be a finite number"),
-    ({"zone_size": 20}, "zone_size must be an int in"), ({"told": 1}, "told must be a bool"),
-    ({"agent_ids": "yes"}, "agent_ids must be a bool"), ({"zone_cue": -0.5}, "zone_cue must be a finite number in"),
+    ({"zone_size": 20}, r"zone_size must be in \[1, 14\], got 20"), ({"told": 1}, r"told must be a bool \(True or False\)"),
+    ({"agent_ids": "yes"}, "agent_ids must be a bool"), ({"zone_cue": "0.2"}, "zone_cue must be a finite number in"),
+    ({"n_uavs": True}, r"n_uavs must be an int in \[1, 64\], got True \(bool\)"),
     ({"speed": 3}, r"unknown ZonePatrol argument\(s\) \['speed'\]"), ({"render_mode": "ansi"}, "render_mode must be"),
 ])
 def test_bad_arguments_raise_a_value_error_naming_them(kwargs, message):
@@ -116,8 +117,10 @@ def test_bad_actions_options_and_calls_out_of_order_are_refused():
         env.step({})
     with pytest.raises(RuntimeError, match="reset"):
         env.state()
-    with pytest.raises(ValueError, match=r"options\['mode'\] must be an int in \[0, 7\]"):
+    with pytest.raises(ValueError, match=r"options\['mode'\] must be in \[0, 7\], got 8"):
         env.reset(options={"mode": 8})
+    with pytest.raises(ValueError, match=r"options\['mode'\] must be an int in \[0, 7\], got 2.0 \(float\)"):
+        env.reset(options={"mode": 2.0})
     env.reset(seed=0)
     for bad in (10, -1, 2.5, "3", True):
         with pytest.raises(ValueError, match=r"action of uav_0 must be an int in \[0, 9\]"):

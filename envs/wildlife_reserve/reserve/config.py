@@ -15,14 +15,13 @@ each UAV knows of each teammate's visits). The measurements behind them are in `
 from __future__ import annotations
 
 import difflib
-import math
-import reprlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
+from wildlife_reserve.checks import check_array, check_bool, check_float, check_int, show
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES
 from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES, as_risk
 
@@ -84,86 +83,6 @@ MAX_SEED = 2**63 - 1
 #: Largest reward weight. With at most 1e6 cells, 1000 poachers and 1000 UAVs a step's reward stays below about
 #: 1e13 in magnitude, and an episode's sum below 1e18: finite inputs always give finite rewards.
 MAX_REWARD_WEIGHT = 1e6
-
-_REPR = reprlib.Repr()
-_REPR.maxstring, _REPR.maxother, _REPR.maxlong = 40, 60, 30
-_REPR.maxlist = _REPR.maxtuple = _REPR.maxset = _REPR.maxfrozenset = _REPR.maxdict = 8
-_REPR.maxlevel = 3
-
-
-def show(value: Any, with_type: bool = False) -> str:
-    """``value`` for an error message: its repr, abbreviated when long (and big arrays by shape and dtype).
-
-    :param with_type: append the type name (for "must be an int"-type messages)
-    """
-    try:
-        if isinstance(value, np.ndarray) and value.size > 8:
-            text = f"an array of shape {value.shape} and dtype {value.dtype}"
-            with_type = False
-        elif isinstance(value, int) and abs(value).bit_length() > 128:  # repr of a huge int can fail (digit limit)
-            text = f"an int of about {int(abs(value).bit_length() * math.log10(2))} digits"
-            with_type = False
-        else:
-            text = " ".join(_REPR.repr(value).split())  # one line (numpy spreads arrays over several)
-    except Exception:  # a broken __repr__ must not hide the real error
-        text = f"a {type(value).__name__} object"
-        with_type = False
-    if len(text) > 80:
-        text = text[:76] + "...'" if text[:1] in "'\"" else text[:77] + "..."
-    return f"{text} ({type(value).__name__})" if with_type else text
-
-
-def _allowed(low: float, high: float | None) -> str:
-    return f">= {low}" if high is None else f"in [{low}, {high}]"
-
-
-def check_int(name: str, value: Any, low: int, high: int | None = None) -> int:
-    """``value`` as an int in ``[low, high]`` (bools, floats and anything else but ints are rejected)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an int {_allowed(low, high)}, got {show(value, with_type=True)}")
-    number = int(value)
-    if number < low or (high is not None and number > high):
-        raise ValueError(f"{name} must be {_allowed(low, high)}, got {show(value)}")
-    return number
-
-
-def check_float(name: str, value: Any, low: float, high: float | None = None) -> float:
-    """``value`` as a finite float in ``[low, high]`` (ints accepted; bools, strings and anything else rejected)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a finite number {_allowed(low, high)}, got {show(value, with_type=True)}")
-    if isinstance(value, (int, np.integer)):  # compared exactly: a huge int must not overflow a float first
-        number: float = int(value)
-    else:
-        number = float(value)
-        if not math.isfinite(number):
-            raise ValueError(f"{name} must be a finite number {_allowed(low, high)}, got {show(value)}")
-    if number < low or (high is not None and number > high):
-        raise ValueError(f"{name} must be {_allowed(low, high)}, got {show(value)}")
-    return float(number)
-
-
-def check_bool(name: str, value: Any) -> bool:
-    """``value`` as a bool: only ``True``, ``False`` and numpy bools (no strings, numbers or None)."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name} must be a bool (True or False), got {show(value, with_type=True)}")
-    return bool(value)
-
-
-def check_array(name: str, value: Any, kinds: str, what: str) -> np.ndarray:
-    """``value`` as a numpy array whose dtype kind is one of ``kinds`` (``"i"``, ``"u"``, ``"f"``).
-
-    :param what: what is allowed, for the message (e.g. ``"a float array (height, width)"``)
-    """
-    try:
-        array = np.asarray(value)
-    except (ValueError, TypeError, OverflowError) as error:  # ragged nesting, unconvertible objects
-        raise ValueError(f"{name} must be {what}, got {show(value)} ({error})") from None
-    if array.dtype.kind not in kinds:
-        got = show(value)
-        got = got if "dtype" in got else f"{got} of dtype {array.dtype}"
-        raise ValueError(f"{name} must be {what}, got {got}")
-    return array
-
 
 class UnknownArgumentError(ValueError, TypeError):
     """An argument name that the reserve does not know.

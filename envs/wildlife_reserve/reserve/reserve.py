@@ -71,12 +71,12 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.checks import check_action_dict, check_agent, check_options, check_seed, discrete_action
+from wildlife_reserve.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
 from wildlife_reserve.reserve import actors, kernels, sensing
 from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve import terrain as terrain_lib
 from wildlife_reserve.reserve.compilation import announce_compilation
-from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig, check_int
+from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig
 from wildlife_reserve.reserve.constants import (
     COMM_BROADCAST,
     COMM_NONE,

@@ -8,11 +8,11 @@ drawn by numpy in one go (one generator serves the batch); the step and the obse
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from wildlife_reserve.checks import check_bool, check_float, check_int
 from wildlife_reserve.zone_patrol import kernels
 
 #: Sensors: the action is ``move + N_MOVES * sensor``.
@@ -24,17 +24,6 @@ N_WEATHERS = 2
 N_ZONES = 4
 #: Window channels: tracks (remaining life / track_life; -1 off the grid), this UAV's detections this step, teammates.
 N_CHANNELS = 3
-
-
-def _check(name: str, value, low, high=None, kind: type = int):
-    if kind is int:
-        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    else:
-        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or value < low or (high is not None and value > high):
-        bounds = f">= {low}" if high is None else f"in [{low}, {high}]"
-        raise ValueError(f"{name} must be {'an int' if kind is int else 'a finite number'} {bounds}, got {value!r}")
-    return kind(value)
 
 
 @dataclass(frozen=True)
@@ -95,32 +84,31 @@ class ZonePatrolConfig:
     told: bool = False
 
     def __post_init__(self) -> None:
-        _check("grid_size", self.grid_size, 6, 256)
-        _check("n_uavs", self.n_uavs, 1, 64)
-        _check("max_cycles", self.max_cycles, 1, 100_000)
-        _check("zone_size", self.zone_size, 1, self.grid_size // 2)
-        _check("spawn_prob", self.spawn_prob, 0.0, 1.0, float)
-        _check("intruder_life", self.intruder_life, 1, 10_000)
-        _check("intruder_move_prob", self.intruder_move_prob, 0.0, 1.0, float)
-        _check("track_life", self.track_life, 1, 10_000)
-        _check("initial_tracks", self.initial_tracks, 0, self.zone_size ** 2)
-        _check("wide_radius", self.wide_radius, 0, self.grid_size)
-        _check("narrow_radius", self.narrow_radius, 0, self.grid_size)
+        check_int("grid_size", self.grid_size, 6, 256)
+        check_int("n_uavs", self.n_uavs, 1, 64)
+        check_int("max_cycles", self.max_cycles, 1, 100_000)
+        check_int("zone_size", self.zone_size, 1, self.grid_size // 2)
+        check_float("spawn_prob", self.spawn_prob, 0.0, 1.0)
+        check_int("intruder_life", self.intruder_life, 1, 10_000)
+        check_float("intruder_move_prob", self.intruder_move_prob, 0.0, 1.0)
+        check_int("track_life", self.track_life, 1, 10_000)
+        check_int("initial_tracks", self.initial_tracks, 0, self.zone_size ** 2)
+        check_int("wide_radius", self.wide_radius, 0, self.grid_size)
+        check_int("narrow_radius", self.narrow_radius, 0, self.grid_size)
         for name in ("wide_detect", "narrow_detect"):
             value = getattr(self, name)
             if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != N_WEATHERS:
                 raise ValueError(f"{name} must be a pair (clear, fog) of chances in [0, 1], got {value!r}")
-            object.__setattr__(self, name, tuple(_check(f"{name}[{i}]", v, 0.0, 1.0, float) for i, v in enumerate(value)))
-        _check("visibility_noise", self.visibility_noise, 0.0, 100.0, float)
-        _check("zone_cue", self.zone_cue, 0.0, 100.0, float)
+            object.__setattr__(self, name, tuple(check_float(f"{name}[{i}]", v, 0.0, 1.0) for i, v in enumerate(value)))
+        check_float("visibility_noise", self.visibility_noise, 0.0, 100.0)
+        check_float("zone_cue", self.zone_cue, 0.0, 100.0)
         if self.comm_range is None:
             object.__setattr__(self, "comm_range", self.grid_size // 2)
-        _check("comm_range", self.comm_range, 0, self.grid_size)
-        _check("escape_cost", self.escape_cost, 0.0, 1000.0, float)
-        _check("window_radius", self.window_radius, 0, self.grid_size)
+        check_int("comm_range", self.comm_range, 0, self.grid_size)
+        check_float("escape_cost", self.escape_cost, 0.0, 1000.0)
+        check_int("window_radius", self.window_radius, 0, self.grid_size)
         for name in ("agent_ids", "told"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            check_bool(name, getattr(self, name))
 
     @classmethod
     def from_kwargs(cls, **kwargs) -> ZonePatrolConfig:
@@ -171,7 +159,7 @@ class ZonePatrolWorld:
 
     def __init__(self, config: ZonePatrolConfig, n_copies: int = 1) -> None:
         self.config = config
-        self.n_copies = _check("n_copies", n_copies, 1, 1_000_000)
+        self.n_copies = check_int("n_copies", n_copies, 1, 1_000_000)
         c, n, g, m = n_copies, config.n_uavs, config.grid_size, max_intruders(config)
         self.positions = np.zeros((c, n, 2), dtype=np.int64)
         self.intruders = np.zeros((c, m, 2), dtype=np.int64)

@@ -76,7 +76,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.checks import check_action_dict, check_agent, check_options, check_seed, discrete_action
+from wildlife_reserve.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
 from wildlife_reserve.extras import requires
 from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, ZonePatrolConfig, ZonePatrolWorld
 
@@ -179,11 +179,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
         given = check_options(options, RESET_OPTIONS)
         mode = None
         if "mode" in given:
-            mode = given["mode"]
-            if isinstance(mode, (bool, np.bool_)) or not isinstance(mode, (int, np.integer)) \
-                    or not 0 <= mode < self.config.n_modes:
-                raise ValueError(f"options['mode'] must be an int in [0, {self.config.n_modes - 1}], got {mode!r}")
-            mode = np.array([mode])
+            mode = np.array([check_int("options['mode']", given["mode"], 0, self.config.n_modes - 1)])
         if seed is not None:
             self._rng, _ = seeding.np_random(seed)
         self.world.reset(self._rng, mode)
