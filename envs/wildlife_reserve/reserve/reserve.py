@@ -590,37 +590,37 @@ class ReserveParallelEnv(ParallelEnv):
         self.t += 1
         obs = np.empty((self.n, self.obs_dim), dtype=np.float32) if out is None else out
         try:
-            (entered, rewards, team_reward, spent, terminated, collisions, readings, n_caught, false_alarms,
-             signs_found, poaching_events, self.signs.count, self.jammer_on, self.team.events, new_cells,
-             masks) = kernels.advance_world(*self._step_and_world(choices, move, comm, obs))
+            outcome = kernels.StepOutcome._make(kernels.advance_world(*self._step_and_world(choices, move, comm, obs)))
         except kernels.ActionError:  # raised before anything changed
             self.t -= 1
             raise self._bad_actions(choices) from None
-        if entered:
-            self.metrics["poachers_entered"] += entered
+        self.signs.count, self.jammer_on, self.team.events = outcome.sign_count, outcome.jammer_on, outcome.events
+        if outcome.entered:
+            self.metrics["poachers_entered"] += outcome.entered
             if self.first_entry_time is None:
                 self.first_entry_time = self.t
-        self.detections = readings
-        if n_caught and self.first_detection_time is None:
+        self.detections = outcome.readings
+        if outcome.caught and self.first_detection_time is None:
             self.first_detection_time = self.t
-        self._n_covered += new_cells
+        self._n_covered += outcome.new_cells
         finish_observations(self, obs)
         m = self.metrics
-        m["team_reward"] += team_reward
-        m["poaching_events"] += poaching_events
-        m["collisions"] += collisions
-        m["energy"] += spent
-        m["poachers_detected"] += n_caught
-        m["false_alarms"] += false_alarms
-        m["signs_found"] += signs_found
+        m["team_reward"] += outcome.team_reward
+        m["poaching_events"] += outcome.poaching_events
+        m["collisions"] += outcome.collisions
+        m["energy"] += outcome.spent
+        m["poachers_detected"] += outcome.caught
+        m["false_alarms"] += outcome.false_alarms
+        m["signs_found"] += outcome.signs_found
         truncated = self.t >= self.max_cycles
         info: dict[str, Any] = {"mode": self.mode}
-        if truncated or terminated:
+        if truncated or outcome.terminated:
             info["metrics"] = self.episode_metrics()
             self.agents = []
         if self.render_mode == "human":
             self.render()
-        return obs, rewards, terminated, truncated and not terminated, info, self.team.heard_from(masks)
+        terminated = outcome.terminated
+        return obs, outcome.rewards, terminated, truncated and not terminated, info, self.team.heard_from(outcome.masks)
 
     def __getstate__(self) -> dict:
         """Pickle without the step's records (:meth:`_build_world`), which unpickling remakes."""

@@ -259,3 +259,25 @@ class World(NamedTuple):
     coverage: Coverage
     observe: Observe
     rewards: Rewards
+
+
+class StepOutcome(NamedTuple):
+    """What :func:`~wildlife_reserve.reserve.kernels.world.advance_world` returns, by name (the compiled call returns
+    the plain tuple; ``StepOutcome._make`` names it on the Python side)."""
+
+    entered: int  # poachers that entered play
+    rewards: np.ndarray  # (n,) each UAV's reward
+    team_reward: float
+    spent: float  # energy spent
+    terminated: bool  # every UAV grounded
+    collisions: int  # pairs
+    readings: np.ndarray  # (k, 3) poacher readings (uav, row, col)
+    caught: int  # poachers caught
+    false_alarms: int  # false poacher readings
+    signs_found: int  # real signs found for the first time
+    poaching_events: int
+    sign_count: int  # the sign records in use
+    jammer_on: bool
+    events: np.ndarray  # the team's record of readings
+    new_cells: int  # the team's new high-risk cells
+    masks: np.ndarray  # the senders' masks
