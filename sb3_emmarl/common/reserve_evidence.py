@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size, register_evidence
+from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size
 from sb3_emmarl.common.latent.features import FeatureFn
 from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_SIGN, CH_UAV
 
@@ -363,7 +363,6 @@ def layout_from_spec(spec: dict[str, Any]) -> dict[str, tuple[slice, tuple[int, 
     return {name: (slice(start, stop), tuple(shape)) for name, (start, stop, shape) in spec["layout"].items()}
 
 
-@register_evidence
 class ReserveEvidence(LatentEvidence):
     """The reserve's evidence: :func:`reserve_features` and, when the specification knows the grid (models saved
     before the count model do not), the :class:`ReadingCounter` as its counts.

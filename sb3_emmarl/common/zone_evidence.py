@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size, register_evidence
+from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size
 from sb3_emmarl.common.latent.features import FeatureFn
 
 
@@ -77,7 +77,6 @@ def zone_readings(zone_map: dict) -> tuple[int, ...]:
     return (2 * n_zones, *range(2 * n_zones + 2, 2 * n_zones + 2 + n_cues))
 
 
-@register_evidence
 class ZoneEvidence(LatentEvidence):
     """:func:`zone_features` of an environment with a ``zone_map`` (ZonePatrol), its readings
     (:func:`zone_readings`) modelled as readings; no counts.
