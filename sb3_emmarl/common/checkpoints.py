@@ -25,6 +25,8 @@ CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")
 TRAINING_STATE = "training_state"
 REPLAY_BUFFER = "replay_buffer"
 VEC_NORMALIZE = "vecnormalize"
+
+
 #: The file in which a run keeps its final ``VecNormalize`` statistics (rl_zoo3's name).
 VEC_NORMALIZE_FILE = f"{VEC_NORMALIZE}.pkl"
 
@@ -35,12 +37,14 @@ def vec_normalize_stats(folder: str | Path) -> str | None:
     path = Path(folder) / VEC_NORMALIZE_FILE
     return str(path) if path.is_file() else None
 
+
 def checkpoint_path(folder: str | Path, prefix: str, steps: int, kind: str | None = None) -> Path:
     """``<folder>/<prefix>_<steps>_steps.zip``, or the companion ``<prefix>_<kind>_<steps>_steps.pkl``
     (SB3's ``CheckpointCallback`` names)."""
     if kind is None:
         return Path(folder) / f"{prefix}_{steps}_steps.zip"
     return Path(folder) / f"{prefix}_{kind}_{steps}_steps.pkl"
+
 
 def companion(model_path: str | Path, kind: str) -> Path | None:
     """The ``kind`` file saved with a checkpoint zip (None if ``model_path`` is not named as a checkpoint)."""
@@ -50,6 +54,7 @@ def companion(model_path: str | Path, kind: str) -> Path | None:
         return None
     return checkpoint_path(model_path.parent, match["prefix"], int(match["steps"]), kind)
 
+
 def list_checkpoints(folder: str | Path, prefix: str = "rl_model") -> list[tuple[int, Path]]:
     """``(steps, zip)`` of the checkpoints in ``folder``, oldest first."""
     found = []
@@ -58,6 +63,7 @@ def list_checkpoints(folder: str | Path, prefix: str = "rl_model") -> list[tuple
         if match and match["prefix"] == prefix:
             found.append((int(match["steps"]), path))
     return sorted(found)
+
 
 def check_checkpoint(path: str | Path) -> Path:
     """Check a checkpoint: its zip (:func:`check_model_file`) and the companions saved with it (training state,
@@ -71,6 +77,7 @@ def check_checkpoint(path: str | Path) -> Path:
         if file is not None and file.is_file():
             check_pickle_file(file)
     return Path(path)
+
 
 class ResumableCheckpointCallback(CheckpointCallback):
     """SB3's ``CheckpointCallback``, atomic and resumable.
@@ -140,6 +147,7 @@ class ResumableCheckpointCallback(CheckpointCallback):
         if self.verbose >= 1:
             print(f"Saving model checkpoint to {path}")
         return path
+
 
 class SaveVecNormalize(BaseCallback):
     """Save the ``VecNormalize`` statistics atomically to ``<folder>/vecnormalize.pkl`` (rl_zoo3's

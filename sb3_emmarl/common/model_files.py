@@ -31,6 +31,7 @@ def check_model_file(path: str | Path) -> Path:
     _checked_data_objects(path)
     return Path(path)
 
+
 def _checked_data_objects(path: str | Path) -> dict[str, Any]:
     """:func:`check_model_file`'s checks, returning the zip's pickled data read as data only (SB3's ``custom_objects``,
     :func:`~sb3_emmarl.common.safe_zip.safe_data_objects`)."""
@@ -51,6 +52,7 @@ def _checked_data_objects(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path} is not a Stable-Baselines3 model (no 'data' in the zip)")
     return safe_data_objects(path)  # its names checked, then its pickles read as data only (a zip from anywhere is code)
 
+
 def check_pickle_file(path: str | Path) -> Path:
     """Check that ``path`` is a complete pickle (its opcodes read to the end without running anything: a file cut short
     by a crash fails).
@@ -62,6 +64,7 @@ def check_pickle_file(path: str | Path) -> Path:
     except (OSError, ValueError) as error:
         raise ValueError(f"{path} is incomplete or corrupt ({error}); it may have been cut short by a crash") from None
     return Path(path)
+
 
 def network_shapes(path: str | Path) -> tuple[tuple[str, tuple[int, ...]], ...]:
     """The names and shapes of a model zip's parameters (read with ``torch.load(weights_only=True)``): what tells a
@@ -77,11 +80,13 @@ def network_shapes(path: str | Path) -> tuple[tuple[str, tuple[int, ...]], ...]:
     return tuple(sorted((f"{part}.{name}", tuple(value.shape)) for part, state in states.items()
                         for name, value in state.items() if hasattr(value, "shape")))
 
+
 def _own_parameters(algo: type) -> set[str]:
     init = algo.__dict__.get("__init__")
     if init is None:
         return set()
     return set(inspect.signature(init).parameters) - {"self", "args", "kwargs"}
+
 
 def _stored_parameters(algo: type) -> set[str]:
     """The arguments of ``algo``'s own constructor that it keeps as attributes of the same name (``self.n_epochs =``),
@@ -92,9 +97,11 @@ def _stored_parameters(algo: type) -> set[str]:
         return set()
     return set(re.findall(r"self\.(\w+)\s*=", source)) & _own_parameters(algo)
 
+
 def _parameters(algo: type) -> set[str]:
     """Constructor arguments of ``algo`` and of its base classes."""
     return set().union(*(_own_parameters(cls) for cls in algo.__mro__))
+
 
 def fitting_algorithms(data: dict[str, Any], candidates: dict[str, type[BaseAlgorithm]]) -> list[str]:
     """Names of the ``candidates`` that could have saved ``data`` (a model zip's data).
@@ -124,6 +131,7 @@ def fitting_algorithms(data: dict[str, Any], candidates: dict[str, type[BaseAlgo
         _stored_parameters(candidates[name]) - _parameters(candidates[other]) <= present for other in fits
         if not issubclass(candidates[name], candidates[other]) and not issubclass(candidates[other], candidates[name]))]
 
+
 def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidates: dict[str, type[BaseAlgorithm]],
                           data_objects: dict[str, Any] | None = None) -> None:
     """Refuse a model zip that ``algo`` did not save, judged by :func:`fitting_algorithms` over ``candidates``.
@@ -137,6 +145,7 @@ def check_saved_algorithm(path: str | Path, algo: type[BaseAlgorithm], candidate
     if not any(candidates[name] is algo for name in fits):
         raise ValueError(f"{path} was not saved by {algo.__name__}: its settings fit "
                          f"{', '.join(sorted(fits)) or 'none of ' + str(sorted(candidates))}")
+
 
 def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str, type[BaseAlgorithm]] | None = None,
                **kwargs: Any) -> BaseAlgorithm:
@@ -157,6 +166,7 @@ def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str
         else:
             why = f"{type(error).__name__}: {(str(error).strip().splitlines() or [''])[0][:300]}"
         raise ValueError(f"{path} does not load into {algo.__name__} ({why})") from None
+
 
 def model_bytes(model: BaseAlgorithm) -> bytes:
     """The model's zip in memory (for comparisons and tests)."""

@@ -48,12 +48,14 @@ class _FileReferencePickler(ViewPickler):
             return len(self.files) - 1
         return None
 
+
 def _dumps_with_files(obj: Any) -> tuple[bytes, list[Any]]:
     """``obj`` pickled by :class:`_FileReferencePickler`, and the open files it refers to."""
     buffer = io.BytesIO()
     pickler = _FileReferencePickler(buffer)
     pickler.dump(obj)
     return buffer.getvalue(), pickler.files
+
 
 class _LiveFilesUnpickler(DataUnpickler):
     """:class:`~sb3_emmarl.common.safe_pickle.DataUnpickler` that puts the live environment's open files in the place
@@ -66,6 +68,7 @@ class _LiveFilesUnpickler(DataUnpickler):
             raise ValueError(f"the saved environment refers to open file {pid!r}; this one has {len(self.files)}")
         return self.files[pid]
 
+
 def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
     """Unpickle :func:`_dumps_with_files`'s bytes as data only (instances of the environments' classes,
     :data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`), the open files taken from ``files`` (the live ones,
@@ -74,6 +77,7 @@ def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
     return loads(blob, "the training state's environment wrapper", class_modules=ENV_STATE_MODULES,
                  unpickler=unpickler)
 
+
 def _layers(venv: VecEnv | None) -> list[Any]:
     layers = [venv]
     while isinstance(venv, VecEnvWrapper):
@@ -81,10 +85,12 @@ def _layers(venv: VecEnv | None) -> list[Any]:
         layers.append(venv)
     return layers
 
+
 def _has_own(layer: Any, method: str) -> bool:
     """Whether ``layer``'s class defines ``method`` (an SB3 ``VecEnvWrapper`` forwards unknown attributes to the
     environment it wraps, so ``hasattr`` would find the inner environment's)."""
     return callable(getattr(type(layer), method, None))
+
 
 def supports_training_state(venv: VecEnv | None) -> bool:
     """Whether :func:`vec_env_state` can read ``venv``: its innermost environment is SB3's ``DummyVecEnv`` or gives
@@ -95,6 +101,7 @@ def supports_training_state(venv: VecEnv | None) -> bool:
     if isinstance(inner, DummyVecEnv):
         return True
     return _has_own(inner, "get_state") and getattr(inner, "checkpointable", True)
+
 
 def vec_env_state(venv: VecEnv | None) -> list[Any]:
     """The step-to-step state of every layer of a vector environment, outermost first (None for stateless layers).
@@ -112,6 +119,7 @@ def vec_env_state(venv: VecEnv | None) -> list[Any]:
             names = next((attrs for cls, attrs in SB3_WRAPPER_STATE.items() if isinstance(layer, cls)), ())
             states.append(_dumps_with_files({name: getattr(layer, name) for name in names})[0] if names else None)
     return states
+
 
 def set_vec_env_state(venv: VecEnv | None, states: list[Any]) -> None:
     """Restore :func:`vec_env_state` into a vector environment built the same way."""
@@ -145,6 +153,7 @@ def training_state(model: BaseAlgorithm) -> dict[str, Any]:
         "env": vec_env_state(model.get_env()),
     }
 
+
 def load_training_state(path: str | Path) -> dict[str, Any]:
     """Read a :func:`training_state` file as data only (its environments' states stay pickles, read as data by the
     layers they belong to, :func:`set_vec_env_state`).
@@ -158,11 +167,13 @@ def load_training_state(path: str | Path) -> dict[str, Any]:
                          f"{sorted(TRAINING_STATE_KEYS)})")
     return state
 
+
 def restore_training_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
     """Restore :func:`training_state` into a model loaded from the checkpoint saved with it (call it last, right
     before ``learn``: building and loading a model draws from the random generators)."""
     restore_environment_state(model, state)
     restore_random_generators(state)
+
 
 def restore_environment_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
     """The environment's part of :func:`restore_training_state` (the zoo calls it as soon as the checkpoint is loaded,
@@ -174,6 +185,7 @@ def restore_environment_state(model: BaseAlgorithm, state: dict[str, Any]) -> No
         raise ValueError(f"the training state is of step {state['num_timesteps']}, the model of step "
                          f"{model.num_timesteps}: they come from different checkpoints")
     set_vec_env_state(model.get_env(), state["env"])
+
 
 def restore_random_generators(state: dict[str, Any]) -> None:
     """The random generators' part of :func:`restore_training_state` (right before ``learn``)."""
