@@ -39,14 +39,12 @@ def write_atomic(path: str | Path, write: Callable[[io.BufferedWriter], Any]) ->
             file.flush()
             os.fsync(file.fileno())
         os.replace(tmp, path)
-    except OSError as error:  # (a write on a full disk names no file, a read-only folder the temporary one: say which)
+    except BaseException as error:
         with contextlib.suppress(OSError):  # (nothing to remove in a read-only folder, which refuses even that)
             tmp.unlink(missing_ok=True)
-        if (error.filename is None or str(error.filename) == str(tmp)) and error.errno is not None:
+        # a write on a full disk names no file, a read-only folder the temporary one: say which
+        if isinstance(error, OSError) and error.errno is not None and error.filename in (None, str(tmp), tmp):
             raise OSError(error.errno, error.strerror, str(path)) from error
-        raise
-    except BaseException:
-        tmp.unlink(missing_ok=True)
         raise
     return path
 

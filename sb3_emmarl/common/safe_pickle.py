@@ -303,14 +303,15 @@ class DataUnpickler(_PythonUnpickler):
 
 
 def loads(blob: bytes | io.BufferedIOBase, source: str, extra: Iterable[tuple[str, str]] = (),
-          class_modules: Iterable[str] = (), unpickler: type[DataUnpickler] = DataUnpickler) -> Any:
+          class_modules: Iterable[str] = (), unpickler: Callable[..., DataUnpickler] = DataUnpickler) -> Any:
     """Unpickle ``blob`` with :class:`DataUnpickler`.
 
     :param blob: the pickle, or a file opened for binary reading at its start
     :param source: what it is, for the message (a file and an entry)
     :param extra: further ``(module, name)`` classes it may hold
     :param class_modules: modules any of whose classes it may hold (:class:`DataUnpickler`)
-    :param unpickler: :class:`DataUnpickler` or a subclass (one that puts back a live environment's open files)
+    :param unpickler: builds the unpickler: :class:`DataUnpickler`, or a subclass with its own arguments bound (one that
+        puts back a live environment's open files)
     :raise ValueError: one line naming ``source`` and what it names, calls or allocates, or why it does not parse
     """
     try:

@@ -9,6 +9,7 @@ only (:func:`load_training_state`, :mod:`sb3_emmarl.common.safe_pickle`).
 
 from __future__ import annotations
 
+import functools
 import io
 import pickle
 import random
@@ -59,9 +60,14 @@ def _dumps_with_files(obj: Any) -> tuple[bytes, list[Any]]:
 
 class _LiveFilesUnpickler(DataUnpickler):
     """:class:`~sb3_emmarl.common.safe_pickle.DataUnpickler` that puts the live environment's open files in the place
-    of the references :class:`_FileReferencePickler` wrote (``files``, set by :func:`_loads_with_files`)."""
+    of the references :class:`_FileReferencePickler` wrote.
 
-    files: list[Any] = []
+    :param files: the live environment's open files, in the order the pickler met them
+    """
+
+    def __init__(self, *args: Any, files: list[Any]) -> None:
+        super().__init__(*args)
+        self.files = files
 
     def persistent_load(self, pid: Any) -> Any:
         if not isinstance(pid, int) or not 0 <= pid < len(self.files):
@@ -73,9 +79,8 @@ def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
     """Unpickle :func:`_dumps_with_files`'s bytes as data only (instances of the environments' classes,
     :data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`), the open files taken from ``files`` (the live ones,
     same order)."""
-    unpickler = type("_Unpickler", (_LiveFilesUnpickler,), {"files": files})
     return loads(blob, "the training state's environment wrapper", class_modules=ENV_STATE_MODULES,
-                 unpickler=unpickler)
+                 unpickler=functools.partial(_LiveFilesUnpickler, files=files))
 
 
 def _layers(venv: VecEnv | None) -> list[Any]:

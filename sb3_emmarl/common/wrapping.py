@@ -155,12 +155,11 @@ class AppendingVecEnvWrapper(VecEnvWrapper):
     def step_wait(self) -> VecEnvStepReturn:
         observations, rewards, dones, infos = self.venv.step_wait()
         assert isinstance(observations, np.ndarray)  # (flat Box observations)
-        extra, terminal = self._step_extra(observations, dones, list(infos))
-        if terminal:
-            infos = list(infos)
-            for i, values in terminal.items():
-                infos[i] = {**infos[i], TERMINAL_OBSERVATION: self._join(
-                    np.asarray(infos[i][TERMINAL_OBSERVATION])[None], values[None])[0]}
+        infos = list(infos)
+        extra, terminal = self._step_extra(observations, dones, infos)
+        for i, values in terminal.items():
+            infos[i] = {**infos[i], TERMINAL_OBSERVATION: self._join(
+                np.asarray(infos[i][TERMINAL_OBSERVATION])[None], values[None])[0]}
         return self._join(observations, extra), rewards, dones, infos
 
 
