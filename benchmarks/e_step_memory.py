@@ -17,7 +17,6 @@ import sys
 import tempfile
 
 from sb3_emmarl.zoo.cli import peak_rss_mib, train_main
-from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
 ALGO = "em_ddpg"
 
@@ -32,11 +31,11 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("n_timesteps", "window", "interval"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    e_step_kwargs = {**zoo_hyperparams(ALGO).get("e_step_kwargs", {}), "window": args.window}
+    latent = {"e_step_interval": args.interval, "e_step_kwargs": {"window": args.window}}  # (the YAML's others kept)
     with tempfile.TemporaryDirectory(prefix="e_step_memory_") as folder:
         code = train_main(["--algo", ALGO, "-n", str(args.n_timesteps), "--seed", str(args.seed), "-f", folder,
                            "--eval-freq", "-1", "--team-eval-episodes", "0", "--verbose", "0", "--num-threads", "1",
-                           "-params", f"e_step_interval:{args.interval}", f"e_step_kwargs:{e_step_kwargs!r}"])
+                           "-params", f"latent_kwargs:{latent!r}"])
     if code:
         return code
     print(f"EM-DDPG ({ALGO}.yml), {args.n_timesteps:,} agent-steps, E-step every {args.interval} train() calls on the "

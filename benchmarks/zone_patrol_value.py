@@ -51,8 +51,9 @@ from scipy import stats
 
 #: Each variant's zoo algorithm (its settings: the zoo YAML's ``ZonePatrol-v0`` section) and its arguments beyond them.
 ALGOS = {"told": ("oracle_ppo", {}), "ppo": ("ppo", {}), "control": ("oracle_ppo", {"random_label": True}),
-         "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"fusion": False}),
-         "em_ppo_team": ("em_ppo", {"fusion": "team"}), "exact_belief": ("ppo", {}), "ppo_lstm": ("ppo_lstm", {}),
+         "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"latent_kwargs": {"fusion": False}}),
+         "em_ppo_team": ("em_ppo", {"latent_kwargs": {"fusion": "team"}}), "exact_belief": ("ppo", {}),
+         "ppo_lstm": ("ppo_lstm", {}),
          "mappo": ("mappo", {})}
 VARIANTS = tuple(ALGOS)
 #: The variants ``run`` trains unless ``--variants`` says otherwise (the protocol's four; the rest are reported beside).
@@ -402,10 +403,12 @@ EM_VARIANTS = tuple(v for v in VARIANTS if v.startswith("em_ppo"))
 def settings(variant: str, task: str = "zone_patrol") -> str:
     """The settings a variant trains with (PROTOCOL item 10: every comparison names them): its zoo YAML section's PPO
     settings, and its latent settings (EM) or what it appends to the observation."""
+    from sb3_emmarl.zoo.algos import merge_hyperparams
     from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
     algo, overrides = ALGOS[variant]
-    section = {**zoo_hyperparams(algo, TASKS[task].env_id), **overrides}
+    section = merge_hyperparams(zoo_hyperparams(algo, TASKS[task].env_id), overrides)
+    section = {**section, **section.pop("latent_kwargs", {})}  # (EM's settings named one by one)
     if variant == "exact_belief":
         section["belief"] = "the exact posterior of the readings along the links, its weights started at zero"
     keys = ("n_envs", "n_steps", "batch_size", "n_epochs", "ent_coef", "learning_rate", "policy_kwargs", "n_components",

@@ -39,9 +39,10 @@ KINDS = {
     "dqn": {"buffer_size": "int>=1", "learning_starts": "int>=0", "batch_size": "int>=1", "gamma": "prob",
             "train_freq": "int>=1", "target_update_interval": "int>=1", "exploration_fraction": "prob",
             "exploration_final_eps": "prob", "tau": "prob", "learning_rate": "float>0", "n_envs": "int>=1"},
-    "em_ppo": {"e_step_interval": "int>=1", "likelihood_temperature": "float>0",
-               "fusion": "bool", "team_pooling": "bool", "use_latent": "bool", "freeze_e_step": "bool",
-               "freeze_m_step": "bool", "n_steps": "int>=1", "gamma": "prob"},
+    "em_ppo": {"latent_kwargs.e_step_interval": "int>=1", "latent_kwargs.likelihood_temperature": "float>0",
+               "latent_kwargs.fusion": "bool", "latent_kwargs.team_pooling": "bool", "latent_kwargs.use_latent": "bool",
+               "latent_kwargs.freeze_e_step": "bool", "latent_kwargs.freeze_m_step": "bool", "n_steps": "int>=1",
+               "gamma": "prob"},
 }
 # Values (YAML text) and the kinds that accept them.
 VALUES = {
@@ -87,26 +88,28 @@ MUTATIONS = [  # (algo, key, YAML value, valid?, mention)
     ("dqn", "train_freq", "[4, 'week']", False, "train_freq"),
     ("dqn", "gradient_steps", "-1", True, ""),
     ("dqn", "gradient_steps", "0", False, "gradient_steps"),
-    ("em_ppo", "decoder_hidden", "'64'", False, "decoder_hidden"),
-    ("em_ppo", "decoder_hidden", "[0]", False, "decoder_hidden"),
-    ("em_ppo", "decoder_hidden", "[32, 32]", True, ""),
-    ("em_ppo", "estimator", "'bayes'", False, "estimator"),
-    ("em_ppo", "e_step_kwargs", "{n_epochs: 0}", False, "e_step_kwargs"),
-    ("em_ppo", "e_step_kwargs", "{bogus: 1}", False, "e_step_kwargs"),
-    ("em_ppo", "e_step_kwargs", "'abc'", False, "e_step_kwargs"),
-    ("em_ppo", "e_step_kwargs", "{learning_rate: .nan}", False, "e_step_kwargs"),
-    ("em_ppo", "e_step_kwargs", "{window: 2, n_epochs: 1}", True, ""),
+    ("em_ppo", "latent_kwargs.decoder_hidden", "'64'", False, "decoder_hidden"),
+    ("em_ppo", "latent_kwargs.decoder_hidden", "[0]", False, "decoder_hidden"),
+    ("em_ppo", "latent_kwargs.decoder_hidden", "[32, 32]", True, ""),
+    ("em_ppo", "latent_kwargs.estimator", "'bayes'", False, "estimator"),
+    ("em_ppo", "latent_kwargs.e_step_kwargs", "{n_epochs: 0}", False, "e_step_kwargs"),
+    ("em_ppo", "latent_kwargs.e_step_kwargs", "{bogus: 1}", False, "e_step_kwargs"),
+    ("em_ppo", "latent_kwargs.e_step_kwargs", "'abc'", False, "e_step_kwargs"),
+    ("em_ppo", "latent_kwargs.e_step_kwargs", "{learning_rate: .nan}", False, "e_step_kwargs"),
+    ("em_ppo", "latent_kwargs.e_step_kwargs", "{window: 2, n_epochs: 1}", True, ""),
     # n_components must fit em_ppo.yml's count_factors [4, 2] (their product)
-    ("em_ppo", "n_components", "8", True, ""),
-    ("em_ppo", "n_components", "3", False, "count_factors"),
-    ("em_ppo", "n_components", "0", False, "n_components"),
-    ("em_ppo", "n_components", "'abc'", False, "n_components"),
-    ("em_ppo", "count_factors", "null", True, ""),
-    ("em_ppo", "count_factors", "[8, 1]", True, ""),
-    ("em_ppo", "count_factors", "[4, 3]", False, "count_factors"),
-    ("em_ppo", "count_factors", "[4]", False, "count_factors"),
-    ("em_ppo", "count_factors", "'4x2'", False, "count_factors"),
-    ("em_ppo", "count_factors", "[4, 2.5]", False, "count_factors"),
+    ("em_ppo", "n_components", "8", False, "latent_kwargs"),  # a latent setting at the top level (as up to 0.22.0)
+    ("em_ppo", "latent_kwargs", "{n_componentz: 8}", False, "n_componentz"),
+    ("em_ppo", "latent_kwargs.n_components", "8", True, ""),
+    ("em_ppo", "latent_kwargs.n_components", "3", False, "count_factors"),
+    ("em_ppo", "latent_kwargs.n_components", "0", False, "n_components"),
+    ("em_ppo", "latent_kwargs.n_components", "'abc'", False, "n_components"),
+    ("em_ppo", "latent_kwargs.count_factors", "null", True, ""),
+    ("em_ppo", "latent_kwargs.count_factors", "[8, 1]", True, ""),
+    ("em_ppo", "latent_kwargs.count_factors", "[4, 3]", False, "count_factors"),
+    ("em_ppo", "latent_kwargs.count_factors", "[4]", False, "count_factors"),
+    ("em_ppo", "latent_kwargs.count_factors", "'4x2'", False, "count_factors"),
+    ("em_ppo", "latent_kwargs.count_factors", "[4, 2.5]", False, "count_factors"),
 ]
 # Flags: (flags, valid?, mention)
 FLAGS = [
@@ -152,9 +155,17 @@ def _entry(algo: str) -> dict:
 
 
 def _mutated(algo: str, key: str, value: str) -> str:
-    entry = yaml.safe_dump({"WildlifeReserve-v1": _entry(algo)})
-    return entry.rstrip("\n") + f"\n  {key}: {value}\n" if key not in _entry(algo) else \
-        yaml.safe_dump({"WildlifeReserve-v1": {**_entry(algo), key: "__VALUE__"}}).replace("__VALUE__", value)
+    """The algorithm's zoo entry with ``key`` set to the YAML text ``value`` (``outer.inner``: a field of a mapping, as
+    ``latent_kwargs.n_components``)."""
+    entry = _entry(algo)
+    if "." in key:
+        outer, inner = key.split(".")
+        entry = {**entry, outer: {**(entry.get(outer) or {}), inner: "__VALUE__"}}
+    elif key not in entry:
+        return yaml.safe_dump({"WildlifeReserve-v1": entry}).rstrip("\n") + f"\n  {key}: {value}\n"
+    else:
+        entry = {**entry, key: "__VALUE__"}
+    return yaml.safe_dump({"WildlifeReserve-v1": entry}).replace("__VALUE__", value)
 
 
 def cases() -> list[Case]:
@@ -165,7 +176,7 @@ def cases() -> list[Case]:
             for value, accepting in VALUES.items():
                 valid = kind in accepting
                 budget = ["-n", "64"]
-                out.append(Case(f"{algo} {key}: {value}", ["--algo", algo, *budget], valid, key,
+                out.append(Case(f"{algo} {key}: {value}", ["--algo", algo, *budget], valid, key.split(".")[-1],
                                 _mutated(algo, key, value)))
     for name, text, mention in STRUCTURE:
         out.append(Case(f"yaml {name}", ["--algo", "ppo", "-n", "64"], False, mention, text))
@@ -317,7 +328,7 @@ MID_RUN_PARAMS = [  # (algo, -params values)
     ("ppo", ["policy_kwargs:dict(share_features_extractor='no')"]),
     ("ppo", ["use_sde:True"]),
     ("dqn", ["policy_kwargs:dict(optimizer_kwargs=dict(momentum=0.9))"]),
-    ("em_ppo", ["ent_coef:'auto'", "n_components:4", "count_factors:[2, 2]"]),
+    ("em_ppo", ["ent_coef:'auto'", "latent_kwargs:dict(n_components=4, count_factors=[2, 2])"]),
 ]
 MID_RUN_YAML = [  # (algo, settings updating the zoo's entry)
     ("ppo", {"policy_kwargs": {"optimizer_class": "th.optim.LBFGS"}}),

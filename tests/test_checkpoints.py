@@ -133,7 +133,7 @@ def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, num_cpus):
     MessagePPO: with the links its message wrapper keeps; a run whose reserves were split over a worker process
     resumes in one process)."""
     th.set_num_threads(1)
-    kwargs = {"e_step_interval": 1} if algo is EMPPO else {}
+    kwargs = {"latent_kwargs": {"e_step_interval": 1}} if algo is EMPPO else {}
     total = 32 * 4 * 5
     model = build(algo, num_cpus=num_cpus, **kwargs)
     model.learn(total, callback=ResumableCheckpointCallback(32, str(tmp_path / "a")))
@@ -153,7 +153,7 @@ def test_a_resumed_run_equals_the_uninterrupted_run(tmp_path, algo, num_cpus):
 
 
 def test_em_save_load_keeps_the_e_step_state(tmp_path):
-    model = build(EMPPO, e_step_interval=1)
+    model = build(EMPPO, latent_kwargs=dict(e_step_interval=1))
     model.learn(32 * 4 * 2)
     # No E-step gradient is left on the latent model (PPO's gradient clipping runs over all the policy's parameters).
     assert all(p.grad is None for p in model.policy.latent_model.parameters())
@@ -172,7 +172,7 @@ def test_em_save_load_keeps_the_e_step_state(tmp_path):
 
 
 def test_the_e_step_state_is_saved_with_torch_not_in_the_json_data(tmp_path):
-    model = build(EMPPO, e_step_interval=1)
+    model = build(EMPPO, latent_kwargs=dict(e_step_interval=1))
     model.learn(32 * 4 * 2)
     path = save_model(model, tmp_path / "em")
     with zipfile.ZipFile(path) as archive:
@@ -182,7 +182,7 @@ def test_the_e_step_state_is_saved_with_torch_not_in_the_json_data(tmp_path):
 
 def test_a_model_saved_with_the_e_step_state_in_its_data_still_loads(tmp_path, monkeypatch):
     """Archives written before 0.17.0 keep the E-step's state among the pickled data, not as ``e_step.pth``."""
-    model = build(EMPPO, e_step_interval=1)
+    model = build(EMPPO, latent_kwargs=dict(e_step_interval=1))
     model.learn(32 * 4 * 2)
     model._e_step_state = model.e_step.state_dict()
     monkeypatch.setattr(EMPPO, "_get_torch_save_params", PPO._get_torch_save_params)

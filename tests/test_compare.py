@@ -121,8 +121,8 @@ def test_parse_variant_on_the_default_variants():
         ("ppo", "ppo", []),
         ("ppo_lstm", "ppo_lstm", []),
         ("oracle_ppo", "oracle_ppo", []),
-        ("no_latent", "em_ppo", ["use_latent:False"]),
-        ("frozen_e_step", "em_ppo", ["freeze_e_step:True"]),
+        ("no_latent", "em_ppo", ["latent_kwargs:dict(use_latent=False)"]),
+        ("frozen_e_step", "em_ppo", ["latent_kwargs:dict(freeze_e_step=True)"]),
     ]
     args = compare_parser().parse_args([])
     assert args.variants == list(DEFAULT_VARIANTS) and (args.baseline, args.oracle) == ("ppo", "oracle_ppo")

@@ -154,7 +154,7 @@ def test_the_belief_adds_the_count_evidence_of_every_new_observation():
     from sb3_emmarl.common.vec_env import make_vec_env
 
     model = EMPPO("MlpPolicy", make_vec_env(env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30}, seed=4),
-                  n_steps=32, batch_size=32, seed=0, likelihood_temperature=0.5, fusion=False)
+                  n_steps=32, batch_size=32, seed=0, latent_kwargs=dict(likelihood_temperature=0.5, fusion=False))
     latent = model.policy.latent_model
     with th.no_grad():
         latent.count_log_rates.copy_(th.randn(latent.count_log_rates.shape) - 2.0)
@@ -421,7 +421,7 @@ def test_count_factors_are_checked_against_n_components():
             check_factors(bad, 8)
     with pytest.raises(ValueError, match="count_factors"):
         EMPPO("MlpPolicy", make_vec_env(env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30}), n_steps=32,
-              batch_size=32, n_components=8, count_factors=(3, 2))
+              batch_size=32, latent_kwargs=dict(n_components=8, count_factors=(3, 2)))
     with pytest.raises(ValueError, match="count_factors"):
         PoissonMixture(8, 1, 4, factors=(2, 2))
 
@@ -434,8 +434,8 @@ def test_em_ppo_with_count_factors_fits_factored_rates_and_keeps_them_through_sa
         return make_vec_env(env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 30}, seed=3)
 
     # no re-seeding of starved components: a split perturbs the rates until the next E-step fits them again
-    model = EMPPO("MlpPolicy", env(), n_steps=32, batch_size=32, n_components=4, count_factors=(2, 2), seed=0,
-                  e_step_kwargs={"starved_share": 0.0})
+    model = EMPPO("MlpPolicy", env(), n_steps=32, batch_size=32, seed=0,
+                  latent_kwargs=dict(n_components=4, count_factors=(2, 2), e_step_kwargs={"starved_share": 0.0}))
     assert model.e_step.count_factors == (2, 2) and model.e_step.count_rings == 4
     model.learn(3 * 32 * 3)
     log_rates = model.policy.latent_model.count_log_rates.double().numpy()  # (K, channels, blocks * rings)
@@ -444,4 +444,4 @@ def test_em_ppo_with_count_factors_fits_factored_rates_and_keeps_them_through_sa
     assert np.abs(log_rates[0] - log_rates[2]).max() > 1e-3  # another first factor: another profile
     model.save(tmp_path / "model.zip")
     loaded = EMPPO.load(tmp_path / "model.zip", env=env())
-    assert loaded.count_factors == (2, 2) and loaded.e_step.count_factors == (2, 2)
+    assert loaded.latent_config.count_factors == (2, 2) and loaded.e_step.count_factors == (2, 2)

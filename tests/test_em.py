@@ -1,6 +1,7 @@
 """EM-PPO and EM-DDPG: beliefs, fusion, the E-step, SB3's conventions, save/load, ablations, logging."""
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -33,7 +34,7 @@ def task_env(task=ModeCueEnv, n=8, seed=0, **kwargs):
 def test_policy_shapes_and_beliefs(continuous, k):
     env = make_vec_env(env_kwargs={**SMALL, "continuous_actions": continuous})
     algo = EMDDPG if continuous else EMPPO
-    model = algo("MlpPolicy", env, n_components=k, seed=0)
+    model = algo("MlpPolicy", env, latent_kwargs=dict(n_components=k), seed=0)
     obs = model.env.reset()
     layout = model.latent_layout
     assert obs.shape == (3, OBS_DIM + k) and layout.obs_dim == OBS_DIM and layout.total_dim == OBS_DIM + k
@@ -165,13 +166,14 @@ def evaluation_beliefs(model, env_kwargs, steps=30):
 
 
 def test_fusion_follows_the_links_and_changes_nothing_without_them():
-    model = EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), n_steps=32, batch_size=32, n_components=3, seed=0)
+    model = EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), n_steps=32, batch_size=32, seed=0,
+                  latent_kwargs=dict(n_components=3))
     model.learn(96)  # a fitted decoder, so that evidence differs between agents
     for comm_loss, same in ((1.0, True), (0.0, False)):
         kwargs = {**SMALL, "comm_loss": comm_loss}
-        model.fusion = True
+        model.latent_config = replace(model.latent_config, fusion=True)
         fused = evaluation_beliefs(model, kwargs)
-        model.fusion = False
+        model.latent_config = replace(model.latent_config, fusion=False)
         alone = evaluation_beliefs(model, kwargs)
         assert np.array_equal(fused, alone) == same, comm_loss
 
@@ -254,7 +256,7 @@ def test_episode_ids_continue_across_rollouts_and_pool_teams():
 
 
 def test_the_e_step_sees_whole_episodes_across_rollouts():
-    model = EMPPO("MlpPolicy", task_env(ModeCueEnv, n=4), n_steps=8, e_step_kwargs={"window": 8}, seed=0)
+    model = EMPPO("MlpPolicy", task_env(ModeCueEnv, n=4), n_steps=8, latent_kwargs=dict(e_step_kwargs={"window": 8}), seed=0)
     model.learn(4 * 8 * 8)  # 64 steps per entry: two episodes of 32, over eight rollouts
     log_r, _, _ = model.e_step.responsibilities(model.e_step._data())
     assert len(log_r) == 2 * 4
@@ -275,11 +277,12 @@ def policy_without_latent(names):
 @pytest.mark.parametrize("algo", [EMPPO, EMDDPG])
 def test_each_ablation_freezes_exactly_what_it_names(algo):
     continuous = algo is EMDDPG
-    settings = {"n_steps": 32, "batch_size": 64} if not continuous else {"learning_starts": 50, "e_step_interval": 2}
+    settings = {"n_steps": 32, "batch_size": 64} if not continuous else {"learning_starts": 50}
+    latent_settings = {} if not continuous else {"e_step_interval": 2}
 
     def run(**switches):
         env = make_vec_env(n_copies=2, seed=0, env_kwargs={**SMALL, "continuous_actions": continuous})
-        model = algo("MlpPolicy", env, seed=0, **settings, **switches)
+        model = algo("MlpPolicy", env, seed=0, **settings, latent_kwargs={**latent_settings, **switches})
         before = snapshot(model.policy)
         model.learn(600)
         return model, changed(before, model.policy)
@@ -303,7 +306,8 @@ def test_each_ablation_freezes_exactly_what_it_names(algo):
 @pytest.mark.parametrize("algo", [EMPPO, EMDDPG])
 def test_save_load_gives_the_same_actions_and_beliefs(algo, tmp_path):
     continuous = algo is EMDDPG
-    settings = {"n_steps": 32, "batch_size": 64} if not continuous else {"learning_starts": 50, "e_step_interval": 2}
+    settings = {"n_steps": 32, "batch_size": 64} if not continuous else {"learning_starts": 50,
+                                                                         "latent_kwargs": {"e_step_interval": 2}}
     kwargs = {**SMALL, "continuous_actions": continuous}
     model = algo("MlpPolicy", make_vec_env(n_copies=2, seed=0, env_kwargs=kwargs), seed=0, **settings)
     model.learn(500)
@@ -343,8 +347,8 @@ def test_defaults_work_on_any_sb3_vector_environment_without_warnings(tmp_path):
 
 def test_gumbel_estimator_anneals_and_team_pooling_runs():
     env = make_vec_env(n_copies=2, seed=0, env_kwargs=SMALL)
-    model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, estimator="gumbel", team_pooling=True, seed=0,
-                  e_step_kwargs={"anneal_rate": 0.5})
+    model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, seed=0,
+                  latent_kwargs=dict(estimator="gumbel", team_pooling=True, e_step_kwargs={"anneal_rate": 0.5}))
     model.learn(3 * 32 * 6)
     assert model.e_step.n_updates == 3
     assert model.e_step.temperature == pytest.approx(np.exp(-1.5))
@@ -388,13 +392,15 @@ def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
     ],
 )
 def test_bad_em_settings_are_rejected(kwargs, message):
+    arguments = kwargs if "zero_belief_weights" in kwargs else {"latent_kwargs": kwargs}
     with pytest.raises(ValueError, match=message):
-        EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), **kwargs)
+        EMPPO("MlpPolicy", make_vec_env(env_kwargs=SMALL), **arguments)
 
 
 def test_zero_belief_weights_starts_em_ppo_as_the_same_function_of_every_belief(tmp_path):
     venv = make_vec_env(env_kwargs=SMALL)
-    model = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, n_components=4, seed=0, zero_belief_weights=True)
+    model = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, latent_kwargs=dict(n_components=4), seed=0,
+                  zero_belief_weights=True)
     obs = th.as_tensor(model.get_env().reset())
     outputs = []
     for belief in th.eye(4):
@@ -411,14 +417,15 @@ def test_zero_belief_weights_starts_em_ppo_as_the_same_function_of_every_belief(
     loaded = EMPPO.load(tmp_path / "model", device="cpu")
     assert loaded.zero_belief_weights
     th.testing.assert_close(loaded.policy.mlp_extractor.value_net[0].weight[:, -4:], learned)  # loading keeps them
-    orthogonal = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, n_components=4, seed=0)  # the default
+    orthogonal = EMPPO("MlpPolicy", venv, n_steps=8, batch_size=24, latent_kwargs=dict(n_components=4), seed=0)  # the default
     assert (orthogonal.policy.mlp_extractor.policy_net[0].weight[:, -4:] != 0).any(dim=1).all()
 
 
 def test_evaluate_team_reports_latent_metrics_over_the_episode():
     from sb3_emmarl.common.evaluation import evaluate_team
 
-    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, env_kwargs=SMALL), n_steps=32, batch_size=64, n_components=8, seed=0)
+    model = EMPPO("MlpPolicy", make_vec_env(n_copies=2, env_kwargs=SMALL), n_steps=32, batch_size=64, seed=0,
+                  latent_kwargs=dict(n_components=8))
     model.learn(256)
     records = evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
     assert records == evaluate_team(model, 3, seed=1, env_kwargs=SMALL)
@@ -440,7 +447,8 @@ def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
 
     from sb3_emmarl.zoo.cli import train_main
 
-    params = ["n_steps:32", "batch_size:64"] if algo == "em_ppo" else ["learning_starts:60", "e_step_interval:2"]
+    params = ["n_steps:32", "batch_size:64"] if algo == "em_ppo" else ["learning_starts:60",
+                                                                        "latent_kwargs:dict(e_step_interval=2)"]
     assert train_main(["--algo", algo, "-n", "300", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "150",
                        "--eval-episodes", "1", "--team-eval-episodes", "2", "--verbose", "0", "-params", *params,
                        "--env-kwargs", "n_uavs:2", "grid_size:20", "max_cycles:30"]) == 0
@@ -451,10 +459,9 @@ def test_the_zoo_trains_and_evaluates_em_algorithms(algo, tmp_path):
 
 
 def test_the_method_page_states_the_defaults_the_code_has():
-    import inspect
     from pathlib import Path
 
-    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+    from sb3_emmarl.common.latent.config import E_STEP_DEFAULTS
 
     page = (Path(__file__).resolve().parents[1] / "docs" / "em.md").read_text()
     rows = {line.split("|")[1].strip().strip("`"): line.split("|")[2].strip() for line in page.splitlines()
@@ -462,15 +469,14 @@ def test_the_method_page_states_the_defaults_the_code_has():
     for key, value in E_STEP_DEFAULTS.items():
         stated = rows[key].split()[0]
         assert float(stated) == value, (key, rows[key])
-    signature = inspect.signature(EMPPO).parameters
     for name in ("n_components", "likelihood_temperature", "fusion", "e_step_interval"):
-        assert rows[name].startswith(str(signature[name].default)), (name, rows[name])
+        assert rows[name].startswith(str(getattr(EMPPO.latent_defaults, name))), (name, rows[name])
 
 
 def test_the_e_step_defaults_are_estep_s_own():
     import inspect
 
-    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+    from sb3_emmarl.common.latent.config import E_STEP_DEFAULTS
 
     parameters = inspect.signature(EStep).parameters
     assert {key: parameters[key].default for key in E_STEP_DEFAULTS} == E_STEP_DEFAULTS
@@ -491,7 +497,7 @@ def test_training_logs_latent_accuracy_over_the_episode(tmp_path):
 
 
 def test_every_e_step_default_has_a_validation_rule():
-    from sb3_emmarl.common.latent.algorithm import E_STEP_DEFAULTS
+    from sb3_emmarl.common.latent.config import E_STEP_DEFAULTS
     from sb3_emmarl.common.validation import E_STEP_RULES
 
     assert set(E_STEP_RULES) == set(E_STEP_DEFAULTS)

@@ -99,7 +99,7 @@ def test_the_belief_moves_with_the_evidence_once_fitted():
 def test_freeze_e_step_keeps_the_latent_model_and_the_seed_decides_it():
     runs = []
     for freeze in (True, False):
-        callback = EMCallback(e_step_every=64, freeze_e_step=freeze, seed=3)
+        callback = EMCallback(e_step_every=64, latent_kwargs=dict(freeze_e_step=freeze), seed=3)
         env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=2, seed=0))
         before = latent_values(callback)
         A2C("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, seed=0).learn(200, callback=callback)
@@ -147,7 +147,7 @@ def test_bad_use_fails_early_with_one_line():
     with pytest.raises(ValueError, match="e_step_every"):
         EMCallback(e_step_every=0)
     with pytest.raises(ValueError, match="n_components"):
-        EMCallback(n_components=0)
+        EMCallback(latent_kwargs=dict(n_components=0))
     with pytest.raises(ValueError, match=r"wrap_env\(env\) first"):
         _ = EMCallback().policy_kwargs
     callback = EMCallback()

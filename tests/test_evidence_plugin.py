@@ -183,7 +183,8 @@ def test_a_plug_in_s_counts_enter_the_beliefs_and_the_e_step(plugins):
             return cls({"kind": cls.kind, "obs_dim": observation_size(venv)}) if venv.has_attr("cue_accuracy") else None
 
     env = sb3_make_vec_env(ModeCueEnv, n_envs=4, seed=0, env_kwargs={"cue_accuracy": 0.9})
-    model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, n_epochs=1, seed=0, likelihood_temperature=1e-6)
+    model = EMPPO("MlpPolicy", env, n_steps=32, batch_size=64, n_epochs=1, seed=0,
+                  latent_kwargs=dict(likelihood_temperature=1e-6))
     latent = model.policy.latent_model
     assert (model.latent_layout.count_channels, model.latent_layout.count_bins) == (1, 4) and latent.has_counts
     assert model.e_step.count_weight == 0.5

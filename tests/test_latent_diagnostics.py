@@ -79,7 +79,7 @@ def test_the_belief_reaches_the_networks_as_probabilities_as_the_most_likely_one
 @pytest.mark.parametrize("form", ["map", "both"])
 def test_em_ppo_with_another_belief_input_trains_saves_and_loads_it(form, tmp_path):
     model = EMPPO("MlpPolicy", make_vec_env(ModeCueEnv, n_envs=2, seed=0), n_steps=32, batch_size=64, seed=0,
-                  belief_input=form, zero_belief_weights=True)
+                  latent_kwargs=dict(belief_input=form), zero_belief_weights=True)
     width = model.policy.features_extractor.belief_width
     assert width == (8 if form == "both" else 4)
     first = dict(model.policy.mlp_extractor.policy_net.named_parameters())["0.weight"]
@@ -91,4 +91,4 @@ def test_em_ppo_with_another_belief_input_trains_saves_and_loads_it(form, tmp_pa
     obs = np.tile(np.eye(4, dtype=np.float32)[:1], (3, 1))
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
     with pytest.raises(ValueError, match="belief_input"):
-        EMPPO("MlpPolicy", make_vec_env(ModeCueEnv, n_envs=2, seed=0), belief_input="log")
+        EMPPO("MlpPolicy", make_vec_env(ModeCueEnv, n_envs=2, seed=0), latent_kwargs=dict(belief_input="log"))

@@ -104,7 +104,8 @@ def test_em_ppo_on_zone_patrol_models_its_readings_and_logs_the_evidence_reach(t
     from sb3_emmarl.common.evaluation import evaluate_team
 
     venv = make_vec_env(2, seed=0, env_fn=zone_patrol_v1.parallel_env, vec_env_type="batched")
-    model = EMPPO("MlpPolicy", venv, n_steps=64, batch_size=128, n_components=8, seed=0, tensorboard_log=str(tmp_path))
+    model = EMPPO("MlpPolicy", venv, n_steps=64, batch_size=128, latent_kwargs=dict(n_components=8), seed=0,
+                  tensorboard_log=str(tmp_path))
     assert model.latent_layout.reading_features == (8, 10, 11, 12, 13)  # the visibility and the four zone readings
     model.learn(2 * 4 * 64 * 2, callback=LatentMetricsCallback())
     accumulator = EventAccumulator(str(next(tmp_path.rglob("events.out.tfevents.*"))))
@@ -115,5 +116,5 @@ def test_em_ppo_on_zone_patrol_models_its_readings_and_logs_the_evidence_reach(t
     records = evaluate_team(model, 2, seed=1, env_id="ZonePatrol-v1")
     assert all(0.25 <= r["evidence_reach_50"] <= 1.0 for r in records)
     team = EMPPO("MlpPolicy", make_vec_env(1, seed=0, env_fn=zone_patrol_v1.parallel_env, vec_env_type="batched"),
-                 n_steps=64, batch_size=64, n_components=8, seed=0, fusion="team")
+                 n_steps=64, batch_size=64, latent_kwargs=dict(n_components=8, fusion="team"), seed=0)
     assert all(r["evidence_reach_50"] == 1.0 for r in evaluate_team(team, 1, seed=1, env_id="ZonePatrol-v1"))

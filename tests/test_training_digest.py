@@ -26,10 +26,12 @@ TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
 CASES = {
     "ppo": ({"n_steps": 32, "batch_size": 64}, 256, "e7f97adda1dff97a"),
     "oracle_ppo": ({"n_steps": 32, "batch_size": 64}, 256, "9e623e3147c1efb6"),
-    "em_ppo": ({"n_steps": 32, "batch_size": 64, "e_step_interval": 2}, 256, "8e3d4bc7e6dd3bb0"),
-    "em_ddpg": ({"buffer_size": 2000, "learning_starts": 100, "e_step_interval": 5, "batch_size": 64}, 400,
+    "em_ppo": ({"n_steps": 32, "batch_size": 64, "latent_kwargs": {"e_step_interval": 2}}, 256, "8e3d4bc7e6dd3bb0"),
+    "em_ddpg": ({"buffer_size": 2000, "learning_starts": 100, "latent_kwargs": {"e_step_interval": 5}, "batch_size": 64},
+                400,
                 "cd0c9c0b8fa8fb19"),
-    "vdn_em": ({"buffer_size": 2000, "learning_starts": 100, "e_step_interval": 5, "batch_size": 8}, 400,
+    "vdn_em": ({"buffer_size": 2000, "learning_starts": 100, "latent_kwargs": {"e_step_interval": 5}, "batch_size": 8},
+               400,
                "c0850a9c86753f76"),
 }
 #: The settings under which a digest does not depend on the CPU (read by torch and MKL when they load).

@@ -11,8 +11,8 @@ from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.common.wrapping import find_wrapper
 
 TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
-QUICK = {"learning_starts": 200, "buffer_size": 5000, "batch_size": 16, "e_step_interval": 5, "team_pooling": True,
-         "n_components": 3}
+QUICK = {"learning_starts": 200, "buffer_size": 5000, "batch_size": 16,
+         "latent_kwargs": {"e_step_interval": 5, "team_pooling": True, "n_components": 3}}
 
 
 @pytest.fixture(scope="module")
@@ -69,19 +69,20 @@ def test_save_load_gives_the_same_actions_and_e_step(trained, tmp_path):
     ({"fusion": "yes"}, "fusion must be true or false"),
 ])
 def test_bad_arguments_are_rejected(kwargs, message):
+    arguments = kwargs if "exploration_final_eps" in kwargs else {"latent_kwargs": kwargs}
     with pytest.raises(ValueError, match=message):
-        EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY), **kwargs)
+        EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY), **arguments)
 
 
 def test_the_default_e_step_sees_as_many_steps_as_em_ddpgs():
     """Both default to an E-step every 2,000 steps on the last 4,000 at their zoo train_freq (4 and 10 vector steps)."""
     model = EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY), train_freq=4)
-    assert (model.e_step_interval * 4, model.e_step.memory.maxlen * 4) == (2000, 4000)
+    assert (model.latent_config.e_step_interval * 4, model.e_step.memory.maxlen * 4) == (2000, 4000)
     ddpg = EMDDPG("MlpPolicy", make_vec_env(1, seed=0, env_kwargs={**TINY, "continuous_actions": True}), train_freq=10)
-    assert (ddpg.e_step_interval * 10, ddpg.e_step.memory.maxlen * 10) == (2000, 4000)
+    assert (ddpg.latent_config.e_step_interval * 10, ddpg.e_step.memory.maxlen * 10) == (2000, 4000)
     assert EMVDN("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=TINY),
-                 e_step_kwargs={"window": 2000}).e_step.memory.maxlen == 2000
+                 latent_kwargs=dict(e_step_kwargs={"window": 2000})).e_step.memory.maxlen == 2000
     # Whatever e_step_kwargs holds is checked before the default window joins it (EM-DDPG raised TypeError until 0.17.0).
     for algo, env_kwargs in ((EMVDN, TINY), (EMDDPG, {**TINY, "continuous_actions": True})):
         with pytest.raises(ValueError, match="e_step_kwargs must be a mapping"):
-            algo("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=env_kwargs), e_step_kwargs="x")
+            algo("MlpPolicy", make_vec_env(1, seed=0, env_kwargs=env_kwargs), latent_kwargs=dict(e_step_kwargs="x"))

@@ -72,7 +72,7 @@ def test_the_latent_model_reads_zone_features_on_zone_patrol_and_keeps_them_when
     rebuilt = evidence_from_spec(spec)
     np.testing.assert_array_equal(rebuilt.features(obs), evidence.features(obs))
     assert rebuilt.feature_dim == dim
-    model = EMPPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, n_components=8, seed=0)
+    model = EMPPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, latent_kwargs=dict(n_components=8), seed=0)
     assert model.latent_layout.feature_dim == 10 and model.feature_spec["kind"] == "zones"
     model.learn(64)
     model.save(tmp_path / "em")

@@ -72,10 +72,11 @@ def test_the_yamls_sections_are_the_protocols_settings():
     ppo, em = zoo_hyperparams("ppo", ZONE_PATROL_ID), zoo_hyperparams("em_ppo", ZONE_PATROL_ID)
     assert (ppo["n_envs"], ppo["n_steps"], ppo["batch_size"], ppo["n_epochs"], ppo["ent_coef"]) == (8, 128, 1024, 10, 0.01)
     latent = {"n_components": 8, "fusion": True, "team_pooling": True, "likelihood_temperature": LATENT_TEMPERATURE,
-              "zero_belief_weights": True, "e_step_interval": 8,
-              "e_step_kwargs": zoo_hyperparams("em_ppo")["e_step_kwargs"]}  # the reserve's E-step schedule
-    assert {k: v for k, v in em.items() if k not in latent} == ppo  # EM-PPO at PPO's settings (PROTOCOL item 10)
-    assert {k: em[k] for k in latent} == latent
+              "e_step_interval": 8,
+              "e_step_kwargs": zoo_hyperparams("em_ppo")["latent_kwargs"]["e_step_kwargs"]}  # the reserve's E-step schedule
+    own = ("latent_kwargs", "zero_belief_weights")
+    assert {k: v for k, v in em.items() if k not in own} == ppo  # EM-PPO at PPO's settings (PROTOCOL item 10)
+    assert em["latent_kwargs"] == latent and em["zero_belief_weights"] is True
 
 
 def test_the_zoo_refuses_an_algorithm_without_a_zone_patrol_section(tmp_path, capsys):

@@ -1,6 +1,5 @@
 """The zoo's train and enjoy commands: rl-zoo's folder layout, tensorboard metrics, early and clean failures."""
 
-import inspect
 import json
 import shutil
 from pathlib import Path
@@ -142,9 +141,8 @@ def test_the_off_policy_em_yamls_give_the_e_step_as_many_episodes():
     reserve copy, every 10), though their window and interval count train() calls, one every train_freq steps."""
     def stretch(algo):
         settings = zoo_hyperparams(algo)
-        interval = settings.get("e_step_interval",
-                                inspect.signature(ZOO_ALGOS[algo]).parameters["e_step_interval"].default)
-        return settings["e_step_kwargs"]["window"] * settings["train_freq"], interval * settings["train_freq"]
+        latent = ZOO_ALGOS[algo].latent_defaults.updated(settings["latent_kwargs"])
+        return latent.e_step_kwargs["window"] * settings["train_freq"], latent.e_step_interval * settings["train_freq"]
 
     assert stretch("em_ddpg") == stretch("vdn_em") == (40 * 200, 10 * 200)
 
@@ -152,12 +150,12 @@ def test_a_yaml_section_starts_from_the_zoo_file_its_base_names():
     ppo = zoo_hyperparams("ppo")
     em_ppo = zoo_hyperparams("em_ppo")
     # em_ppo.yml writes only what differs: every PPO setting is ppo.yml's, and its own keys are added.
-    assert {key: em_ppo[key] for key in ppo} == ppo and em_ppo["n_components"] == 8 and "base" not in em_ppo
+    assert {key: em_ppo[key] for key in ppo} == ppo and em_ppo["latent_kwargs"]["n_components"] == 8 and "base" not in em_ppo
     assert zoo_hyperparams("oracle_ppo") == ppo  # oracle_ppo reads ppo.yml itself
     ddpg, em_ddpg = zoo_hyperparams("ddpg"), zoo_hyperparams("em_ddpg")  # likewise em_ddpg.yml over ddpg.yml
-    assert {key: em_ddpg[key] for key in ddpg} == ddpg and em_ddpg["n_components"] == 8
+    assert {key: em_ddpg[key] for key in ddpg} == ddpg and em_ddpg["latent_kwargs"]["n_components"] == 8
     vdn, vdn_em = zoo_hyperparams("vdn"), zoo_hyperparams("vdn_em")  # and vdn_em.yml over vdn.yml
-    assert {key: vdn_em[key] for key in vdn} == vdn and vdn_em["n_components"] == 8
+    assert {key: vdn_em[key] for key in vdn} == vdn and vdn_em["latent_kwargs"]["n_components"] == 8
     lstm = zoo_hyperparams("ppo_lstm")
     assert lstm["policy"] == "MlpLstmPolicy" and lstm["n_epochs"] == ppo["n_epochs"]
     # Own keys win, a whole value at a time; "default" is read when the env has no section.

@@ -12,7 +12,7 @@ from fuzz_zoo import QUICK, TINY, train_template_run
 
 from sb3_emmarl.common.checkpoints import TRAINING_STATE, companion, list_checkpoints
 from sb3_emmarl.common.signatures import check_arguments, check_optimizer, conforms
-from sb3_emmarl.zoo.algos import ZOO_ALGOS, convert_latent_params, merge_latent_params
+from sb3_emmarl.zoo.algos import ZOO_ALGOS, convert_latent_params, merge_hyperparams
 from sb3_emmarl.zoo.cli import make_manager, train_main, train_parser
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
@@ -279,12 +279,20 @@ def test_cppo_checkpoints_and_resumes_with_its_monitor_files(tmp_path, capsys):
 # ---------------------------------------------------------------------------------------------- issue 53, item 6
 def test_em_settings_merge_into_the_yamls():
     base = zoo_hyperparams("em_ppo")
-    merged = merge_latent_params(base, {"n_components": 4, "e_step_kwargs": {"window": 4}})
-    assert merged["e_step_kwargs"] == {**base["e_step_kwargs"], "window": 4} and merged["count_factors"] == [2, 2]
-    assert "count_factors" not in merge_latent_params(base, {"n_components": 8})  # the YAML's [4, 2] still fits
-    assert merge_latent_params(base, {"n_components": 1}).get("count_factors", "unset") is None
+    yaml_latent = base["latent_kwargs"]
+
+    def latent(changes):
+        return merge_hyperparams(base, {"latent_kwargs": changes})["latent_kwargs"]
+
+    merged = latent({"n_components": 4, "e_step_kwargs": {"window": 4}})
+    assert merged["e_step_kwargs"] == {**yaml_latent["e_step_kwargs"], "window": 4} and merged["count_factors"] == [2, 2]
+    assert merged["likelihood_temperature"] == yaml_latent["likelihood_temperature"]  # the YAML's other fields stay
+    assert latent({"n_components": 8})["count_factors"] == [4, 2]  # the YAML's [4, 2] still fits
+    assert latent({"n_components": 1})["count_factors"] is None
+    assert latent({"n_components": 4, "count_factors": [4, 1]})["count_factors"] == [4, 1]  # given: kept
+    assert merge_hyperparams(base, {"gamma": 0.9})["latent_kwargs"] == yaml_latent
     assert convert_latent_params({"n_components": 2, "e_step_window": 8, "gamma": 0.9}) == {
-        "n_components": 2, "e_step_kwargs": {"window": 8}}
+        "latent_kwargs": {"n_components": 2, "e_step_kwargs": {"window": 8}}}
 
 
 @pytest.mark.parametrize("algo", ["em_ppo", "em_ddpg", "vdn_em"])
@@ -296,11 +304,11 @@ def test_em_samplers_add_ems_settings_to_the_base_ones(algo):
     register_algorithms()
     trial = optuna.create_study().ask()
     sampled = HYPERPARAMS_SAMPLER[algo](trial, 3, 8, {"using_her_replay_buffer": False, "her_kwargs": {}})
-    assert {"n_components", "likelihood_temperature", "e_step_interval", "e_step_kwargs"} <= set(sampled)
+    assert {"n_components", "likelihood_temperature", "e_step_interval", "e_step_kwargs"} <= set(sampled["latent_kwargs"])
     assert {"n_components", "likelihood_temperature", "e_step_interval", "e_step_window"} <= set(trial.params)
     assert "learning_rate" in trial.params  # the base algorithm's sampler ran too
     converted = HYPERPARAMS_CONVERTER[algo](trial.params)
-    assert converted["e_step_kwargs"] == {"window": trial.params["e_step_window"]}
+    assert converted["latent_kwargs"]["e_step_kwargs"] == {"window": trial.params["e_step_window"]}
 
 
 def test_optimize_em_ppo_searches_ems_settings_into_a_sqlite_study(tmp_path, capsys):

@@ -222,7 +222,7 @@ def mapping(rules: dict[str, Rule], label: str) -> Rule:
     return Rule(check, allowed)
 
 
-#: Rules of ``e_step_kwargs`` (the keys of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`).
+#: Rules of ``e_step_kwargs`` (the keys of :data:`~sb3_emmarl.common.latent.config.E_STEP_DEFAULTS`).
 E_STEP_RULES: dict[str, Rule] = {
     "learning_rate": number(0.0, 10.0, low_open=True),
     "n_epochs": integer(1, 1000),
@@ -235,6 +235,27 @@ E_STEP_RULES: dict[str, Rule] = {
     "min_temperature": number(0.0, 100.0, low_open=True),
     "anneal_rate": number(0.0, 10.0),
     "starved_share": number(0.0, 0.999),
+}
+
+
+#: The rules of the EM algorithms' latent settings (the fields of ``latent_kwargs``).
+LATENT_RULES: dict[str, Rule] = {
+    "n_components": integer(1, 64),
+    "decoder_hidden": layers(),
+    "likelihood_temperature": number(0.0, 100.0, low_open=True),
+    "fusion": one_of(boolean(), choice("team")),
+    "estimator": choice("enumerate", "gumbel"),
+    "belief_input": choice("probabilities", "map", "both"),
+    "team_pooling": boolean(),
+    "reading_counts": boolean(),
+    "count_factors": optional(Rule(lambda n, v: [integer(1, 64)(f"{n}[{i}]", x) for i, x in enumerate(v)]
+                                   if isinstance(v, (list, tuple)) and len(v) == 2 else fail(n, v, "two ints"),
+                                   "two ints in [1, 64] (where x how far)")),
+    "e_step_interval": integer(1, 10**4),
+    "e_step_kwargs": mapping(E_STEP_RULES, "e_step_kwargs"),
+    "use_latent": boolean(),
+    "freeze_e_step": boolean(),
+    "freeze_m_step": boolean(),
 }
 
 
@@ -293,23 +314,9 @@ RULES: dict[str, Rule] = {
     "use_sde_at_warmup": boolean(),
     "noise_type": choice("normal", "ornstein-uhlenbeck"),
     "noise_std": number(0.0, 100.0),
-    # the EM algorithms
-    "n_components": integer(1, 64),
-    "decoder_hidden": layers(),
-    "likelihood_temperature": number(0.0, 100.0, low_open=True),
-    "fusion": one_of(boolean(), choice("team")),
-    "estimator": choice("enumerate", "gumbel"),
-    "belief_input": choice("probabilities", "map", "both"),
-    "team_pooling": boolean(),
-    "reading_counts": boolean(),
-    "count_factors": optional(Rule(lambda n, v: [integer(1, 64)(f"{n}[{i}]", x) for i, x in enumerate(v)]
-                                   if isinstance(v, (list, tuple)) and len(v) == 2 else fail(n, v, "two ints"),
-                                   "two ints in [1, 64] (where x how far)")),
-    "e_step_interval": integer(1, 10**4),
-    "e_step_kwargs": mapping(E_STEP_RULES, "e_step_kwargs"),
-    "use_latent": boolean(),
-    "freeze_e_step": boolean(),
-    "freeze_m_step": boolean(),
+    # the EM algorithms' latent settings (LATENT_RULES: their record, sb3_emmarl.common.latent.config.LatentConfig,
+    # also checks how they fit together)
+    "latent_kwargs": mapping(LATENT_RULES, "latent_kwargs"),
     # the weights that read what an algorithm appends to the observation (sb3_emmarl.common.initialization)
     "zero_mode_weights": boolean(),
     "mode_input": choice("both", "policy", "value"),
@@ -405,6 +412,10 @@ def check_hyperparams(algo_name: str, algo: type[BaseAlgorithm], hyperparams: An
     for key in hyperparams:
         if key in FLAG_KEYS:
             raise ValueError(f"hyperparameter {key!r} is set by the zoo's flags, not by the YAML file or -params")
+        if key in LATENT_RULES and "latent_kwargs" in allowed:  # (as YAMLs wrote them up to 0.22.0)
+            raise ValueError(f"hyperparameter {key!r} of {algo_name} is a field of latent_kwargs: write it under "
+                             f"latent_kwargs ({{latent_kwargs: {{{key}: ...}}}} in the YAML, "
+                             f"latent_kwargs:\"dict({key}=...)\" in -params)")
         if key not in allowed:
             raise ValueError(f"unknown hyperparameter {key!r} for {algo_name}; allowed: {sorted(allowed)}")
     if "n_timesteps" not in hyperparams:

@@ -39,25 +39,9 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     :param train_freq: steps between updates
     :param gradient_steps: gradient steps per update
     :param action_noise: exploration noise (default: Gaussian with std 0.2)
-    :param n_components: ``K``
-    :param decoder_hidden: decoder hidden layer sizes
-    :param likelihood_temperature: ``beta`` on the transitions' log-likelihoods
-    :param fusion: fuse teammates' evidence along the links (``"team"``: every teammate's, centralised; False: none)
-    :param estimator: ``"enumerate"`` or ``"gumbel"``
-    :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
-    :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
-        plug-in counts readings (the reserve's: where signs, leopards and poachers were read); ignored elsewhere
-    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
-        readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
-        matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
-    :param belief_input: how the policy's networks read the belief: ``"probabilities"`` as they are, ``"map"`` the
-        one-hot of the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
-        (docs/em.md, "Reading the belief")
-    :param e_step_interval: ``train()`` calls between E-steps
-    :param e_step_kwargs: overrides of the E-step defaults (``window`` counts ``train()`` calls; 400 by default)
-    :param use_latent: False is the no-latent ablation
-    :param freeze_e_step: ablation: the transition models and the prior never change
-    :param freeze_m_step: ablation: actor and critic never change
+    :param latent_kwargs: the latent settings, a :class:`~sb3_emmarl.common.latent.config.LatentConfig` or a dict of
+        its fields, laid over :attr:`latent_defaults` (EM-DDPG's: ``e_step_interval`` and the E-step's ``window``
+        count ``train()`` calls)
     :param policy_kwargs: policy arguments
     :param tensorboard_log: tensorboard folder
     :param verbose: verbosity
@@ -68,6 +52,11 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    #: As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq 10,
+    #: an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry). Every 20
+    #: calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves the belief
+    #: near chance on the reserve (docs/lab/results-history.md, EM-DDPG against DDPG).
+    latent_defaults: ClassVar[LatentConfig] = LatentConfig(e_step_interval=200, e_step_kwargs={"window": 400})
     policy: MlpPolicy
 
     def __init__(
@@ -83,20 +72,7 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         train_freq: int | tuple[int, str] = 10,
         gradient_steps: int = 5,
         action_noise: ActionNoise | None = None,
-        n_components: int = 4,
-        decoder_hidden: tuple[int, ...] = (64, 64),
-        likelihood_temperature: float = 1.0,
-        fusion: bool | str = True,
-        estimator: str = "enumerate",
-        team_pooling: bool = False,
-        reading_counts: bool = True,
-        count_factors: tuple[int, int] | None = None,
-        e_step_interval: int = 200,
-        belief_input: str = "probabilities",
-        e_step_kwargs: dict[str, Any] | None = None,
-        use_latent: bool = True,
-        freeze_e_step: bool = False,
-        freeze_m_step: bool = False,
+        latent_kwargs: LatentConfig | dict[str, Any] | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         tensorboard_log: str | None = None,
         verbose: int = 0,
@@ -105,13 +81,8 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ) -> None:
-        # As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq
-        # 10, an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry).
-        # Every 20 calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves
-        # the belief near chance on the reserve (docs/lab/results-history.md, EM-DDPG against DDPG).
-        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
-        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
-                                               default_window=400)
+        env, policy_kwargs = self._init_latent(env, latent_kwargs, policy_kwargs, verbose, loading=not _init_setup_model,
+                                               kwargs=kwargs)
         # (env is None when loading: SB3 takes it, though DDPG's annotation leaves None out)
         super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq,
@@ -127,7 +98,6 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
             assert self.action_space.shape is not None  # (a Box)
             dim = int(np.prod(self.action_space.shape))
             self.action_noise = NormalActionNoise(np.zeros(dim), 0.2 * np.ones(dim))
-        self._setup_latent()
         self._init_replay_e_step()
 
     def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:

@@ -32,7 +32,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :class:`~sb3_emmarl.common.latent.belief.BeliefWrapper` appends it to the environment's observations
     during training; ``predict(obs, state, episode_start)`` computes it on plain observations, so SB3's
     ``evaluate_policy`` works on the plain environment. Each ``train()`` runs the E-step (EM over the
-    recent episodes, every ``e_step_interval`` rollouts), then PPO's update, the M-step.
+    recent episodes, every ``latent_kwargs["e_step_interval"]`` rollouts), then PPO's update, the M-step.
 
     :param policy: ``"MlpPolicy"`` or a :class:`~sb3_emmarl.common.latent.policies.LatentActorCriticPolicy` subclass
     :param env: the environment (a ``VecEnv`` or a Gymnasium env, flat ``Box`` observations)
@@ -46,32 +46,9 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param gae_lambda: GAE lambda
     :param clip_range: PPO clipping (or schedule)
     :param ent_coef: entropy coefficient
-    :param n_components: ``K``, components of the latent variable
-    :param decoder_hidden: hidden layer sizes of the transition models' shared trunk
-    :param likelihood_temperature: ``beta``, the factor on every transition's log-likelihood in the beliefs and the
-        responsibilities (below 1 tempers an overconfident decoder); the terms of the environment's readings (its
-        evidence plug-in's ``readings``, modelled exactly) are not tempered
-    :param fusion: beliefs combine the evidence of the teammates heard from, each counted once, newest version only
-        (True: decentralised, along the environment's ``infos[i]["heard_from"]`` links; ``"team"``: every teammate's at
-        every step, centralised inference, an ablation; False: each UAV's own)
-    :param estimator: the E-step's estimator of the expected log-likelihood, ``"enumerate"`` (exact over ``K``) or
-        ``"gumbel"`` (annealed Gumbel-softmax samples, as in the paper)
-    :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
-        (centralised training; execution stays decentralised)
-    :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
-        plug-in counts readings (the reserve's: where signs, leopards and poachers were read); ignored elsewhere
-    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
-        readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
-        matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
-    :param belief_input: how the policy's networks read the belief: ``"probabilities"`` as they are, ``"map"`` the
-        one-hot of the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
-        (docs/em.md, "Reading the belief")
-    :param e_step_interval: rollouts between E-steps (every rollout's transitions are kept)
-    :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`
-    :param use_latent: False is the no-latent ablation (same networks without the belief input, no E-step)
-    :param freeze_e_step: ablation: the transition models and the prior keep their initial values (the belief is
-        still computed, from an unfitted model)
-    :param freeze_m_step: ablation: the policy and value networks never change (the paper's "disabling the M-step")
+    :param latent_kwargs: the latent settings, a :class:`~sb3_emmarl.common.latent.config.LatentConfig` or a dict of
+        its fields, laid over :attr:`latent_defaults` (EM-PPO's: an E-step after every rollout, ``e_step_interval=1``,
+        on the last two rollouts' transitions)
     :param zero_belief_weights: start at zero the weights with which the policy's and the value's first layers read
         the belief, so that the networks start as PPO's (as ``OraclePPO`` does for the told mode; see
         :mod:`sb3_emmarl.common.initialization`); off by default: on the reserve it changed neither team reward nor
@@ -100,20 +77,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         gae_lambda: float = 0.95,
         clip_range: float | Schedule = 0.2,
         ent_coef: float = 0.01,
-        n_components: int = 4,
-        decoder_hidden: tuple[int, ...] = (64, 64),
-        likelihood_temperature: float = 1.0,
-        fusion: bool | str = True,
-        estimator: str = "enumerate",
-        team_pooling: bool = False,
-        reading_counts: bool = True,
-        count_factors: tuple[int, int] | None = None,
-        e_step_interval: int = 1,
-        belief_input: str = "probabilities",
-        e_step_kwargs: dict[str, Any] | None = None,
-        use_latent: bool = True,
-        freeze_e_step: bool = False,
-        freeze_m_step: bool = False,
+        latent_kwargs: LatentConfig | dict[str, Any] | None = None,
         zero_belief_weights: bool = False,
         policy_kwargs: dict[str, Any] | None = None,
         tensorboard_log: str | None = None,
@@ -124,8 +88,8 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         **kwargs: Any,
     ) -> None:
         self.zero_belief_weights = RULES["zero_belief_weights"]("zero_belief_weights", zero_belief_weights)
-        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
-        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model)
+        env, policy_kwargs = self._init_latent(env, latent_kwargs, policy_kwargs, verbose, loading=not _init_setup_model,
+                                               kwargs=kwargs)
         # (env is None when loading: SB3 takes it, though PPO's annotation leaves None out)
         super().__init__(policy, cast(GymEnv, env), learning_rate=learning_rate, n_steps=n_steps, batch_size=batch_size,
                          n_epochs=n_epochs, gamma=gamma, gae_lambda=gae_lambda, clip_range=clip_range, ent_coef=ent_coef,
@@ -136,7 +100,6 @@ class EMPPO(LatentAlgorithmMixin, PPO):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        self._setup_latent()
         if self.zero_belief_weights and self.policy.latent_model is not None:
             zero_tail_weights(self.policy, self.policy.features_extractor.belief_width)
 

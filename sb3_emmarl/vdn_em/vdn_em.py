@@ -49,27 +49,9 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param max_grad_norm: gradient clipping of the M-step
     :param double_q: double Q-learning targets
     :param agent_id: the agent network also sees the one-hot agent index
-    :param n_components: ``K``
-    :param decoder_hidden: trunk sizes of the transition models
-    :param likelihood_temperature: ``beta`` on the transitions' log-likelihoods
-    :param fusion: fuse teammates' evidence along the links (``"team"``: every teammate's, centralised; False: none)
-    :param estimator: ``"enumerate"`` or ``"gumbel"``
-    :param team_pooling: the agents of one environment copy share one episode posterior in the E-step
-    :param reading_counts: add the count model (``counts.py``) to the latent model when the environment's evidence
-        plug-in counts readings (the reserve's: where signs, leopards and poachers were read); ignored elsewhere
-    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factor as where
-        readings are made (by the first factor) x how far from the UAV (by the second); on the reserve ``(4, 2)``
-        matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
-    :param belief_input: how the policy's networks read the belief: ``"probabilities"`` as they are, ``"map"`` the
-        one-hot of the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
-        (docs/em.md, "Reading the belief")
-    :param e_step_interval: ``train()`` calls between E-steps (default 500: with ``train_freq=4``, every 2,000 steps,
-        as EM-PPO's every rollout of 2,048 and EM-DDPG's default)
-    :param e_step_kwargs: overrides of the E-step defaults (``window`` defaults to 1,000 ``train()`` calls here: the
-        last 4,000 steps at ``train_freq=4``; the E-step must see many episodes, docs/em.md section 5)
-    :param use_latent: False is the no-latent ablation
-    :param freeze_e_step: ablation: the transition models and the prior never change
-    :param freeze_m_step: ablation: the agent network never changes
+    :param latent_kwargs: the latent settings, a :class:`~sb3_emmarl.common.latent.config.LatentConfig` or a dict of
+        its fields, laid over :attr:`latent_defaults` (VDN+EM's: ``e_step_interval`` and the E-step's ``window`` count
+        ``train()`` calls)
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: tensorboard folder
     :param policy_kwargs: policy arguments
@@ -80,6 +62,9 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": LatentVDNPolicy}
+    #: With ``train_freq=4``, an E-step every 2,000 steps (as EM-PPO's every rollout of 2,048 and EM-DDPG's default) on
+    #: the last 4,000 steps (the E-step must see many episodes, docs/em.md section 5)
+    latent_defaults: ClassVar[LatentConfig] = LatentConfig(e_step_interval=500, e_step_kwargs={"window": 1000})
     policy: LatentVDNPolicy
     replay_buffer: JointReplayBuffer
 
@@ -102,20 +87,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         max_grad_norm: float = 10.0,
         double_q: bool = True,
         agent_id: bool = False,
-        n_components: int = 4,
-        decoder_hidden: tuple[int, ...] = (64, 64),
-        likelihood_temperature: float = 1.0,
-        fusion: bool | str = True,
-        estimator: str = "enumerate",
-        team_pooling: bool = False,
-        reading_counts: bool = True,
-        count_factors: tuple[int, int] | None = None,
-        e_step_interval: int = 500,
-        belief_input: str = "probabilities",
-        e_step_kwargs: dict[str, Any] | None = None,
-        use_latent: bool = True,
-        freeze_e_step: bool = False,
-        freeze_m_step: bool = False,
+        latent_kwargs: LatentConfig | dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -124,9 +96,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        latent = LatentConfig.from_arguments(locals())  # every latent argument, validated
-        env, policy_kwargs = self._init_latent(env, latent, policy_kwargs, verbose, loading=not _init_setup_model,
-                                               default_window=1000)
+        env, policy_kwargs = self._init_latent(env, latent_kwargs, policy_kwargs, verbose, loading=not _init_setup_model)
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                          train_freq=train_freq, gradient_steps=gradient_steps,
@@ -141,7 +111,6 @@ class EMVDN(LatentAlgorithmMixin, VDN):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        self._setup_latent()
         self._init_replay_e_step()
 
     def predict(self, observation: np.ndarray | dict[str, np.ndarray], state: Any = None,

@@ -74,50 +74,61 @@ LIKELIHOOD_TEMPERATURE_RANGE = (0.03, 3.0)
 
 
 def sample_latent_params(trial: Any, algo: str) -> dict[str, Any]:
-    """EM's own settings for an optuna trial of ``algo`` (:data:`LATENT_SEARCH`): ``n_components``,
-    ``likelihood_temperature`` (log-uniform), ``e_step_interval`` and the E-step's window, as hyperparameters
-    (the window as ``e_step_kwargs``; :func:`merge_latent_params` keeps the YAML's other E-step settings).
+    """EM's own settings for an optuna trial of ``algo`` (:data:`LATENT_SEARCH`) as the ``latent_kwargs``
+    hyperparameter: ``n_components``, ``likelihood_temperature`` (log-uniform), ``e_step_interval`` and the E-step's
+    window (in ``e_step_kwargs``; :func:`merge_hyperparams` keeps the YAML's other latent and E-step settings).
 
     :param trial: the optuna trial
     :param algo: ``em_ppo``, ``em_ddpg`` or ``vdn_em``
     """
     search = LATENT_SEARCH[algo]
     window = trial.suggest_categorical("e_step_window", search["e_step_window"])
-    return {"n_components": trial.suggest_categorical("n_components", N_COMPONENTS_CHOICES),
-            "likelihood_temperature": trial.suggest_float("likelihood_temperature", *LIKELIHOOD_TEMPERATURE_RANGE,
-                                                          log=True),
-            "e_step_interval": trial.suggest_categorical("e_step_interval", search["e_step_interval"]),
-            "e_step_kwargs": {"window": window}}
+    return {"latent_kwargs": {
+        "n_components": trial.suggest_categorical("n_components", N_COMPONENTS_CHOICES),
+        "likelihood_temperature": trial.suggest_float("likelihood_temperature", *LIKELIHOOD_TEMPERATURE_RANGE, log=True),
+        "e_step_interval": trial.suggest_categorical("e_step_interval", search["e_step_interval"]),
+        "e_step_kwargs": {"window": window}}}
+
+
+#: The optuna names of what :func:`sample_latent_params` suggests that are ``latent_kwargs`` fields as they are.
+SAMPLED_LATENT_FIELDS = ("n_components", "likelihood_temperature", "e_step_interval")
 
 
 def convert_latent_params(params: dict[str, Any]) -> dict[str, Any]:
-    """A trial's EM parameters (optuna's names) as hyperparameters: ``e_step_window`` becomes ``e_step_kwargs``.
+    """A trial's EM parameters (optuna's names) as hyperparameters: ``latent_kwargs``, with ``e_step_window`` as its
+    ``e_step_kwargs`` ``window``.
 
     :param params: the trial's parameters that :func:`sample_latent_params` suggested
     """
-    names = ("n_components", "likelihood_temperature", "e_step_interval")
-    converted: dict[str, Any] = {key: params[key] for key in names if key in params}
+    latent: dict[str, Any] = {key: params[key] for key in SAMPLED_LATENT_FIELDS if key in params}
     if "e_step_window" in params:
-        converted["e_step_kwargs"] = {"window": params["e_step_window"]}
-    return converted
+        latent["e_step_kwargs"] = {"window": params["e_step_window"]}
+    return {"latent_kwargs": latent} if latent else {}
 
 
-def merge_latent_params(base: dict[str, Any], sampled: dict[str, Any]) -> dict[str, Any]:
-    """A trial's sampled settings as they update the YAML's ``base``: ``e_step_kwargs`` merged key by key (the
-    YAML's epochs, batch size and cap stay), and ``count_factors`` refitted to the sampled ``n_components``: the
-    YAML's pair if it still multiplies to it, else the same second factor (how far) with the first scaled, else None.
+def merge_hyperparams(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """``update`` (``-params``, a variant's overrides, an optuna trial's sample) laid over the YAML's ``base``, as the
+    zoo reads them: every key replaced, but ``latent_kwargs`` merged field by field (its ``e_step_kwargs`` key by key),
+    so that ``-params latent_kwargs:"dict(fusion=False)"`` keeps the YAML's other latent settings; and when the update
+    changes ``n_components`` but not ``count_factors``, the YAML's factors refitted: its pair if it still multiplies to
+    ``n_components``, else the same second factor (how far) with the first scaled, else None.
 
     :param base: the YAML's hyperparameters
-    :param sampled: what the sampler returned (overrides ``base``)
+    :param update: what overrides them
     """
-    merged = dict(sampled)
-    if "e_step_kwargs" in sampled:
-        merged["e_step_kwargs"] = {**(base.get("e_step_kwargs") or {}), **sampled["e_step_kwargs"]}
-    factors = base.get("count_factors")
-    n_components = merged.get("n_components")
-    if factors is not None and n_components is not None and factors[0] * factors[1] != n_components:
-        merged["count_factors"] = [n_components // factors[1], factors[1]] if n_components % factors[1] == 0 \
+    merged = {**base, **update}
+    changes = update.get("latent_kwargs")
+    if not isinstance(changes, dict) or not isinstance(base.get("latent_kwargs"), dict):
+        return merged
+    latent = {**base["latent_kwargs"], **changes}
+    if "e_step_kwargs" in changes:
+        latent["e_step_kwargs"] = {**(base["latent_kwargs"].get("e_step_kwargs") or {}), **(changes["e_step_kwargs"] or {})}
+    factors, n_components = latent.get("count_factors"), changes.get("n_components")
+    if "count_factors" not in changes and factors is not None and isinstance(n_components, int) \
+            and factors[0] * factors[1] != n_components:
+        latent["count_factors"] = [n_components // factors[1], factors[1]] if n_components % factors[1] == 0 \
             and n_components >= factors[1] else None
+    merged["latent_kwargs"] = latent
     return merged
 
 
@@ -131,9 +142,9 @@ def _latent_sampler(algo: str, base_sampler: Callable[..., dict[str, Any]]) -> C
 
 def _latent_converter(base_converter: Callable[[dict[str, Any]], dict[str, Any]]) -> Callable[..., dict[str, Any]]:
     def convert(params: dict[str, Any]) -> dict[str, Any]:
-        latent = convert_latent_params(params)
-        names = {"e_step_window", *latent}
-        return {**base_converter({key: value for key, value in params.items() if key not in names}), **latent}
+        names = {"e_step_window", *SAMPLED_LATENT_FIELDS}
+        return {**base_converter({key: value for key, value in params.items() if key not in names}),
+                **convert_latent_params(params)}
 
     return convert
 

@@ -54,8 +54,8 @@ COMPARISON_EVAL_EPISODES = 200
 #: - ``frozen_e_step``: EM-PPO with the transition models kept at their initialisation: the policy still sees
 #:   a belief computed from the whole episode, but not from a model fitted by EM, which separates "a summary
 #:   of the episode as input" from "the inferred mode as input".
-DEFAULT_VARIANTS = ("em_ppo", "ppo", "ppo_lstm", "oracle_ppo", "no_latent=em_ppo:use_latent=False",
-                    "frozen_e_step=em_ppo:freeze_e_step=True")
+DEFAULT_VARIANTS = ("em_ppo", "ppo", "ppo_lstm", "oracle_ppo", "no_latent=em_ppo:latent_kwargs=dict(use_latent=False)",
+                    "frozen_e_step=em_ppo:latent_kwargs=dict(freeze_e_step=True)")
 
 
 def _top_level_split(text: str, separator: str = ",") -> list[str]:

@@ -21,8 +21,8 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   exists, what SB3 would only find in the first rollout or update (the constructors' annotations, the optimizer, the
   callbacks, the tensorboard folder: :meth:`ReserveExperimentManager._check_before_folder`), and a start that fails
   later removes the folders it made;
-- ``-optimize`` of an EM algorithm merges the sampled E-step window into the YAML's ``e_step_kwargs`` and refits
-  ``count_factors`` (:func:`~sb3_emmarl.zoo.algos.merge_latent_params`);
+- ``-params`` and ``-optimize``'s samples update the YAML's ``latent_kwargs`` field by field and refit
+  ``count_factors`` (:func:`~sb3_emmarl.zoo.algos.merge_hyperparams`);
 - the periodic evaluations (``--eval-freq``) and optuna's trials count team episodes
   (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.callbacks.AtomicEvalCallback`
   and :class:`TeamTrialEvalCallback`), not the UAVs of one episode as SB3's does;
@@ -85,7 +85,7 @@ from sb3_emmarl.zoo.algos import (
     SHARED_HYPERPARAMS,
     STATE_ALGOS,
     ZOO_ALGOS,
-    merge_latent_params,
+    merge_hyperparams,
     register_algorithms,
 )
 
@@ -185,7 +185,7 @@ def zoo_model(algo: str, env: Any, seed: int, env_id: str = ENV_ID, **overrides:
             raise ValueError(f"noise_type must be one of {sorted(ACTION_NOISES)}, got {settings['noise_type']!r}")
         n_actions = int(np.prod(env.action_space.shape))
         kwargs["action_noise"] = noise(mean=np.zeros(n_actions), sigma=float(settings["noise_std"]) * np.ones(n_actions))
-    return ZOO_ALGOS[algo](settings["policy"], env, seed=seed, **{**kwargs, **overrides})
+    return ZOO_ALGOS[algo](settings["policy"], env, seed=seed, **merge_hyperparams(kwargs, overrides))
 
 
 def plain(value: Any) -> Any:
@@ -289,7 +289,8 @@ class ReserveExperimentManager(ExperimentManager):
         if self.resume_run is not None:
             hyperparams = content
         else:
-            hyperparams = {**yaml_section(content, self.env_name.gym_id, self.config), **(self.custom_hyperparams or {})}
+            hyperparams = merge_hyperparams(yaml_section(content, self.env_name.gym_id, self.config),
+                                            self.custom_hyperparams or {})
         original_policy_kwargs = hyperparams.get("policy_kwargs")
         try:
             hyperparams = check_hyperparams(self.algo, ZOO_ALGOS[self.algo], hyperparams)
@@ -490,19 +491,19 @@ class ReserveExperimentManager(ExperimentManager):
     def objective(self, trial: Any) -> float:
         """rl_zoo3's optuna objective, its trial's evaluations counting team episodes (rl_zoo3 builds its
         ``TrialEvalCallback`` by its module's name, hence :class:`TeamTrialEvalCallback` there); an EM algorithm's
-        sampled settings update the YAML's by :func:`~sb3_emmarl.zoo.algos.merge_latent_params`.
+        sampled settings update the YAML's by :func:`~sb3_emmarl.zoo.algos.merge_hyperparams`.
 
         :param trial: the optuna trial
         """
         rl_zoo3.exp_manager.TrialEvalCallback = TeamTrialEvalCallback  # type: ignore[misc]
         if self.algo not in LATENT_ALGOS:
             return super().objective(trial)
-        # rl_zoo3 updates the YAML's settings with the sampler's whole values: EM's e_step_kwargs are merged instead,
-        # and count_factors refitted to the sampled n_components (merge_latent_params)
+        # rl_zoo3 updates the YAML's settings with the sampler's whole values: EM's latent_kwargs are merged instead,
+        # and count_factors refitted to the sampled n_components (merge_hyperparams)
         samplers = rl_zoo3.exp_manager.HYPERPARAMS_SAMPLER
         sampler, base = samplers[self.algo], self._hyperparams
         rl_zoo3.exp_manager.HYPERPARAMS_SAMPLER = {  # type: ignore[misc]
-            **samplers, self.algo: lambda *args: merge_latent_params(base, sampler(*args))}
+            **samplers, self.algo: lambda *args: merge_hyperparams(base, sampler(*args))}
         try:
             return super().objective(trial)
         finally:

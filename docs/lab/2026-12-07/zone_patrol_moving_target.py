@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,15 +42,17 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     if args.how == "frozen":
-        model = zoo_model("em_ppo", value.make_env(args.seed), args.seed, "ZonePatrol-v1", freeze_e_step=True)
+        model = zoo_model("em_ppo", value.make_env(args.seed), args.seed, "ZonePatrol-v1",
+                          latent_kwargs={"freeze_e_step": True})
         trained = EMPPO.load(args.source, device="cpu")
         model.policy.latent_model.load_state_dict(trained.policy.latent_model.state_dict())
         model.learn(BUDGET)
     else:
         warm = int(args.source)
-        model = zoo_model("em_ppo", value.make_env(args.seed), args.seed, "ZonePatrol-v1", freeze_m_step=True)
+        model = zoo_model("em_ppo", value.make_env(args.seed), args.seed, "ZonePatrol-v1",
+                          latent_kwargs={"freeze_m_step": True})
         model.learn(warm)
-        model.freeze_m_step = False
+        model.latent_config = replace(model.latent_config, freeze_m_step=False)
         model.learn(BUDGET - model.num_timesteps, reset_num_timesteps=False)
     env = model.wrap_env(value.make_env(value.EVAL_SEED))
     rewards = value.play(model, env, 200, value.EVAL_SEED)[0]

@@ -1,7 +1,7 @@
 """What fusing teammates' evidence along the links does to trained EM-PPO teams: the same models, fusion on and off.
 
 Reads the runs that ``zoo/compare.py`` left (``<folder>/<variant>/seed_<s>/``), evaluates each model on the same
-episodes with fusion on and with fusion off (``model.fusion``; only the beliefs at execution change), and prints
+episodes with fusion on and with fusion off (``model.latent_config.fusion``; only the beliefs at execution change), and prints
 latent accuracy at 25%, 50% and 100% of an episode and the team reward for both, paired over seeds. With
 ``--all-links``, also with every teammate's message reaching every UAV every step (what the reserve's links cost the
 fused belief).
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         run_kwargs = run_settings(run)  # the run's reserve arguments, vec_env_wrapper, VecNormalize
         model = ZOO_ALGOS[args.algo].load(run / f"{ENV_ID}.zip", device="cpu")
         for name in settings:
-            model.fusion = name != "fusion off"
+            model.latent_config = replace(model.latent_config, fusion=name != "fusion off")
             # The same episodes as evaluate_team's own reserve (make_eval_env), with every link up.
             vec_env = AllLinks(run_eval_env(run, args.eval_seed)) if name == "all links" else None
             records = evaluate_team(model, args.eval_episodes, seed=args.eval_seed,

@@ -201,14 +201,15 @@ def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> BaseAlgorithm:
     latent = model.policy.latent_model
     if told and latent.n_components < N_MODES:
         raise ValueError(f"told needs n_components >= {N_MODES}, em_ppo.yml has {latent.n_components}")
-    kwargs = {**model.e_step_kwargs, "window": 1, "likelihood_temperature": model.likelihood_temperature,
-              "estimator": model.estimator, "seed": seed, "count_weight": COUNT_EVIDENCE_WEIGHT}
+    config = model.latent_config
+    kwargs = {**config.e_step_kwargs, "window": 1, "likelihood_temperature": config.likelihood_temperature,
+              "estimator": config.estimator, "seed": seed, "count_weight": COUNT_EVIDENCE_WEIGHT}
     if told:
         modes = dict(zip(train.team_episode.tolist(), train.mode.tolist()))
         e_step = ToldEStep(modes, latent_model=latent, **kwargs)
     else:
         e_step = EStep(latent, **kwargs)
-    e_step.add(train.transitions(team=model.team_pooling))
+    e_step.add(train.transitions(team=config.team_pooling))
     for _ in range(e_steps):
         e_step.step()
     return model
@@ -216,7 +217,7 @@ def fit(seed: int, train: Episodes, e_steps: int, told: bool) -> BaseAlgorithm:
 
 def accuracies(model, test: Episodes) -> dict[str, float]:
     """Aligned mode and strategy accuracy from one UAV's and from the team's evidence, at each of :data:`POINTS`."""
-    latent, beta = model.policy.latent_model, model.likelihood_temperature
+    latent, beta = model.policy.latent_model, model.latent_config.likelihood_temperature
     log_lik = transition_log_likelihoods(latent, test.transitions(team=False)).double().numpy()
     log_prior = latent.log_prior.double().numpy()
     length = int(test.step.max()) + 1
@@ -254,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
     for fitting in ("em", "told"):
         runs = [accuracies(fit(seed, train, args.e_steps, told=fitting == "told"), test) for seed in args.seeds]
         rows["transitions", fitting] = {key: np.array([run[key] for run in runs]) for key in runs[0]}
-    factors = tuple(reader.count_factors or (len(STRATEGIES), len(WEATHERS)))  # em_ppo.yml's, or strategy x weather
+    # em_ppo.yml's, or strategy x weather
+    factors = tuple(reader.latent_config.count_factors or (len(STRATEGIES), len(WEATHERS)))
     rings = find_wrapper(reader.get_env(), BeliefWrapper).counter.n_rings
     for family, family_factors in (("counts", None), ("factored", factors)):
         for fitting in ("em", "told"):

@@ -8,7 +8,7 @@ then runs the E-step on the recent episodes (line 11, :class:`EStep`) and its up
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -16,8 +16,12 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy
-from sb3_emmarl.common.latent.config import LatentConfig
-from sb3_emmarl.common.latent.counts import check_factors
+from sb3_emmarl.common.latent.config import (
+    E_STEP_DEFAULTS,
+    LatentConfig,
+    reject_flat_latent_settings,
+    upgrade_saved_settings,
+)
 from sb3_emmarl.common.latent.diagnostics import belief_entropy, belief_use
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.evidence import evidence_from_spec
@@ -33,13 +37,6 @@ if TYPE_CHECKING:
     from sb3_emmarl.common.latent.evidence import CountEvidence
     from sb3_emmarl.common.latent.policies import LatentPolicyMixin
 
-#: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that
-#: ``e_step_kwargs`` may override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
-E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 5, "batch_size": 256, "window": 2,
-                                   "max_transitions": 16384, "temperature": 1.0, "min_temperature": 0.1,
-                                   "anneal_rate": 0.05, "starved_share": 0.1}
-
-
 def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool = True) -> VecEnv:
     """``env`` as a vector environment with a :class:`BeliefWrapper` of ``n_components`` (kept if it has one).
 
@@ -54,17 +51,17 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
     return ensure_wrapped(env, BeliefWrapper, lambda venv: BeliefWrapper(venv, n_components), mismatch, verbose)
 
 
-def make_e_step(latent_model: LatentModel, estimator: str, likelihood_temperature: float,
-                count_factors: tuple[int, int] | None, counter: CountEvidence | None, seed: int,
-                e_step_kwargs: dict[str, Any]) -> EStep:
-    """The E-step of ``latent_model`` (its arguments: see :class:`~sb3_emmarl.common.latent.em.EStep`); the count
+def make_e_step(latent_model: LatentModel, config: LatentConfig, counter: CountEvidence | None, seed: int) -> EStep:
+    """The E-step of ``latent_model`` with ``config``'s estimator, likelihood temperature, count factors and
+    ``e_step_kwargs`` (:data:`E_STEP_DEFAULTS` filled in; see :class:`~sb3_emmarl.common.latent.em.EStep`); the count
     factors, rings and weight come with a ``counter`` (the environment's count evidence). A bad value in
-    ``e_step_kwargs`` (:data:`E_STEP_DEFAULTS` filled in) raises one ``ValueError`` naming ``e_step_kwargs``."""
+    ``e_step_kwargs`` raises one ``ValueError`` naming ``e_step_kwargs``."""
     try:
-        return EStep(latent_model, estimator=estimator, likelihood_temperature=likelihood_temperature, seed=seed,
-                     count_factors=count_factors if counter is not None else None,
+        return EStep(latent_model, estimator=config.estimator, likelihood_temperature=config.likelihood_temperature,
+                     seed=seed, count_factors=config.count_factors if counter is not None else None,
                      count_rings=counter.n_rings if counter is not None else 1,
-                     count_weight=counter.weight if counter is not None else 1.0, **e_step_kwargs)
+                     count_weight=counter.weight if counter is not None else 1.0,
+                     **{**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
     except ValueError as error:
         raise ValueError(f"e_step_kwargs: {error}") from None
 
@@ -150,34 +147,28 @@ def e_step_and_log(e_step: EStep, logger: Logger, train: bool = True) -> None:
         logger.record(f"latent/{key}", value)
 
 
-#: The latent settings a model keeps as attributes of the same name (``n_components`` and ``decoder_hidden`` live in its
-#: latent layout, ``e_step_kwargs`` with the E-step's defaults filled in).
-LATENT_ATTRIBUTES = tuple(name for name in LatentConfig().names()
-                          if name not in ("n_components", "decoder_hidden", "e_step_kwargs"))
+#: The latent settings' names (:class:`~sb3_emmarl.common.latent.config.LatentConfig`'s fields).
+LATENT_FIELDS = frozenset(LatentConfig.names())
 
 
 class LatentAlgorithmMixin(WrapsObservations):
-    """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them."""
+    """Settings, E-step and stateful ``predict`` of an EM algorithm; mixed into SB3 algorithm classes before them.
 
+    The latent settings are one record, :attr:`latent_config`, built from the constructor's ``latent_kwargs`` laid over
+    the class's :attr:`latent_defaults`; the latent layout (sizes) is the policy's, built once from the environment.
+    """
+
+    #: The algorithm's own defaults of the latent settings (``latent_kwargs`` is laid over them)
+    latent_defaults: ClassVar[LatentConfig] = LatentConfig()
     policy: LatentPolicyMixin
     replay_buffer: ReplayBuffer | None  # (the off-policy algorithms': EM-DDPG, VDN+EM)
-    # The latent settings (LATENT_ATTRIBUTES), set by _init_latent from the LatentConfig.
-    likelihood_temperature: float
-    fusion: bool | str
-    estimator: str
-    team_pooling: bool
-    reading_counts: bool
-    count_factors: tuple[int, int] | None
-    e_step_interval: int
-    belief_input: str
-    use_latent: bool
-    freeze_e_step: bool
-    freeze_m_step: bool
-    e_step_kwargs: dict[str, Any]
+    #: the latent settings (``e_step_kwargs`` with the E-step's defaults filled in); excluded from the saved data
+    latent_config: LatentConfig
+    #: the same settings as plain data: what the model saves and a loaded model's record is built from
+    latent_kwargs: dict[str, Any]
     feature_spec: dict[str, Any]
     # Set by _setup_latent (and _init_replay_e_step, off-policy).
     e_step: EStep | None
-    latent_layout: LatentLayout
     _feature_fn: Callable[[np.ndarray], np.ndarray]
     _counter: CountEvidence | None
     _encode_action: Callable[[np.ndarray], np.ndarray]
@@ -187,56 +178,66 @@ class LatentAlgorithmMixin(WrapsObservations):
     _last_dones: np.ndarray
     _e_step_in_data: bool
 
-    def _init_latent(self, env: Any, config: LatentConfig, policy_kwargs: dict[str, Any] | None, verbose: int,
-                     loading: bool, default_window: int = E_STEP_DEFAULTS["window"]) -> tuple[VecEnv | None, dict]:
+    def _init_latent(self, env: Any, latent_kwargs: LatentConfig | dict[str, Any] | None,
+                     policy_kwargs: dict[str, Any] | None, verbose: int, loading: bool,
+                     kwargs: dict[str, Any] | None = None) -> tuple[VecEnv | None, dict]:
         """Keep the latent settings, wrap the environment, and put the latent layout into ``policy_kwargs``.
 
-        :param config: the latent settings, already validated (:class:`~sb3_emmarl.common.latent.config.LatentConfig`)
+        :param latent_kwargs: the constructor's ``latent_kwargs`` (laid over :attr:`latent_defaults`, validated here)
         :param policy_kwargs: the constructor's ``policy_kwargs``
         :param verbose: verbosity of the wrapping
-        :param loading: building a model that ``load`` fills in (its environment is not checked strictly)
-        :param default_window: the E-step's ``window`` unless ``e_step_kwargs`` gives one (the off-policy algorithms
-            count it in ``train()`` calls, not rollouts)
+        :param loading: building a model that ``load`` fills in (its environment is not checked strictly; its settings
+            come from the saved data)
+        :param kwargs: the constructor's other keyword arguments (latent settings among them are refused, naming
+            ``latent_kwargs``)
         """
-        for name in LATENT_ATTRIBUTES:  # saved with the model, as SB3 saves constructor arguments
-            setattr(self, name, getattr(config, name))
-        self.e_step_kwargs = {**E_STEP_DEFAULTS, "window": default_window, **(config.e_step_kwargs or {})}
-        n_components, decoder_hidden = config.n_components, config.decoder_hidden
+        reject_flat_latent_settings(type(self).__name__, kwargs or {})
+        config = self.latent_defaults.updated(latent_kwargs)
+        self.latent_config, self.latent_kwargs = config, config.to_dict()
         self.e_step = None
         policy_kwargs = dict(policy_kwargs or {})
         if env is None:  # loading without an environment: the saved policy_kwargs hold the layout
             return None, policy_kwargs
-        venv = wrap_with_belief(env, n_components, verbose, strict=not loading)
+        venv = wrap_with_belief(env, config.n_components, verbose, strict=not loading)
         wrapper = find_wrapper(venv, BeliefWrapper)
         assert wrapper is not None  # (wrap_with_belief gives an environment with one)
         self.feature_spec = wrapper.feature_spec
-        layout = wrapper.layout(tuple(decoder_hidden), self.reading_counts)
-        policy_kwargs["latent_kwargs"] = layout.to_dict()
-        policy_kwargs["use_latent"] = self.use_latent
-        policy_kwargs["belief_input"] = self.belief_input
+        policy_kwargs.update(latent_layout=wrapper.layout(config.decoder_hidden, config.reading_counts).to_dict(),
+                             use_latent=config.use_latent, belief_input=config.belief_input)
         return venv, policy_kwargs
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        """Refuse a latent setting set as an attribute of its own, which nothing would read (the settings are
+        :attr:`latent_config`'s)."""
+        if name in LATENT_FIELDS:
+            raise AttributeError(f"{type(self).__name__}'s latent settings are its latent_config: "
+                                 f"model.latent_config = dataclasses.replace(model.latent_config, {name}={value!r})")
+        super().__setattr__(name, value)
+
     @property
-    def latent_config(self) -> LatentConfig:
-        """The model's latent settings as one record (``e_step_kwargs`` with the E-step's defaults filled in)."""
-        layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
-        return LatentConfig(n_components=layout.n_components, decoder_hidden=layout.decoder_hidden,
-                            e_step_kwargs=dict(self.e_step_kwargs),
-                            **{name: getattr(self, name) for name in LATENT_ATTRIBUTES})
+    def latent_layout(self) -> LatentLayout:
+        """The latent layout (sizes): the policy's."""
+        return self.policy.latent_layout
+
+    def _setup_model(self) -> None:
+        """SB3's algorithm's, after the saved data of an older version is brought to today's form, then
+        :meth:`_setup_latent`."""
+        upgraded = upgrade_saved_settings(self.__dict__)
+        if "latent_kwargs" in upgraded and upgraded["latent_kwargs"] != self.latent_config.to_dict():
+            self.latent_config = self.latent_defaults.updated(upgraded["latent_kwargs"])  # (a loaded model's)
+            self.latent_kwargs = self.latent_config.to_dict()
+        super()._setup_model()  # type: ignore[safe-super]  # the SB3 algorithm's (BaseAlgorithm declares it abstract)
+        self._setup_latent()
 
     def _setup_latent(self) -> None:
-        """After the policy exists: the layout, the E-step, the feature function and the belief wrapper's model."""
-        self.latent_layout = LatentLayout.from_dict(self.policy_kwargs["latent_kwargs"])
+        """After the policy exists: the E-step, the feature function and the belief wrapper's model."""
         evidence = evidence_from_spec(self.feature_spec)
         self._feature_fn = evidence.features
         self._counter = evidence.counts if self.latent_layout.count_bins else None
         self._encode_action = encode_actions(self.action_space)[0]
-        # (a loaded model's count_factors come back from SB3's JSON as a list)
-        self.count_factors = check_factors(getattr(self, "count_factors", None), self.latent_layout.n_components)
         self.e_step = None
         if self.policy.latent_model is not None:
-            self.e_step = make_e_step(self.policy.latent_model, self.estimator, self.likelihood_temperature,
-                                      self.count_factors, self._counter, self.seed or 0, self.e_step_kwargs)
+            self.e_step = make_e_step(self.policy.latent_model, self.latent_config, self._counter, self.seed or 0)
         # A loaded model keeps the counters it was saved with (they number the episodes of the E-step's data).
         if getattr(self, "_episode_counters", None) is None or len(self._episode_counters) != self.n_envs:
             self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
@@ -246,10 +247,11 @@ class LatentAlgorithmMixin(WrapsObservations):
     def _attach_beliefs(self, env: VecEnv | None) -> None:
         wrapper = find_wrapper(env, BeliefWrapper) if env is not None else None
         if wrapper is not None:
-            wrapper.attach(self.policy.latent_model, self.likelihood_temperature, self.fusion)
+            wrapper.attach(self.policy.latent_model, self.latent_config)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_layout", "_counter"]
+        return [*super()._excluded_save_params(), "e_step", "_feature_fn", "_encode_action", "latent_config",
+                "_counter"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         """SB3's, plus the E-step (its :meth:`EStep.state_dict`: optimizer, counters, generator, kept transitions), so
@@ -291,7 +293,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         that stack to it along time: read in place, not copied), summed per episode."""
         return make_transitions(features, actions, next_features, new_episode, valid, self._episode_counters,
                                 self._encode_action, agents_per_copy=self.agents_per_copy,
-                                team_pooling=self.team_pooling, counter=self._counter,
+                                team_pooling=self.latent_config.team_pooling, counter=self._counter,
                                 next_observations=next_observations, device=self.device)
 
     def _init_replay_e_step(self) -> None:
@@ -320,9 +322,9 @@ class LatentAlgorithmMixin(WrapsObservations):
             return False
         self.e_step.add(*data)
         self._n_rollouts += 1
-        if self._n_rollouts % self.e_step_interval:
+        if self._n_rollouts % self.latent_config.e_step_interval:
             return False
-        e_step_and_log(self.e_step, self.logger, train=not self.freeze_e_step)
+        e_step_and_log(self.e_step, self.logger, train=not self.latent_config.freeze_e_step)
         return True
 
     def _log_belief_use(self, observations: np.ndarray) -> None:
@@ -360,7 +362,8 @@ class LatentAlgorithmMixin(WrapsObservations):
         flat = obs.reshape(-1, layout.obs_dim).astype(np.float32)
         n = len(flat)
         tracker = BeliefTracker(n, layout.n_components, layout.feature_dim, layout.action_dim,
-                                model=self.policy.latent_model, likelihood_temperature=self.likelihood_temperature,
+                                model=self.policy.latent_model,
+                                likelihood_temperature=self.latent_config.likelihood_temperature,
                                 counter=self._counter)
         starts = np.ones(n, dtype=bool)
         if state is not None:
@@ -396,7 +399,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         """
         if self.e_step is not None and self._run_e_step(self._e_step_data()):
             self._after_e_step()
-        if self.freeze_m_step:
+        if self.latent_config.freeze_m_step:
             self._update_learning_rate(self._m_step_optimizers())
             self.logger.record("train/m_step_frozen", 1.0)
             return
@@ -416,7 +419,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     @classmethod
     def _wrap_saved_env(cls, env: Any, data: dict[str, Any]) -> VecEnv:
         """An environment without the belief wrapper gets the one the model was trained with."""
-        return wrap_with_belief(env, data["policy_kwargs"]["latent_kwargs"]["n_components"])
+        return wrap_with_belief(env, upgrade_saved_settings(data)["latent_kwargs"]["n_components"])
 
     @classmethod
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,

@@ -39,11 +39,12 @@ from gymnasium import spaces
 from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.evidence import CountEvidence, evidence_of
 from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
-from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.validation import LATENT_RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
 from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 
@@ -104,7 +105,7 @@ class BeliefTracker:
                  counter: CountEvidence | None = None) -> None:
         self.n, self.k, self.agents_per_copy = n_entries, n_components, max(1, int(agents_per_copy))
         self.counter = counter
-        self.likelihood_temperature, self.fusion = float(likelihood_temperature), RULES["fusion"]("fusion", fusion)
+        self.likelihood_temperature, self.fusion = float(likelihood_temperature), LATENT_RULES["fusion"]("fusion", fusion)
         self.model = model
         self.evidence = np.zeros((n_entries, n_components))
         #: ``heard[i, m]``: the newest own evidence of teammate ``m`` that entry ``i`` knows, dated ``stamps[i, m]``
@@ -256,7 +257,7 @@ class BeliefWrapper(AppendingVecEnvWrapper):
     """
 
     def __init__(self, venv: VecEnv, n_components: int) -> None:
-        n_components = RULES["n_components"]("n_components", n_components)
+        n_components = LATENT_RULES["n_components"]("n_components", n_components)
         space = venv.observation_space
         if not isinstance(space, spaces.Box) or len(space.shape) != 1:  # (before the evidence reads the space)
             raise ValueError(f"the latent algorithms need flat Box observations, got {space}")
@@ -283,13 +284,13 @@ class BeliefWrapper(AppendingVecEnvWrapper):
                             count_channels=counter.n_channels if counter else 0,
                             count_bins=counter.n_bins if counter else 0, reading_features=self.evidence.readings)
 
-    def attach(self, model: LatentModel | None, likelihood_temperature: float = 1.0, fusion: bool | str = True) -> None:
-        """Compute beliefs with ``model`` from now on (evidence gathered so far is kept); ``fusion`` as the tracker's."""
+    def attach(self, model: LatentModel | None, config: LatentConfig) -> None:
+        """Compute beliefs with ``model`` and ``config``'s likelihood temperature and fusion from now on (evidence
+        gathered so far is kept); the record was validated when it was made."""
         if model is not None and model.n_components != self.n_components:
             raise ValueError(f"the latent model has {model.n_components} components, the wrapper {self.n_components}")
         tracker = self.tracker
-        tracker.model, tracker.likelihood_temperature = model, float(likelihood_temperature)
-        tracker.fusion = RULES["fusion"]("fusion", fusion)
+        tracker.model, tracker.likelihood_temperature, tracker.fusion = model, config.likelihood_temperature, config.fusion
 
     def get_state(self) -> np.ndarray:
         """The beliefs' state between steps (for checkpoints that resume mid-episode)."""

@@ -29,7 +29,6 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.atomic_files import write_atomic
 from sb3_emmarl.common.latent.algorithm import (
-    E_STEP_DEFAULTS,
     augmented_features,
     e_step_and_log,
     make_e_step,
@@ -39,7 +38,7 @@ from sb3_emmarl.common.latent.algorithm import (
     wrap_with_belief,
 )
 from sb3_emmarl.common.latent.belief import BeliefWrapper, agents_per_copy
-from sb3_emmarl.common.latent.config import LatentConfig
+from sb3_emmarl.common.latent.config import LatentConfig, check_latent_kwargs, reject_flat_latent_settings
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
@@ -66,45 +65,34 @@ class EMCallback(BaseCallback):
     the algorithm's optimizers never see them. The environment must give flat ``Box`` observations, and no wrapper
     that changes observations (e.g. ``VecNormalize``) may sit over the belief wrapper.
 
-    :param n_components: ``K``, components of the latent variable
+    :param latent_kwargs: the latent settings, a :class:`~sb3_emmarl.common.latent.config.LatentConfig` or a dict of
+        its fields (EM-PPO's defaults; the E-step's ``window`` counts E-step intervals here: the transitions of the
+        last ``window`` intervals of ``e_step_every`` steps). The settings of an algorithm's own networks and training
+        (``belief_input`` aside, which :attr:`policy_kwargs` carries) are the algorithm's: ``e_step_interval``,
+        ``use_latent`` and ``freeze_m_step`` are refused
     :param e_step_every: agent-steps (``num_timesteps``) between E-steps; an E-step runs at the first rollout end at
         least this many steps after the last one
-    :param decoder_hidden: hidden layer sizes of the transition models' shared trunk
-    :param likelihood_temperature: ``beta``, the factor on every log-likelihood in the beliefs and responsibilities
-    :param fusion: fuse the evidence of teammates heard from (the environment's ``infos[i]["heard_from"]``; ``"team"``:
-        every teammate's, centralised; False: none)
-    :param estimator: the E-step's estimator, ``"enumerate"`` or ``"gumbel"``
-    :param team_pooling: in the E-step, the agents of one environment copy share one episode posterior
-    :param reading_counts: the count model beside the transition model when the environment's evidence plug-in counts
-        readings (the reserve's does); ignored elsewhere
-    :param count_factors: ``(F1, F2)`` with ``F1 * F2 = n_components``: the count model's rates factored (EM-PPO's)
-    :param belief_input: how the networks read the belief (:attr:`policy_kwargs`): ``"probabilities"``, ``"map"``
-        (the most likely component's one-hot) or ``"both"``
-    :param e_step_kwargs: overrides of :data:`~sb3_emmarl.common.latent.algorithm.E_STEP_DEFAULTS`; its ``window``
-        counts E-step intervals here (the transitions of the last ``window`` intervals of ``e_step_every`` steps)
-    :param freeze_e_step: ablation: the latent model keeps its initial values (the belief is a fixed function of the
-        episode, not fitted to the modes)
     :param seed: seed of the latent model's initial weights (drawn without touching torch's global generator) and of
         the E-step
     :param verbose: SB3's callback verbosity
     """
 
-    def __init__(self, n_components: int = 4, e_step_every: int = 2000, *, decoder_hidden: tuple[int, ...] = (64, 64),
-                 likelihood_temperature: float = 1.0, fusion: bool | str = True, estimator: str = "enumerate",
-                 team_pooling: bool = False, reading_counts: bool = True, count_factors: tuple[int, int] | None = None,
-                 belief_input: str = "probabilities", e_step_kwargs: dict[str, Any] | None = None,
-                 freeze_e_step: bool = False, seed: int = 0, verbose: int = 0) -> None:
+    #: the latent settings that belong to the algorithm being trained, not to the callback
+    NOT_THE_CALLBACKS = ("e_step_interval", "use_latent", "freeze_m_step")
+
+    def __init__(self, latent_kwargs: LatentConfig | dict[str, Any] | None = None, e_step_every: int = 2000, *,
+                 seed: int = 0, verbose: int = 0, **kwargs: Any) -> None:
         super().__init__(verbose)
-        #: the constructor's arguments (what :meth:`save` keeps to build the callback again)
-        self.arguments = {"n_components": n_components, "e_step_every": e_step_every,
-                          "decoder_hidden": tuple(decoder_hidden), "likelihood_temperature": likelihood_temperature,
-                          "fusion": fusion, "estimator": estimator, "team_pooling": team_pooling,
-                          "reading_counts": reading_counts, "count_factors": count_factors, "belief_input": belief_input,
-                          "e_step_kwargs": e_step_kwargs, "freeze_e_step": freeze_e_step, "seed": seed}
-        self.config = LatentConfig(n_components=n_components, decoder_hidden=decoder_hidden,
-                                   likelihood_temperature=likelihood_temperature, fusion=fusion, estimator=estimator,
-                                   team_pooling=team_pooling, reading_counts=reading_counts, count_factors=count_factors,
-                                   belief_input=belief_input, e_step_kwargs=e_step_kwargs, freeze_e_step=freeze_e_step)
+        reject_flat_latent_settings(type(self).__name__, kwargs)
+        if kwargs:
+            raise TypeError(f"EMCallback got unexpected keyword arguments {sorted(kwargs)}")
+        given = check_latent_kwargs(latent_kwargs)
+        foreign = [name for name in self.NOT_THE_CALLBACKS if name in given]
+        if foreign:
+            raise ValueError(f"latent_kwargs {foreign} are settings of the algorithm being trained, not of EMCallback "
+                             "(which runs an E-step every e_step_every agent-steps)")
+        #: the latent settings (``e_step_kwargs`` with the E-step's defaults filled in)
+        self.config = LatentConfig().updated(given)
         self.e_step_every = integer(1, 10**12)("e_step_every", e_step_every)
         self.seed = integer(0, 2**63 - 1)("seed", seed)
         self.latent_model: LatentModel | None = None
@@ -138,7 +126,7 @@ class EMCallback(BaseCallback):
             raise ValueError(f"the environment's (observation, feature, action) sizes are {sizes}, the callback's "
                              f"latent model's {(layout.obs_dim, layout.feature_dim, layout.action_dim)}: wrap "
                              "environments of the task it was built for")
-        wrapper.attach(self.latent_model, self.config.likelihood_temperature, self.config.fusion)
+        wrapper.attach(self.latent_model, self.config)
         return venv
 
     @property
@@ -156,8 +144,7 @@ class EMCallback(BaseCallback):
         with th.random.fork_rng(devices=[]):  # the model's initial weights from the callback's seed alone
             th.manual_seed(self.seed)
             model = LatentModel(layout)
-        e_step = make_e_step(model, config.estimator, config.likelihood_temperature, config.count_factors, counter,
-                             self.seed, {**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
+        e_step = make_e_step(model, config, counter, self.seed)
         saved, self._saved = self._saved, None
         if saved is not None:
             if saved["layout"] != layout.to_dict():
@@ -180,7 +167,10 @@ class EMCallback(BaseCallback):
         e_step = self.e_step
         if self.latent_model is None or e_step is None:
             raise ValueError("EMCallback has no latent model yet: call callback.wrap_env(env) first")
-        state = {"arguments": self.arguments, "layout": self.layout.to_dict(),
+        latent_kwargs = {name: value for name, value in self.config.to_dict().items()
+                         if name not in self.NOT_THE_CALLBACKS}
+        arguments = {"latent_kwargs": latent_kwargs, "e_step_every": self.e_step_every, "seed": self.seed}
+        state = {"arguments": arguments, "layout": self.layout.to_dict(),
                  "latent_model": self.latent_model.state_dict(), "e_step": e_step.state_dict(),
                  "episode_counters": th.as_tensor(self._episode_counters),
                  "pending": [None if part is None else [getattr(part, field.name) for field in fields(part)]
@@ -193,7 +183,11 @@ class EMCallback(BaseCallback):
         only, nothing that runs code). Its latent model is built again by the first :meth:`wrap_env`, from the
         environment (which must give the saved sizes), and then takes the saved weights and E-step state."""
         state = th.load(Path(path), map_location="cpu", weights_only=True)
-        callback = cls(**state["arguments"], verbose=verbose)
+        arguments = dict(state["arguments"])
+        flat = {name: arguments.pop(name) for name in LatentConfig.names() if name in arguments}
+        if flat:  # (a callback saved before latent_kwargs)
+            arguments["latent_kwargs"] = flat
+        callback = cls(**arguments, verbose=verbose)
         callback._saved = state
         return callback
 

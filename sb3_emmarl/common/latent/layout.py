@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.validation import LATENT_RULES
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class LatentLayout:
     reading_features: tuple[int, ...] = field(default=())
 
     def __post_init__(self) -> None:
-        RULES["n_components"]("n_components", self.n_components)
+        LATENT_RULES["n_components"]("n_components", self.n_components)
         for name in ("obs_dim", "feature_dim", "action_dim"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -53,7 +53,8 @@ class LatentLayout:
         if (self.count_channels == 0) != (self.count_bins == 0):
             raise ValueError(f"count_channels and count_bins must both be 0 (no count model) or both >= 1, got "
                              f"{self.count_channels} and {self.count_bins}")
-        object.__setattr__(self, "decoder_hidden", tuple(RULES["decoder_hidden"]("decoder_hidden", self.decoder_hidden)))
+        hidden = LATENT_RULES["decoder_hidden"]("decoder_hidden", self.decoder_hidden)
+        object.__setattr__(self, "decoder_hidden", tuple(hidden))
         readings = self.reading_features
         if isinstance(readings, (str, bytes)) or not hasattr(readings, "__iter__") or not all(
                 isinstance(i, int) and not isinstance(i, bool) and 0 <= i < self.feature_dim for i in readings) \

@@ -71,20 +71,20 @@ class BeliefFeaturesExtractor(SplitFeaturesExtractor):
 class LatentPolicyMixin(_PolicyBase):
     """Create the latent model with the policy and give every features extractor the latent layout.
 
-    ``latent_kwargs`` holds the :class:`LatentLayout` fields; ``use_latent=False`` builds no model (the
+    ``latent_layout`` holds the :class:`LatentLayout` fields (set by the algorithm); ``use_latent=False`` builds no model (the
     no-latent ablation); ``belief_input`` is how the networks read the belief (:data:`BELIEF_INPUTS`). A
     ``features_extractor_class`` in ``policy_kwargs`` (e.g. the message extractors of
     :mod:`sb3_emmarl.common.extractors`) reads the environment's observation; the belief is appended to its features.
     """
 
     latent_layout: LatentLayout
-    #: ``(latent_kwargs, use_latent, belief_input)`` as given to the constructor
+    #: ``(latent_layout, use_latent, belief_input)`` as given to the constructor
     _latent_config: tuple[dict[str, Any], bool, str]
     latent_model: LatentModel | None
 
-    def __init__(self, observation_space, action_space, lr_schedule, *args, latent_kwargs: dict[str, Any],
+    def __init__(self, observation_space, action_space, lr_schedule, *args, latent_layout: dict[str, Any],
                  use_latent: bool = True, belief_input: str = "probabilities", **kwargs) -> None:
-        layout = LatentLayout.from_dict(latent_kwargs)
+        layout = LatentLayout.from_dict(latent_layout)
         # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
         object.__setattr__(self, "latent_layout", layout)
         object.__setattr__(self, "_latent_config", (layout.to_dict(), bool(use_latent), belief_input))
@@ -105,15 +105,15 @@ class LatentPolicyMixin(_PolicyBase):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        latent_kwargs, use_latent, belief_input = self._latent_config
-        data.update(latent_kwargs=latent_kwargs, use_latent=use_latent, belief_input=belief_input)
+        latent_layout, use_latent, belief_input = self._latent_config
+        data.update(latent_layout=latent_layout, use_latent=use_latent, belief_input=belief_input)
         return data
 
 
 class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
     """SB3's ``ActorCriticPolicy`` whose policy and value networks see the belief (EM-PPO).
 
-    Takes ``ActorCriticPolicy``'s arguments plus ``latent_kwargs`` (set by the algorithm) and ``use_latent``.
+    Takes ``ActorCriticPolicy``'s arguments plus ``latent_layout`` (set by the algorithm), ``use_latent`` and ``belief_input``.
     """
 
     features_extractor: BeliefFeaturesExtractor
@@ -122,5 +122,6 @@ class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
 class LatentTD3Policy(LatentPolicyMixin, TD3Policy):
     """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the belief (EM-DDPG).
 
-    Takes ``TD3Policy``'s arguments plus ``latent_kwargs`` and ``use_latent`` (see :class:`LatentActorCriticPolicy`).
+    Takes ``TD3Policy``'s arguments plus ``latent_layout``, ``use_latent`` and ``belief_input`` (see
+    :class:`LatentActorCriticPolicy`).
     """
