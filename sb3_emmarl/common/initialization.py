@@ -4,9 +4,8 @@ Inputs that stay constant over an episode, or over long stretches of it, enter e
 (orthogonal) weights at initialisation: each value of them then starts with its own features and its own behaviour,
 which the policy must correct for each value separately, from a fraction of the data. Started at zero, the networks
 start as the same functions with or without those inputs, learn first what serves every value of them, and let
-their weights grow only as far as the gradient finds that they pay. Measured on the reserve at 500k agent-steps
-(docs/lab/results-history.md, "How much knowing the mode pays"): PPO told the mode scores 2.0 points of team reward more with
-the zero start over 10 seeds (p = 0.33); EM-PPO's belief, no difference over 5.
+their weights grow only as far as the gradient finds that they pay. What the zero start changes on the reserve is
+measured in docs/lab/results-history.md ("How much knowing the mode pays").
 """
 
 from __future__ import annotations

@@ -52,10 +52,9 @@ class EMDDPG(LatentAlgorithmMixin, DDPG):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
-    #: As EM-PPO's defaults (an E-step after every rollout of 2,048 steps, on the last two rollouts): at train_freq 10,
-    #: an E-step every 2,000 steps on the transitions of the last 400 train() calls (4,000 steps per entry). Every 20
-    #: calls on the last 20 (one 200-step episode per E-step, to which the decoder is fitted online) leaves the belief
-    #: near chance on the reserve (docs/lab/results-history.md, EM-DDPG against DDPG).
+    #: The latent defaults: at ``train_freq=10``, an E-step every 2,000 steps on the transitions of the last 400
+    #: ``train()`` calls (4,000 steps per entry), as EM-PPO's after every rollout of 2,048 steps on the last two (why
+    #: not fewer: docs/lab/results-history.md, EM-DDPG against DDPG)
     latent_defaults: ClassVar[LatentConfig] = LatentConfig(e_step_interval=200, e_step_kwargs={"window": 400})
     policy: MlpPolicy
 

@@ -39,9 +39,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     :param learning_rate: PPO's learning rate (or schedule)
     :param n_steps: steps per environment per rollout
     :param batch_size: PPO minibatch size
-    :param n_epochs: PPO epochs per rollout (10, PPO's own default; at 5 the policy learns to read a right belief
-        several times more slowly than at 10 on the goal task, while it reads the told mode or the exact posterior
-        quickly at either: docs/em.md, "Reading the belief")
+    :param n_epochs: PPO epochs per rollout (10, PPO's own default; why not fewer: docs/em.md, "Reading the belief")
     :param gamma: discount factor
     :param gae_lambda: GAE lambda
     :param clip_range: PPO clipping (or schedule)
@@ -51,8 +49,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         on the last two rollouts' transitions)
     :param zero_belief_weights: start at zero the weights with which the policy's and the value's first layers read
         the belief, so that the networks start as PPO's (as ``OraclePPO`` does for the told mode; see
-        :mod:`sb3_emmarl.common.initialization`); off by default: on the reserve it changed neither team reward nor
-        the belief's accuracy beyond the seeds' spread (docs/lab/results-history.md)
+        :mod:`sb3_emmarl.common.initialization`); off by default (what it changes: docs/lab/results-history.md)
     :param policy_kwargs: policy arguments (``net_arch``, ...)
     :param tensorboard_log: tensorboard folder
     :param verbose: verbosity

@@ -62,8 +62,8 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": LatentVDNPolicy}
-    #: With ``train_freq=4``, an E-step every 2,000 steps (as EM-PPO's every rollout of 2,048 and EM-DDPG's default) on
-    #: the last 4,000 steps (the E-step must see many episodes, docs/em.md section 5)
+    #: The latent defaults: at ``train_freq=4``, an E-step every 2,000 steps (as EM-PPO's every rollout of 2,048 and
+    #: EM-DDPG's default) on the last 4,000 steps (the E-step must see many episodes, docs/em.md section 5)
     latent_defaults: ClassVar[LatentConfig] = LatentConfig(e_step_interval=500, e_step_kwargs={"window": 1000})
     policy: LatentVDNPolicy
     replay_buffer: JointReplayBuffer

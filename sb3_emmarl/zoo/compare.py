@@ -39,9 +39,8 @@ GAP_METRIC = "team_reward"
 
 #: Evaluation episodes per run of the multi-seed comparisons (``zoo/compare.py``, ``benchmarks/mode_value.py``,
 #: ``docs/lab/studies/fusion.py``). Every run plays the same episodes, so whatever those happen to hold moves every seed's
-#: figure alike and no number of seeds averages it out; and a team's reward varies by about 25 from one episode to
-#: the next on the default reserve. The 0.9.0 EM-PPO comparison, evaluated on 20 episodes and again on 200:
-#: latent accuracy at mid-episode 0.627 and 0.486, EM-PPO minus PPO in team reward +2.4 and -1.1 (docs/lab/results-history.md).
+#: figure alike and no number of seeds averages it out; a team's reward varies widely from one episode to the next, and
+#: 20 episodes once reversed the sign of a comparison that 200 gave (docs/lab/results-history.md).
 COMPARISON_EVAL_EPISODES = 200
 
 #: The method comparison's default variants:

@@ -190,8 +190,7 @@ def compile_kernels(**kwargs: Any) -> None:
 
     numba compiles a kernel at its first call with each set of argument types and caches the machine code beside
     the ``kernels`` modules: a process started after the cache is written loads it in well under a second, while processes
-    started before compile again, each for tens of seconds and some 175 MiB of peak memory (81 s and 390 MiB against
-    8 s and 215 MiB for a fresh process stepping the reserve, measured on a busy 2-core machine). Tools that time runs
+    started before compile again, each for tens of seconds and over a hundred MiB of peak memory. Tools that time runs
     in fresh processes (the paper's experiments, ``zoo/compare.py``, the benchmarks) call this in the parent first, so
     that no run's time or peak memory counts the compilation. It plays one episode (at most :data:`COMPILE_STEPS`
     steps) with actions drawn from seeded action spaces; nothing else's random state is touched.

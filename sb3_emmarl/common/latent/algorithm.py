@@ -256,8 +256,8 @@ class LatentAlgorithmMixin(WrapsObservations):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         """SB3's, plus the E-step (its :meth:`EStep.state_dict`: optimizer, counters, generator, kept transitions), so
         that a loaded model trains on as if it had not stopped. It is written with ``torch.save`` as the weights are,
-        not into the archive's JSON data, pickled and base64-encoded, which at em_ddpg.yml's E-step window (80,000
-        transitions, 25 MB) raises the process's peak memory by about 145 MB while saving."""
+        not into the archive's JSON data, pickled and base64-encoded, which at a large E-step window raises the
+        process's peak memory several times the E-step's size while saving."""
         state_dicts, variables = super()._get_torch_save_params()
         if getattr(self, "e_step", None) is not None and not getattr(self, "_e_step_in_data", False):
             state_dicts = [*state_dicts, "e_step"]
@@ -380,7 +380,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     def posterior(self, observations: np.ndarray) -> np.ndarray:
         """The beliefs held in augmented observations ``(n, total_dim)`` -> ``(n, K)``, a copy: a view would keep the
         whole observation array alive for as long as any of its beliefs is kept (the team metrics keep every step's
-        beliefs for an episode: at 200 UAVs that pinned 440 MiB of observations)."""
+        beliefs for an episode: at hundreds of UAVs a view pinned hundreds of MiB of observations)."""
         return np.array(np.asarray(observations)[..., self.latent_layout.obs_dim:])
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:

@@ -27,8 +27,8 @@ of every remembered episode (its count evidence, plus its transition evidence wh
 (weighted sums of counts + a * pooled rate) / (weighted sums of exposures + a)``. Decaying running sums that each
 rollout's episodes joined once, weighted by the responsibilities of that moment, would keep the random start's
 assignments in the rates (0.99 ** 12 = 0.89 of their weight after the 12 E-steps of a 500k-step run); re-assigning
-every remembered episode at every E-step instead lifts EM-PPO's belief at mid-episode from 0.49 to 0.60 at 500k
-agent-steps (5 seeds; docs/lab/results-history.md). The first round of the first E-step weighs the episodes by random
+every remembered episode at every E-step instead lets the rates follow the current assignments (what it changes:
+docs/lab/results-history.md). The first round of the first E-step weighs the episodes by random
 responsibilities (Dirichlet(1), from the E-step's generator): equal starting rates would give every component the same
 share of every episode, and the components' rates would never part (EM's usual random start; annealing instead did
 worse online: 0.55 against 0.64 in the measurement that the reserve's ``COUNT_EVIDENCE_WEIGHT`` cites).

@@ -281,7 +281,7 @@ class StepLikelihood:
     transition per step.
 
     The beliefs run the decoder on a few dozen rows per environment step; at that size torch's fixed cost per
-    operation (about 10 us, some 15 operations with autograd's bookkeeping) outweighs the arithmetic. Here the
+    operation (some 15 operations with autograd's bookkeeping) outweighs the arithmetic. Here the
     three matrix products run through torch on a copy of the weights (the shared and per-component read-outs
     folded into one) and the rest in one compiled pass. The copy is
     refreshed whenever the model's :meth:`LatentModel.version` changes, so it always computes what
@@ -337,8 +337,8 @@ class StepLikelihood:
             weights = np.where(self.mask > 0, temperature, 1.0)
             inv_std, constant = inv_std * np.sqrt(weights), float(self.weighted_constant @ weights)
         # The products through torch, not numpy's ``@``: numpy's OpenBLAS starts worker threads for products of a
-        # few dozen rows and they keep spinning between calls (measured: 16% of a second core over a whole EM-PPO
-        # run, for no speed), where torch's obey ``torch.set_num_threads`` as the networks do. One inference-mode
+        # few dozen rows and they keep spinning between calls (a share of a second core, for no speed), where torch's
+        # obey ``torch.set_num_threads`` as the networks do. One inference-mode
         # block for all of them: torch's fixed cost per call is most of their time at this size.
         with th.inference_mode():
             hidden = th.from_numpy(np.concatenate([features, actions], axis=1, dtype=np.float32))

@@ -2,8 +2,8 @@
 
 Hand-written because a ``deque(maxlen=window)`` of each rollout's small tensors scatters hundreds of long-lived
 allocations of some 30 KB through the C heap, between the short-lived arrays of every training step, and the heap
-then cannot give the space between them back: with ``em_ddpg.yml`` (an E-step part every ``train()`` call, 800 kept)
-that held about 190 MiB more at the same data (docs/lab/results-history.md, EM-DDPG against DDPG). Here the parts live in one
+then cannot give the space between them back (with ``em_ddpg.yml``, an E-step part every ``train()`` call and 800
+kept, by far more than the data: docs/lab/results-history.md, EM-DDPG against DDPG). Here the parts live in one
 preallocated tensor per field, which grows (doubling) and is compacted when the newest part does not fit after the
 oldest, so the memory holds a handful of large blocks whatever the number of parts.
 """
