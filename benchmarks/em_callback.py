@@ -30,8 +30,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
-from sb3_emmarl.common.wrapping import find_wrapper
 
 #: Agent-steps per run of each algorithm (every arm alike), fixed in the protocol.
 BUDGETS = {"a2c": 50_000, "dqn": 30_000}
@@ -305,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     budget = BUDGETS[args.algo] if args.budget is None else args.budget
     if budget < 1 or args.eval_episodes < 1:
         parser.error("--budget and --eval-episodes must be >= 1")
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     folder.mkdir(parents=True, exist_ok=True)

@@ -206,7 +206,7 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     if path.exists():
         return f"{path.name}: kept"
     record = run(task, variant, seed, budget, eval_episodes)
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))

@@ -64,7 +64,7 @@ import numpy as np
 import torch as th
 
 from sb3_emmarl import OraclePPO
-from sb3_emmarl.common.initialization import tail_weight_norms
+from sb3_emmarl.common.appended.initialization import tail_weight_norms
 from sb3_emmarl.common.masking import hidden_indices
 from sb3_emmarl.common.statistics import seeds_needed
 from sb3_emmarl.zoo.cli import ENV_ID, latest_run, parse_key_values
@@ -305,7 +305,7 @@ def _seeds(gain: float, spread: float) -> str:
 
 def mode_weight_table(args: argparse.Namespace) -> str:
     """How strongly each told run's networks read the one-hot: the mean norm of a first-layer weight column on the
-    mode against the other inputs' (:func:`~sb3_emmarl.common.initialization.tail_weight_norms`), per seed."""
+    mode against the other inputs' (:func:`~sb3_emmarl.common.appended.initialization.tail_weight_norms`), per seed."""
     lines = ["\nHow strongly the told runs read the mode: mean norm of a first-layer weight column on the one-hot / on "
              "the other inputs (the policy's and the value's networks)",
              f"{'seed':<6}{'policy: mode':>14}{'other':>8}{'value: mode':>14}{'other':>8}"]

@@ -119,7 +119,7 @@ def build(variant: str, seed: int, env_kwargs: dict | None = None, task: str = "
     env = make_env(seed, env_kwargs=env_kwargs, task=task)
     if variant != "exact_belief":
         return zoo_model(algo, env, seed, TASKS[task].env_id, **overrides)
-    from sb3_emmarl.common.initialization import zero_tail_weights
+    from sb3_emmarl.common.appended.initialization import zero_tail_weights
 
     model = zoo_model(algo, ExactBelief(env), seed, TASKS[task].env_id, **overrides)
     zero_tail_weights(model.policy, 8)  # (as OraclePPO starts the weights on its one-hot)
@@ -304,7 +304,7 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
     if path.exists():
         return f"{path.name}: kept"
     record = run(variant, seed, budget, episodes, env_kwargs, task)
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))

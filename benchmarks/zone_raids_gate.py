@@ -26,7 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 from scipy import stats
 
-from sb3_emmarl.common.arguments import parse_key_values
+from sb3_emmarl.common.trust.arguments import parse_key_values
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.modes import MODE_NAMES, N_MODES
 from wildlife_reserve.reserve.scripted import ZONE_RAID_PLANS, ZoneRaidPatrol, run_patrol

@@ -4,8 +4,8 @@ from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.evaluation import evaluate_policy
 from sb3_emmarl.common.latent.callback import EMCallback
 from sb3_emmarl.common.latent.evidence import register_evidence
-from sb3_emmarl.common.reserve_evidence import ReserveEvidence
-from sb3_emmarl.common.zone_evidence import ZoneEvidence
+from sb3_emmarl.common.latent.reserve_evidence import ReserveEvidence
+from sb3_emmarl.common.latent.zone_evidence import ZoneEvidence
 from sb3_emmarl.em_ddpg import EMDDPG
 from sb3_emmarl.em_ppo import EMPPO
 from sb3_emmarl.mappo import MAPPO

@@ -17,7 +17,7 @@ import importlib
 import sys
 from typing import NamedTuple
 
-from sb3_emmarl.common.extras import MissingExtra
+from sb3_emmarl.common.trust.extras import MissingExtra
 from sb3_emmarl.version import __version__
 
 

@@ -5,9 +5,9 @@ Example: ``emmarl patrol --policy stalest_block --episodes 3 --seed 0``
 
 from __future__ import annotations
 
-from sb3_emmarl.common.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.metrics import format_summary, summarize
-from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, int_flag
+from sb3_emmarl.common.trust.arguments import KeyValues, OneLineParser
+from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, int_flag
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.scripted import SCRIPTED_PATROLS, run_patrol
 

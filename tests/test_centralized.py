@@ -12,7 +12,7 @@ from stable_baselines3.common.env_checker import check_env
 
 from sb3_emmarl.common.centralized import ENV_ID, CentralizedReserveEnv, register_envs
 from wildlife_reserve import reserve_v1
-from wildlife_reserve.reserve.constants import N_MOVES
+from wildlife_reserve.reserve.kernels.constants import N_MOVES
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 
 STAY, UP, DOWN, LEFT, RIGHT = range(N_MOVES)

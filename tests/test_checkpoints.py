@@ -11,7 +11,6 @@ from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_emmarl import EMPPO, MessagePPO
-from sb3_emmarl.common.atomic_files import save_model, write_atomic, write_text
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     ResumableCheckpointCallback,
@@ -19,9 +18,10 @@ from sb3_emmarl.common.checkpoints import (
     list_checkpoints,
 )
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, load_model
-from sb3_emmarl.common.pickling import dumps, rebuild_view
-from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, loads
 from sb3_emmarl.common.training_state import load_training_state, restore_training_state
+from sb3_emmarl.common.trust.atomic_files import save_model, write_atomic, write_text
+from sb3_emmarl.common.trust.pickling import dumps, rebuild_view
+from sb3_emmarl.common.trust.safe_pickle import ENV_STATE_MODULES, loads
 from sb3_emmarl.common.vec_env import FiniteCheck, make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 

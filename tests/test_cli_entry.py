@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sb3_emmarl.cli import COMMANDS, main
-from sb3_emmarl.common.extras import MissingExtra, requires
+from sb3_emmarl.common.trust.extras import MissingExtra, requires
 from wildlife_reserve.reserve import compilation
 
 ROOT = Path(__file__).resolve().parents[1]

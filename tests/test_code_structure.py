@@ -195,3 +195,45 @@ def test_no_import_cycle():
         f"    {edge.source} line {edge.line} imports {edge.target}" + (" (under TYPE_CHECKING)" if edge.typing_only
                                                                        else "") for edge in cycle) for cycle in cycles]
     assert not cycles, "import cycles (move the shared names to the module that owns them):\n" + "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------- folders
+def folder_pairs(packages: dict[str, Path]) -> dict[tuple[str, str], list[Edge]]:
+    """The imports from one folder (package) to another, by ``(importing folder, imported folder)``: a module's folder
+    is its package (a package's ``__init__`` is its own folder's)."""
+    known = modules(packages)
+
+    def folder(name: str) -> str:
+        return name if known[name].name == "__init__.py" else name.rpartition(".")[0]
+
+    pairs: dict[tuple[str, str], list[Edge]] = {}
+    for name, path in known.items():
+        for edge in import_edges(name, path, known):
+            if folder(edge.source) != folder(edge.target):
+                pairs.setdefault((folder(edge.source), folder(edge.target)), []).append(edge)
+    return pairs
+
+
+def test_folder_pairs_find_a_folder_importing_one_that_imports_it_back(tmp_path):
+    package = tmp_path / "pkg"
+    for sub in ("low", "high"):
+        (package / sub).mkdir(parents=True)
+        (package / sub / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("")
+    (package / "low" / "a.py").write_text("from pkg.high.b import B\nA = 1\n")
+    (package / "high" / "b.py").write_text("B = 2\ndef later():\n    from pkg.low.a import A\n")  # in a function
+    pairs = folder_pairs({"pkg": package})
+    assert set(pairs) == {("pkg.low", "pkg.high")}
+    (package / "high" / "c.py").write_text("from pkg.low.a import A\n")
+    assert ("pkg.high", "pkg.low") in folder_pairs({"pkg": package})
+
+
+def test_no_folder_imports_a_folder_that_imports_it_back():
+    """The folders form layers (``common/trust`` under everything, ``common/appended`` and ``common/vec_env`` under the
+    wrappers and ``common/latent``, the evaluation modules of ``common`` over ``latent``; ``reserve/kernels`` under the
+    reserve, ``wildlife_reserve/utils`` under both environments): a folder may be read without the ones above it."""
+    pairs = folder_pairs(PACKAGES)
+    both = sorted((a, b) for a, b in pairs if (b, a) in pairs and a < b)
+    assert not both, "folders importing each other:\n" + "\n".join(
+        f"  {a} <-> {b}: {pairs[a, b][0].source} imports {pairs[a, b][0].target}; "
+        f"{pairs[b, a][0].source} imports {pairs[b, a][0].target}" for a, b in both)

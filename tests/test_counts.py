@@ -5,9 +5,9 @@ import pytest
 from scipy.stats import poisson
 
 from sb3_emmarl.common.latent.counts import PoissonMixture
-from sb3_emmarl.common.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
+from sb3_emmarl.common.latent.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from wildlife_reserve import reserve_v1
-from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_SIGN
+from wildlife_reserve.reserve.kernels.constants import CH_LEOPARD, CH_OCCLUSION, CH_SIGN
 
 
 @pytest.fixture(scope="module")

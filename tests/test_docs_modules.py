@@ -22,8 +22,8 @@ def named_paths(page: str) -> set[str]:
 @pytest.mark.parametrize("page", ["em.md", "env.md"])
 def test_every_module_a_page_names_exists(page):
     paths = named_paths(page)
-    assert {"common/wrapping.py", "common/pickling.py"} <= paths if page == "em.md" else \
-        {"reserve/view.py", "reserve/kernels/", "sb3_emmarl/common/pickling.py"} <= paths
+    assert {"common/appended/wrapping.py", "common/trust/pickling.py"} <= paths if page == "em.md" else \
+        {"reserve/view.py", "reserve/kernels/", "sb3_emmarl/common/trust/pickling.py"} <= paths
     missing = sorted(path for path in paths if not any((base / path).exists() for base in BASES))
     assert not missing, f"docs/{page} names modules that do not exist: {missing}"
 

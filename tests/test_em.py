@@ -10,8 +10,8 @@ from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMPPO
+from sb3_emmarl.common.appended.initialization import zero_tail_weights
 from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
-from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.layout import LatentLayout
@@ -498,7 +498,7 @@ def test_training_logs_latent_accuracy_over_the_episode(tmp_path):
 
 def test_every_e_step_default_has_a_validation_rule():
     from sb3_emmarl.common.latent.config import E_STEP_DEFAULTS
-    from sb3_emmarl.common.validation import E_STEP_RULES
+    from sb3_emmarl.common.trust.validation import E_STEP_RULES
 
     assert set(E_STEP_RULES) == set(E_STEP_DEFAULTS)
     for name, value in E_STEP_DEFAULTS.items():

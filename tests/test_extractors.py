@@ -8,10 +8,10 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
+from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 from sb3_emmarl.common.extractors import (
     EXTRACTORS,
     GraphAttentionExtractor,
-    SplitFeaturesExtractor,
     TransformerExtractor,
     message_policy_kwargs,
     split_observation,

@@ -7,8 +7,8 @@ import os
 import torch as th
 
 from sb3_emmarl import cli
-from sb3_emmarl.common import atomic_files
 from sb3_emmarl.common.checkpoints import check_checkpoint, list_checkpoints
+from sb3_emmarl.common.trust import atomic_files
 from sb3_emmarl.zoo.cli import train_main
 
 ENV = "WildlifeReserve-v1"

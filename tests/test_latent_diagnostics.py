@@ -6,8 +6,8 @@ import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_emmarl import EMPPO
+from sb3_emmarl.common.appended.initialization import zero_tail_weights
 from sb3_emmarl.common.envs import ModeCueEnv
-from sb3_emmarl.common.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.diagnostics import assignment_agreement, belief_entropy, belief_use, permute_beliefs
 
 

@@ -11,7 +11,7 @@ from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.cli import enjoy_main, latest_run, train_main
 from sb3_emmarl.zoo.compare import evaluate_run
 from wildlife_reserve import reserve_v1
-from wildlife_reserve.reserve.constants import CH_SIGN
+from wildlife_reserve.reserve.kernels.constants import CH_SIGN
 
 SMALL = {"n_uavs": 3, "grid_size": 20, "max_cycles": 6}
 

@@ -11,7 +11,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import OraclePPO
-from sb3_emmarl.common.initialization import zero_tail_weights
+from sb3_emmarl.common.appended.initialization import zero_tail_weights
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS, decode_mode, encode_mode, next_strategy
@@ -111,7 +111,7 @@ def test_oracle_ppo_starts_as_the_same_function_of_every_mode_and_learns_the_mod
 
 
 def test_zero_tail_weights_through_the_split_extractor_and_not_where_the_tail_is_not_passed_through():
-    from sb3_emmarl.common.extractors import SplitFeaturesExtractor
+    from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 
     venv = wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL))
     head = venv.observation_space.shape[0] - N_MODES
@@ -298,7 +298,7 @@ def test_seeds_needed_matches_the_paired_t_test_s_power_tables():
 
 
 def test_tail_weight_norms_on_hand_set_weights():
-    from sb3_emmarl.common.initialization import first_layers, tail_weight_norms
+    from sb3_emmarl.common.appended.initialization import first_layers, tail_weight_norms
 
     model = PPO("MlpPolicy", wrap_with_mode(make_vec_env(1, seed=0, env_kwargs=SMALL)), seed=0)
     for layer in first_layers(model.policy).values():
@@ -315,7 +315,7 @@ def test_tail_weight_norms_on_hand_set_weights():
 @pytest.mark.parametrize("mode_input, blind", [("policy", "value"), ("value", "policy")])
 def test_mode_input_holds_the_other_network_s_weights_on_the_mode_at_zero_through_training_and_loading(
         tmp_path, mode_input, blind):
-    from sb3_emmarl.common.initialization import first_layers
+    from sb3_emmarl.common.appended.initialization import first_layers
 
     model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0,
                       mode_input=mode_input)
@@ -384,9 +384,9 @@ def test_random_labels_reject_bad_values_and_relabel_beside_them():
 
 
 def test_oracle_ppo_with_a_random_label_keeps_it_through_saving_loading_and_evaluation(tmp_path):
+    from sb3_emmarl.common.appended.wrapping import find_wrapper
     from sb3_emmarl.common.evaluation import evaluate_team
     from sb3_emmarl.common.mode_aware import ModeObservationWrapper
-    from sb3_emmarl.common.wrapping import find_wrapper
 
     model = OraclePPO("MlpPolicy", make_vec_env(2, seed=0, env_kwargs=SMALL), n_steps=16, batch_size=32, seed=0,
                       random_label=True)

@@ -1,4 +1,4 @@
-"""The family of observation wrappers (``sb3_emmarl.common.wrapping``): one base appends at reset, at each step and to
+"""The family of observation wrappers (``sb3_emmarl.common.appended.wrapping``): one base appends at reset, at each step and to
 terminal observations; ``ensure_wrapped`` wraps once and refuses a wrapper that does not do what is asked."""
 
 import gymnasium as gym
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-from sb3_emmarl.common.wrapping import AppendingVecEnvWrapper, ensure_wrapped, find_wrapper
+from sb3_emmarl.common.appended.wrapping import AppendingVecEnvWrapper, ensure_wrapped, find_wrapper
 
 
 class StepCount(AppendingVecEnvWrapper):

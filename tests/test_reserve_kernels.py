@@ -5,7 +5,7 @@ import pytest
 
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors, kernels
-from wildlife_reserve.reserve.constants import CH_STALENESS, COMM_NONE, N_COMMS, N_MOVES, NEVER
+from wildlife_reserve.reserve.kernels.constants import CH_STALENESS, COMM_NONE, N_COMMS, N_MOVES, NEVER
 from wildlife_reserve.reserve.knowledge import (
     SIGN_MAP_SCALE,
     SIGN_VALUES,
@@ -223,7 +223,7 @@ def test_a_checkpointed_reserve_with_float_cell_stamps_is_packed_on_unpickling_a
     rng = np.random.default_rng(5)
     for _ in range(30):
         env.step_arrays(rng.integers(0, N_MOVES * N_COMMS, 3))
-    from sb3_emmarl.common.pickling import dumps  # (keeps the reserve's views of its arrays views)
+    from sb3_emmarl.common.trust.pickling import dumps  # (keeps the reserve's views of its arrays views)
 
     old = pickle.loads(dumps(env))
     team = old.team

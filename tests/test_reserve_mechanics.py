@@ -5,7 +5,7 @@ import pytest
 
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors
-from wildlife_reserve.reserve.constants import (
+from wildlife_reserve.reserve.kernels.constants import (
     CH_POACHER,
     CH_STALENESS,
     COMM_BROADCAST,

@@ -8,7 +8,7 @@ from scipy import stats
 
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import actors
-from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_POACHER, POACHER_ACTIVE
+from wildlife_reserve.reserve.kernels.constants import CH_LEOPARD, CH_POACHER, POACHER_ACTIVE
 from wildlife_reserve.reserve.modes import MODE_NAMES, N_MODES, STRATEGIES, WEATHERS, decode_mode
 
 

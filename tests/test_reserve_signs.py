@@ -7,7 +7,7 @@ from scipy import stats
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import sensing
 from wildlife_reserve.reserve import signs as signs_lib
-from wildlife_reserve.reserve.constants import CH_SIGN, COMM_BROADCAST, N_MOVES, POACHER_ACTIVE, STAY
+from wildlife_reserve.reserve.kernels.constants import CH_SIGN, COMM_BROADCAST, N_MOVES, POACHER_ACTIVE, STAY
 from wildlife_reserve.reserve.modes import STRATEGIES, WEATHERS
 from wildlife_reserve.reserve.terrain import FOREST, OPEN
 

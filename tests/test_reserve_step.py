@@ -9,6 +9,7 @@ import pytest
 
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve import kernels, stream
+from wildlife_reserve.reserve.kernels import draws
 from wildlife_reserve.reserve.sensing import SIGNAL_NOISE_STD
 
 
@@ -17,21 +18,21 @@ def test_the_kernels_draw_numpys_own_numbers_and_move_its_state_as_numpy_would(s
     ours, reference = np.random.default_rng(seed), np.random.default_rng(seed)
     handle = stream.Stream(ours).handle
     for size in (0, 1, 7, 256, 3000):
-        np.testing.assert_array_equal(stream.uniform(handle, size), reference.random(size))
+        np.testing.assert_array_equal(draws.uniform(handle, size), reference.random(size))
         # Normal draws take one, sometimes more, 64-bit words (the ziggurat's rare branches): thousands of them.
-        np.testing.assert_array_equal(stream.standard_normal(handle, size), reference.standard_normal(size))
+        np.testing.assert_array_equal(draws.standard_normal(handle, size), reference.standard_normal(size))
         assert ours.bit_generator.state == reference.bit_generator.state
     # Draws made by numpy and by the kernels on the same generator interleave into numpy's one stream.
-    mixed = np.concatenate([ours.random(5), stream.uniform(handle, 5), ours.random(5)])
+    mixed = np.concatenate([ours.random(5), draws.uniform(handle, 5), ours.random(5)])
     np.testing.assert_array_equal(mixed, reference.random(15))
 
 
 def test_a_stream_pickles_as_its_generator_and_rejects_anything_else():
     original = stream.Stream(np.random.default_rng(3))
-    stream.uniform(original.handle, 10)
+    draws.uniform(original.handle, 10)
     copy = pickle.loads(pickle.dumps(original))
     assert copy.rng is not original.rng and not np.array_equal(copy.handle, original.handle)
-    np.testing.assert_array_equal(stream.uniform(copy.handle, 20), stream.uniform(original.handle, 20))
+    np.testing.assert_array_equal(draws.uniform(copy.handle, 20), draws.uniform(original.handle, 20))
     with pytest.raises(TypeError, match="numpy Generator"):
         stream.Stream(np.random.RandomState(0))
 

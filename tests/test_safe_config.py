@@ -17,7 +17,7 @@ import torch as th
 import yaml
 from safe_config_expected import EXPECTED
 
-from sb3_emmarl.common.safe_config import (
+from sb3_emmarl.common.trust.safe_config import (
     MAX_YAML_BYTES,
     SAFE_NAMES,
     check_imports,
@@ -26,7 +26,7 @@ from sb3_emmarl.common.safe_config import (
     parse_value,
     to_source,
 )
-from sb3_emmarl.common.validation import check_hyperparams
+from sb3_emmarl.common.trust.validation import check_hyperparams
 from sb3_emmarl.experiments.runner import _flags
 from sb3_emmarl.experiments.spec import SPECS_DIR, load_spec
 from sb3_emmarl.zoo.algos import ZOO_ALGOS, merge_hyperparams
@@ -343,7 +343,7 @@ def test_a_yaml_path_that_is_no_regular_file_is_refused_without_reading_it(tmp_p
     """A folder, a FIFO or a device (a run's config.yml linked to /dev/zero read without end) is refused in one line."""
     import os
 
-    from sb3_emmarl.common.safe_config import load_yaml
+    from sb3_emmarl.common.trust.safe_config import load_yaml
 
     (tmp_path / "folder.yml").mkdir()
     os.mkfifo(tmp_path / "fifo.yml")

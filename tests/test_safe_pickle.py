@@ -17,8 +17,8 @@ from fuzz_zoo import Call, Touch, plant, write_data
 from stable_baselines3 import PPO
 
 from sb3_emmarl.common.model_files import check_model_file, load_model
-from sb3_emmarl.common.safe_pickle import MAX_BYTES, loads
-from sb3_emmarl.common.safe_zip import MAX_MEMBER_BYTES, safe_data_objects
+from sb3_emmarl.common.trust.safe_pickle import MAX_BYTES, loads
+from sb3_emmarl.common.trust.safe_zip import MAX_MEMBER_BYTES, safe_data_objects
 
 
 def _torch_payload(marker) -> bytes:
@@ -151,8 +151,8 @@ def test_run_folder_pickles_read_as_data(tmp_path):
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from sb3_emmarl.common.atomic_files import save_pickle
-    from sb3_emmarl.common.safe_pickle import load_data_pickle, load_vec_normalize
+    from sb3_emmarl.common.trust.atomic_files import save_pickle
+    from sb3_emmarl.common.trust.safe_pickle import load_data_pickle, load_vec_normalize
 
     venv = VecNormalize(make_vec_env("CartPole-v1", 2, seed=0))
     venv.reset()
@@ -200,9 +200,9 @@ def test_training_states_read_as_the_environments_data(tmp_path):
     or copies of another kind are refused in one line."""
     from stable_baselines3.common.logger import Logger
 
-    from sb3_emmarl.common.atomic_files import save_pickle
-    from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES
     from sb3_emmarl.common.training_state import load_training_state
+    from sb3_emmarl.common.trust.atomic_files import save_pickle
+    from sb3_emmarl.common.trust.safe_pickle import ENV_STATE_MODULES
     from sb3_emmarl.common.vec_env import make_vec_env
 
     kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
@@ -234,3 +234,13 @@ def test_training_states_read_as_the_environments_data(tmp_path):
     with pytest.raises(ValueError, match="holds dict copies, this environment _SteppedCopies"):
         twin.set_state(pickle.dumps({"venv": {}, "copy_seeds": [], "never_reset": [], "reset_infos": []}))
     assert not marker.exists()
+
+
+def test_a_class_read_under_the_name_it_had_before_it_moved():
+    from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
+
+    # a protocol-2 GLOBAL opcode naming the class where model zips of 0.22.0 name it
+    old = pickle.dumps(SplitFeaturesExtractor, protocol=2).replace(
+        b"sb3_emmarl.common.appended.extractor", b"sb3_emmarl.common.extractors")
+    assert b"sb3_emmarl.common.extractors\nSplitFeaturesExtractor" in old
+    assert loads(old, "an old model") is SplitFeaturesExtractor

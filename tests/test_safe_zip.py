@@ -11,7 +11,7 @@ from fuzz_zoo import Touch, plant
 
 from sb3_emmarl.common.checkpoints import list_checkpoints
 from sb3_emmarl.common.model_files import load_model
-from sb3_emmarl.common.safe_zip import allowed_global, check_zip_pickles, pickle_globals
+from sb3_emmarl.common.trust.safe_zip import allowed_global, check_zip_pickles, pickle_globals
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import enjoy_main, train_main
 

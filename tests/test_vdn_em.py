@@ -6,9 +6,9 @@ import torch as th
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMVDN
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.wrapping import find_wrapper
 
 TINY = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
 QUICK = {"learning_starts": 200, "buffer_size": 5000, "batch_size": 16,

@@ -1,4 +1,5 @@
-"""One way to wrap an algorithm's environment (sb3_emmarl.common.wrapping), and the value-decomposition policies' mixer."""
+"""One way to wrap an algorithm's environment (sb3_emmarl.common.appended.wrapping), and the value-decomposition
+policies' mixer."""
 
 import numpy as np
 import pytest
@@ -6,8 +7,8 @@ from gymnasium import spaces
 from stable_baselines3.common.utils import ConstantSchedule
 
 from sb3_emmarl import EMPPO, MessagePPO, OraclePPO
+from sb3_emmarl.common.appended.wrapping import WrapsObservations
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.wrapping import WrapsObservations
 from sb3_emmarl.qmix.policies import QMIXPolicy, ValueDecompositionPolicy, VDNPolicy
 
 SMALL = {"n_uavs": 2, "grid_size": 20, "max_cycles": 10}

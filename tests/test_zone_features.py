@@ -6,8 +6,8 @@ import pytest
 
 from sb3_emmarl import EMPPO
 from sb3_emmarl.common.latent.evidence import evidence_from_spec, evidence_of
+from sb3_emmarl.common.latent.zone_evidence import zone_features
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.zone_evidence import zone_features
 from wildlife_reserve import zone_patrol_v0
 
 

@@ -227,8 +227,8 @@ def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path,
 def test_the_zoos_oracle_ppo_trains_and_evaluates_on_what_its_random_label_asks(tmp_path, monkeypatch, random_label):
     """``-params random_label:True`` reaches the zoo's own environments (training and evaluation), not only the model:
     until 0.18.8 the zoo wrapped them told the true mode, which the model then kept, so its control trained told."""
+    from sb3_emmarl.common.appended.wrapping import find_wrapper
     from sb3_emmarl.common.mode_aware import ModeObservationWrapper
-    from sb3_emmarl.common.wrapping import find_wrapper
 
     seen = []
     learn = exp_manager.ReserveExperimentManager.learn

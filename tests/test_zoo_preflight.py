@@ -11,7 +11,7 @@ import yaml
 from fuzz_zoo import QUICK, TINY, train_template_run
 
 from sb3_emmarl.common.checkpoints import TRAINING_STATE, companion, list_checkpoints
-from sb3_emmarl.common.signatures import check_arguments, check_optimizer, conforms
+from sb3_emmarl.common.trust.signatures import check_arguments, check_optimizer, conforms
 from sb3_emmarl.zoo.algos import ZOO_ALGOS, convert_latent_params, merge_hyperparams
 from sb3_emmarl.zoo.cli import make_manager, train_main, train_parser
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams

@@ -8,7 +8,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_emmarl.common.checkpoints import REPLAY_BUFFER, TRAINING_STATE, companion, list_checkpoints
-from sb3_emmarl.common.safe_pickle import load_vec_normalize
+from sb3_emmarl.common.trust.safe_pickle import load_vec_normalize
 from sb3_emmarl.zoo.cli import enjoy_main, train_main
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 

@@ -14,10 +14,10 @@ from stable_baselines3.common import callbacks as sb3_callbacks
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.atomic_files import save_model
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.evaluation import check_episode_count, evaluate_policy
 from sb3_emmarl.common.metrics import team_metric_keys
-from sb3_emmarl.common.wrapping import find_wrapper
+from sb3_emmarl.common.trust.atomic_files import save_model
 
 if TYPE_CHECKING:
     from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin

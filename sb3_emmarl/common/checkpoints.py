@@ -16,9 +16,9 @@ from pathlib import Path
 
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from sb3_emmarl.common.atomic_files import save_model, save_pickle
 from sb3_emmarl.common.model_files import check_model_file, check_pickle_file
 from sb3_emmarl.common.training_state import supports_training_state, training_state
+from sb3_emmarl.common.trust.atomic_files import save_model, save_pickle
 
 #: Checkpoint files: ``<prefix>_<steps>_steps.zip`` and its companions ``<prefix>_<kind>_<steps>_steps.pkl``.
 CHECKPOINT_PATTERN = re.compile(r"^(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip$")

@@ -19,12 +19,12 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, is_vecenv_wrapped
 
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
-from sb3_emmarl.common.safe_pickle import load_vec_normalize
-from sb3_emmarl.common.safe_zip import safe_data_objects
+from sb3_emmarl.common.trust.safe_pickle import load_vec_normalize
+from sb3_emmarl.common.trust.safe_zip import safe_data_objects
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.wrapping import find_wrapper
 
 
 class Predictor(Protocol):

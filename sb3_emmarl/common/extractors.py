@@ -18,7 +18,7 @@ policy trained with 10 UAVs runs on 20 or 50. Both are invariant to the order of
 :func:`message_policy_kwargs` builds the ``policy_kwargs`` for SB3 (``PPO("MlpPolicy", ...)``), and the same
 ``policy_kwargs`` work with EM-PPO, EM-DDPG, VDN+EM and MAPPO: their policies append to the environment's observation what
 the algorithm adds (the belief; the global state and agent id) and run the user's extractor on the environment's
-part alone through :class:`SplitFeaturesExtractor`.
+part alone through :class:`~sb3_emmarl.common.appended.extractor.SplitFeaturesExtractor`.
 """
 
 from __future__ import annotations
@@ -27,56 +27,13 @@ from typing import Any
 
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.messages import EDGE_DIM, MessageLayout, NeighbourMessageWrapper, message_summary
-from sb3_emmarl.common.validation import MAX_LAYER, integer
-from sb3_emmarl.common.wrapping import find_wrapper
-
-
-class SplitFeaturesExtractor(BaseFeaturesExtractor):
-    """Any SB3 features extractor over the first ``head_dim`` values of a flat observation; the values from
-    ``head_dim`` to ``keep`` are appended to its features unchanged.
-
-    How the algorithms that append to the environment's observation (the EM algorithms their belief, MAPPO its
-    global state and agent id) take a user's ``features_extractor_class``: the extractor sees the environment's
-    observation, as it would under PPO, and the networks after it see the extractor's features and the rest.
-    (SB3 has no such composition; its ``CombinedExtractor`` needs a ``Dict`` observation space.)
-
-    :param observation_space: the augmented observation space (a flat ``Box``)
-    :param head_dim: values read by the inner extractor (the environment's observation)
-    :param extractor_class: the inner extractor's class (SB3's ``FlattenExtractor`` passes the values through)
-    :param extractor_kwargs: its keyword arguments
-    :param keep: values kept in all (default: every value; ``keep = head_dim`` drops the rest)
-    """
-
-    def __init__(self, observation_space: spaces.Box, head_dim: int,
-                 extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
-                 extractor_kwargs: dict[str, Any] | None = None, keep: int | None = None) -> None:
-        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
-            raise ValueError(f"observation_space must be a flat Box, got {observation_space}")
-        total = int(observation_space.shape[0])
-        keep = total if keep is None else int(keep)
-        if not 0 < int(head_dim) <= keep <= total:
-            raise ValueError(f"need 0 < head_dim <= keep <= {total} (the observation's length), "
-                             f"got head_dim={head_dim}, keep={keep}")
-        head_space = spaces.Box(observation_space.low[:head_dim], observation_space.high[:head_dim],
-                                dtype=observation_space.dtype)
-        inner = extractor_class(head_space, **(extractor_kwargs or {}))
-        super().__init__(observation_space, inner.features_dim + keep - int(head_dim))
-        self.inner, self.head_dim, self.keep = inner, int(head_dim), keep
-        # SB3's FlattenExtractor is the identity on a flat Box: then the features are a view of the observations.
-        self._pass_through = type(inner) is FlattenExtractor
-
-    def forward(self, observations: th.Tensor) -> th.Tensor:
-        if self._pass_through:
-            return observations[..., :self.keep]
-        features = self.inner(observations[..., :self.head_dim])
-        if self.keep == self.head_dim:
-            return features
-        return th.cat([features, observations[..., self.head_dim:self.keep]], dim=-1)
+from sb3_emmarl.common.trust.validation import MAX_LAYER, integer
 
 
 def _check_space(observation_space: spaces.Space, layout: MessageLayout) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from wildlife_reserve.reserve.constants import CHANNEL_NAMES
+from wildlife_reserve.reserve.kernels.constants import CHANNEL_NAMES
 
 
 def hidden_indices(layout: dict[str, tuple[slice, tuple[int, ...]]], parts: Sequence[str]) -> np.ndarray:

@@ -33,8 +33,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 from sb3_emmarl.common.vec_env import LINKS_KEY, TERMINAL_LINKS_KEY
-from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 
 #: Floats per message: own features (6) + window channel means (7) + coarse map means (3).
 MESSAGE_DIM = 16

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.validation import boolean
-from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
+from sb3_emmarl.common.appended.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
+from sb3_emmarl.common.trust.validation import boolean
 from wildlife_reserve.reserve.modes import N_MODES
 
 

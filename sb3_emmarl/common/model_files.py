@@ -1,7 +1,7 @@
 """Model zips checked before they are loaded: complete, read as data only, and saved by the algorithm asked for.
 
 :func:`check_model_file` / :func:`load_model` refuse a truncated or corrupt zip with a message naming the file, a zip
-whose pickles name, call or allocate what data does not (:mod:`sb3_emmarl.common.safe_zip`), and a zip saved by
+whose pickles name, call or allocate what data does not (:mod:`sb3_emmarl.common.trust.safe_zip`), and a zip saved by
 another algorithm than the one asked for (:func:`fitting_algorithms`); :func:`network_shapes` tells one run's
 checkpoint from another's.
 """
@@ -19,12 +19,12 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_emmarl.common.safe_zip import check_zip_sizes, pickle_globals, read_data, safe_data_objects
+from sb3_emmarl.common.trust.safe_zip import check_zip_sizes, pickle_globals, read_data, safe_data_objects
 
 
 def check_model_file(path: str | Path) -> Path:
     """Check that ``path`` is a complete SB3 model zip whose pickles name only allowed globals and read as data only
-    (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`).
+    (:func:`~sb3_emmarl.common.trust.safe_zip.safe_data_objects`).
 
     :raise ValueError: naming the file when it is missing, truncated, corrupt, not a model, or names a foreign global
     """
@@ -34,7 +34,7 @@ def check_model_file(path: str | Path) -> Path:
 
 def _checked_data_objects(path: str | Path) -> dict[str, Any]:
     """:func:`check_model_file`'s checks, returning the zip's pickled data read as data only (SB3's ``custom_objects``,
-    :func:`~sb3_emmarl.common.safe_zip.safe_data_objects`)."""
+    :func:`~sb3_emmarl.common.trust.safe_zip.safe_data_objects`)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"no model file {str(path)!r}")
@@ -151,7 +151,7 @@ def load_model(algo: type[BaseAlgorithm], path: str | Path, candidates: dict[str
                **kwargs: Any) -> BaseAlgorithm:
     """``algo.load(path, **kwargs)`` after :func:`check_model_file` (and :func:`check_saved_algorithm` if
     ``candidates`` are given), the zip's pickled data read as data only
-    (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`, given to SB3 as ``custom_objects``)."""
+    (:func:`~sb3_emmarl.common.trust.safe_zip.safe_data_objects`, given to SB3 as ``custom_objects``)."""
     custom_objects = {**_checked_data_objects(path), **(kwargs.pop("custom_objects", None) or {})}
     if candidates:
         check_saved_algorithm(path, algo, candidates, custom_objects)

@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_emmarl.common.atomic_files import write_atomic
 from sb3_emmarl.common.environments import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
-from sb3_emmarl.common.extras import requires
+from sb3_emmarl.common.trust.atomic_files import write_atomic
+from sb3_emmarl.common.trust.extras import requires
 
 
 def _play(model: Predictor, venv: Any, seed: int, deterministic: bool, observe: Callable[[int], Any]) -> dict[str, Any]:
@@ -49,7 +49,7 @@ def record_trajectory(model: Predictor, seed: int = 0, env_kwargs: dict[str, Any
     :return: ``positions`` ``(T, n_uavs, 2)`` (row, col), ``poachers`` ``(T, n_poachers, 2)`` (NaN while a poacher is
         not in play), ``terrain`` ``(height, width)`` and the episode's ``metrics``
     """
-    from wildlife_reserve.reserve.constants import POACHER_ACTIVE
+    from wildlife_reserve.reserve.kernels.constants import POACHER_ACTIVE
 
     if is_centralized(model, env_kwargs):
         raise ValueError("record_trajectory draws a parameter-shared team; this model acts on the centralised view")

@@ -4,7 +4,7 @@
 the vector environment (the reserves mid-episode, ``VecMonitor``'s running episodes, ``VecNormalize``'s statistics,
 the EM belief). A layer that keeps state between steps defines ``get_state()`` / ``set_state(state)``; SB3's own
 stateful wrappers are read here by their attributes (:data:`SB3_WRAPPER_STATE`). A training state file is read as data
-only (:func:`load_training_state`, :mod:`sb3_emmarl.common.safe_pickle`).
+only (:func:`load_training_state`, :mod:`sb3_emmarl.common.trust.safe_pickle`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper, VecMonitor, VecNormalize
 
-from sb3_emmarl.common.pickling import ViewPickler
-from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, DataUnpickler, load_data_pickle, loads
+from sb3_emmarl.common.trust.pickling import ViewPickler
+from sb3_emmarl.common.trust.safe_pickle import ENV_STATE_MODULES, DataUnpickler, load_data_pickle, loads
 
 #: Attributes of SB3's vector wrappers that change from step to step (the rest is configuration).
 SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
@@ -34,7 +34,7 @@ SB3_WRAPPER_STATE: dict[type, tuple[str, ...]] = {
 
 
 class _FileReferencePickler(ViewPickler):
-    """:class:`~sb3_emmarl.common.pickling.ViewPickler` that keeps open files (SB3's ``Monitor`` writers inside a
+    """:class:`~sb3_emmarl.common.trust.pickling.ViewPickler` that keeps open files (SB3's ``Monitor`` writers inside a
     ``DummyVecEnv``, which hold a file and a csv writer) out of the pickle, by their order of appearance:
     :func:`_loads_with_files` puts back the live environment's in their place, so that a resumed run goes on writing its
     own monitor files."""
@@ -59,7 +59,7 @@ def _dumps_with_files(obj: Any) -> tuple[bytes, list[Any]]:
 
 
 class _LiveFilesUnpickler(DataUnpickler):
-    """:class:`~sb3_emmarl.common.safe_pickle.DataUnpickler` that puts the live environment's open files in the place
+    """:class:`~sb3_emmarl.common.trust.safe_pickle.DataUnpickler` that puts the live environment's open files in the place
     of the references :class:`_FileReferencePickler` wrote.
 
     :param files: the live environment's open files, in the order the pickler met them
@@ -77,7 +77,7 @@ class _LiveFilesUnpickler(DataUnpickler):
 
 def _loads_with_files(blob: bytes, files: list[Any]) -> Any:
     """Unpickle :func:`_dumps_with_files`'s bytes as data only (instances of the environments' classes,
-    :data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`), the open files taken from ``files`` (the live ones,
+    :data:`~sb3_emmarl.common.trust.safe_pickle.ENV_STATE_MODULES`), the open files taken from ``files`` (the live ones,
     same order)."""
     return loads(blob, "the training state's environment wrapper", class_modules=ENV_STATE_MODULES,
                  unpickler=functools.partial(_LiveFilesUnpickler, files=files))

@@ -10,11 +10,11 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
-from sb3_emmarl.common.initialization import zero_tail_weights
+from sb3_emmarl.common.appended.initialization import zero_tail_weights
 from sb3_emmarl.common.latent.algorithm import LatentAlgorithmMixin, rollout_transitions
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.em import EpisodeCounts, Transitions
-from sb3_emmarl.common.validation import RULES
+from sb3_emmarl.common.trust.validation import RULES
 from sb3_emmarl.em_ppo.policies import MlpPolicy
 
 SelfEMPPO = TypeVar("SelfEMPPO", bound="EMPPO")
@@ -49,7 +49,7 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         on the last two rollouts' transitions)
     :param zero_belief_weights: start at zero the weights with which the policy's and the value's first layers read
         the belief, so that the networks start as PPO's (as ``OraclePPO`` does for the told mode; see
-        :mod:`sb3_emmarl.common.initialization`); off by default (what it changes: docs/lab/results-history.md)
+        :mod:`sb3_emmarl.common.appended.initialization`); off by default (what it changes: docs/lab/results-history.md)
     :param policy_kwargs: policy arguments (``net_arch``, ...)
     :param tensorboard_log: tensorboard folder
     :param verbose: verbosity

@@ -19,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sb3_emmarl.common.validation import int_flag
+from sb3_emmarl.common.trust.validation import int_flag
 from sb3_emmarl.experiments.runner import BACKENDS, check_ray_address, hardware, run_experiment
 from sb3_emmarl.experiments.spec import BUDGETS, ExperimentSpec, list_specs, load_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore
@@ -134,7 +134,7 @@ def experiment_main(argv: list[str] | None = None) -> int:
                 return 1
     if args.no_report:
         return 0
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.experiments.report import check_versions, render_section, update_results_page
 
     rows = {spec.name: store.rows(spec.name, args.budget) for spec, _ in specs}

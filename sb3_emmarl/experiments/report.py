@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_emmarl.common.atomic_files import write_atomic, write_text
-from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.statistics import paired_p_value
+from sb3_emmarl.common.trust.atomic_files import write_atomic, write_text
+from sb3_emmarl.common.trust.extras import requires
 from sb3_emmarl.experiments.spec import ExperimentSpec
 from sb3_emmarl.experiments.store import UNKNOWN
 from wildlife_reserve.reserve.terrain import TERRAIN_NAMES

@@ -48,9 +48,9 @@ import numpy as np
 
 from sb3_emmarl.cli import child_failure, os_error_text
 from sb3_emmarl.common.environments import ENV_ID
-from sb3_emmarl.common.extras import requires
 from sb3_emmarl.common.model_files import load_model
-from sb3_emmarl.common.safe_config import load_yaml_text
+from sb3_emmarl.common.trust.extras import requires
+from sb3_emmarl.common.trust.safe_config import load_yaml_text
 from sb3_emmarl.experiments.spec import EPISODE_METRICS, SPECS_DIR, ExperimentSpec, load_spec, parse_spec
 from sb3_emmarl.experiments.store import LEASE_SECONDS, ResultStore, RunnerId, code_version
 
@@ -176,8 +176,8 @@ def run_cell(spec: ExperimentSpec, budget: str, algorithm: str, condition: str, 
         if all(metric in r for r in records):
             metrics[metric] = float(np.mean([r[metric] for r in records]))
     if any(output.kind == "trajectories" for output in spec.outputs):
-        from sb3_emmarl.common.atomic_files import write_atomic
         from sb3_emmarl.common.recording import record_trajectory
+        from sb3_emmarl.common.trust.atomic_files import write_atomic
 
         paths = record_trajectory(model, seed=plan.eval_seed, env_kwargs=cond.eval_kwargs)
         write_atomic(folder / TRAJECTORY_FILE, lambda file: np.savez_compressed(
@@ -578,7 +578,7 @@ def _cell_main(argv: list[str] | None = None) -> int:
     if args.parent_pid is not None:
         _die_with_parent(args.parent_pid)
     spec = spec_from(args.spec, sys.stdin.read() if args.spec_stdin else None)
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
 
     try:
         result = run_cell(spec, args.budget, args.algorithm, args.condition, args.seed, args.root)

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, check_env_kwargs
-from sb3_emmarl.common.safe_config import load_yaml
+from sb3_emmarl.common.trust.safe_config import load_yaml
 
 #: Where the package's specifications live.
 SPECS_DIR = Path(__file__).resolve().parent / "specs"

@@ -40,8 +40,8 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import explained_variance
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.validation import RULES, Rule, fail, no_schedule_string, number, optional
-from sb3_emmarl.common.wrapping import WrapsEnv, find_wrapper
+from sb3_emmarl.common.appended.wrapping import WrapsEnv, find_wrapper
+from sb3_emmarl.common.trust.validation import RULES, Rule, fail, no_schedule_string, number, optional
 from sb3_emmarl.mappo.policies import VALUE_NORM_BETA, MAPPOPolicy, MlpPolicy
 from sb3_emmarl.mappo.wrappers import GlobalStateWrapper, StateLayout, wrap_with_state
 

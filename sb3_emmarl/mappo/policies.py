@@ -29,7 +29,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_emmarl.common.extractors import SplitFeaturesExtractor
+from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 from sb3_emmarl.mappo.wrappers import StateLayout
 
 #: Defaults of on-policy's ValueNorm: the averaging factor, the floor of the debiasing term and of the variance.

@@ -22,8 +22,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
 from sb3_emmarl.common.vec_env import STATE_KEY, TERMINAL_STATE_KEY, SharedPolicyVecEnv, require_state
-from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper, ensure_wrapped
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,10 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.wrapping import WrapsObservations, ensure_wrapped
 from sb3_emmarl.common.extractors import message_policy_kwargs
 from sb3_emmarl.common.messages import NeighbourMessageWrapper
-from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsObservations, ensure_wrapped
+from sb3_emmarl.common.trust.validation import RULES
 
 
 def wrap_with_messages(env: Any, max_messages: int, verbose: int = 0) -> VecEnv:

@@ -8,10 +8,10 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.initialization import hold_tail_weights_at_zero, zero_tail_weights
+from sb3_emmarl.common.appended.initialization import hold_tail_weights_at_zero, zero_tail_weights
+from sb3_emmarl.common.appended.wrapping import WrapsObservations, find_wrapper
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
-from sb3_emmarl.common.validation import RULES
-from sb3_emmarl.common.wrapping import WrapsObservations, find_wrapper
+from sb3_emmarl.common.trust.validation import RULES
 from wildlife_reserve.reserve.modes import N_MODES
 
 
@@ -27,7 +27,7 @@ class OraclePPO(WrapsObservations, PPO):
 
     The weights with which the first layers read the one-hot start at zero (``zero_mode_weights``): the
     networks start as plain PPO's, and learn what the mode is worth from there (see
-    :mod:`sb3_emmarl.common.initialization` for why).
+    :mod:`sb3_emmarl.common.appended.initialization` for why).
 
     Which networks read the mode is ``mode_input``: both (the default), or only the policy (the critic's weights on
     the one-hot stay at zero: the mode can change what the team does, not what it expects), or only the value (the

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sb3_emmarl.common.extras import MissingExtra
+from sb3_emmarl.common.trust.extras import MissingExtra
 from sb3_emmarl.plots.drawing import BANDS, _require_matplotlib, aggregate_curves, draw_curves, seed_bars
 from sb3_emmarl.plots.reading import MONITOR_KEYS, monitor_curve, read_scalars
 from sb3_emmarl.plots.runs import Run, tensorboard_name, tensorboard_runs, zoo_runs
@@ -26,7 +26,7 @@ FORMATS = ("png", "pdf", "svg")
 def plot_parser() -> argparse.ArgumentParser:
     """The flags of ``emmarl plot`` (rl-baselines3-zoo's ``plot_train`` / ``all_plots`` names where they fit)."""
     from sb3_emmarl.common.environments import ENV_MODULES
-    from sb3_emmarl.common.validation import float_flag, int_flag
+    from sb3_emmarl.common.trust.validation import float_flag, int_flag
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
     from sb3_emmarl.zoo.cli import OneLineParser
 
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, MissingExtra) as error:
         parser.error(str(error))
     output.parent.mkdir(parents=True, exist_ok=True)
-    from sb3_emmarl.common.atomic_files import write_atomic
+    from sb3_emmarl.common.trust.atomic_files import write_atomic
 
     write_atomic(output, lambda file: figure.savefig(file, format=output.suffix.lower().lstrip("."), dpi=120))
     print(f"wrote {output}")

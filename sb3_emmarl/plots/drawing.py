@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sb3_emmarl.common.extras import requires
+from sb3_emmarl.common.trust.extras import requires
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

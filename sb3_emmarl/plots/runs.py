@@ -62,7 +62,7 @@ def make_run(algo: str, env_id: str, folder: Path, env_kwargs: Mapping[str, Any]
 
 def _run_env_kwargs(folder: Path, env_id: str) -> dict[str, Any]:
     """The environment's arguments of a zoo run, from its ``config.yml`` (empty when it has none)."""
-    from sb3_emmarl.common.safe_config import load_yaml
+    from sb3_emmarl.common.trust.safe_config import load_yaml
 
     config_file = folder / env_id / "config.yml"
     if not config_file.is_file():

@@ -55,7 +55,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
-from sb3_emmarl.common.validation import RULES, no_schedule_string
+from sb3_emmarl.common.trust.validation import RULES, no_schedule_string
 from sb3_emmarl.common.vec_env import SharedPolicyVecEnv, require_state
 from sb3_emmarl.qmix.buffers import (
     JointReplayBuffer,

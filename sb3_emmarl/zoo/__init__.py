@@ -5,7 +5,7 @@ It is the ``[zoo]`` extra (rl_zoo3, optuna, pandas): without rl_zoo3, importing 
 the extra to install.
 """
 
-from sb3_emmarl.common.extras import requires
+from sb3_emmarl.common.trust.extras import requires
 
 with requires("rl_zoo3", "zoo", "the zoo"):
     import rl_zoo3  # noqa: F401

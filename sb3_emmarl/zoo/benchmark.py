@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
-from sb3_emmarl.common.arguments import OneLineParser
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.evaluation import RandomPolicy, evaluate_team, is_centralized, load_for_evaluation
 from sb3_emmarl.common.statistics import paired_p_value
-from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
+from sb3_emmarl.common.trust.arguments import OneLineParser
+from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, train_main
 from sb3_emmarl.zoo.compare import run_settings

@@ -3,7 +3,7 @@
 The flags are rl-baselines3-zoo's (``--algo --env -n --seed --tensorboard-log --eval-freq --env-kwargs
 --hyperparams -f -i -optimize --storage --study-name --n-trials``...), plus ``--resume`` to continue a
 stopped run. Every input is checked before any training starts (flags by their argparse types, the
-hyperparameters by :mod:`sb3_emmarl.common.validation`, the reserve's arguments by the reserve): a bad one
+hyperparameters by :mod:`sb3_emmarl.common.trust.validation`, the reserve's arguments by the reserve): a bad one
 ends with exit code 2 and an ``error:`` line naming it, and leaves no folder behind. A run that fails
 while training (e.g. at a non-finite value) says why and where its checkpoints are.
 """
@@ -28,9 +28,6 @@ import numpy as np
 import yaml
 
 from sb3_emmarl.cli import os_error_text
-from sb3_emmarl.common.arguments import KeyValues, OneLineParser
-from sb3_emmarl.common.arguments import parse_key_values as parse_key_values
-from sb3_emmarl.common.atomic_files import write_text
 from sb3_emmarl.common.checkpoints import (
     TRAINING_STATE,
     check_checkpoint,
@@ -42,8 +39,11 @@ from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, 
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, network_shapes
-from sb3_emmarl.common.safe_config import wrapper_from_config
-from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, device_flag, int_flag
+from sb3_emmarl.common.trust.arguments import KeyValues, OneLineParser
+from sb3_emmarl.common.trust.arguments import parse_key_values as parse_key_values
+from sb3_emmarl.common.trust.atomic_files import write_text
+from sb3_emmarl.common.trust.safe_config import wrapper_from_config
+from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, device_flag, int_flag
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, compile_reserve
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 

@@ -19,9 +19,9 @@ from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import evaluate_team, load_for_evaluation, make_eval_env
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from sb3_emmarl.common.model_files import check_model_file
-from sb3_emmarl.common.safe_config import wrapper_from_config
 from sb3_emmarl.common.statistics import paired_p_value
-from sb3_emmarl.common.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
+from sb3_emmarl.common.trust.safe_config import wrapper_from_config
+from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
 from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
 from sb3_emmarl.zoo.algos import ZOO_ALGOS

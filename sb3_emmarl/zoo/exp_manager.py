@@ -16,7 +16,7 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 - the environment's arguments are validated before any folder is written;
 - :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks (and
   :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms);
-- the hyperparameters are checked by :func:`~sb3_emmarl.common.validation.check_hyperparams` before anything
+- the hyperparameters are checked by :func:`~sb3_emmarl.common.trust.validation.check_hyperparams` before anything
   is built, and the YAML file must be a mapping holding the environment's entry; then, still before the run folder
   exists, what SB3 would only find in the first rollout or update (the constructors' annotations, the optimizer, the
   callbacks, the tensorboard folder: :meth:`ReserveExperimentManager._check_before_folder`), and a start that fails
@@ -26,7 +26,7 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
 - the periodic evaluations (``--eval-freq``) and optuna's trials count team episodes
   (:class:`~sb3_emmarl.common.callbacks.EvalCallback`, through :class:`~sb3_emmarl.common.callbacks.AtomicEvalCallback`
   and :class:`TeamTrialEvalCallback`), not the UAVs of one episode as SB3's does;
-- every file is written atomically (:mod:`sb3_emmarl.common.atomic_files`), ``config.yml`` and ``args.yml``
+- every file is written atomically (:mod:`sb3_emmarl.common.trust.atomic_files`), ``config.yml`` and ``args.yml``
   as plain YAML (rl_zoo3 writes Python tags), checkpoints by
   :class:`~sb3_emmarl.common.checkpoints.ResumableCheckpointCallback` with the training state;
 - the training environment is wrapped in :class:`~sb3_emmarl.common.vec_env.FiniteCheck` (SB3's
@@ -54,7 +54,6 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.atomic_files import save_model, save_pickle, write_text
 from sb3_emmarl.common.callbacks import AtomicEvalCallback, LatentMetricsCallback, TeamMetricsCallback
 from sb3_emmarl.common.callbacks import EvalCallback as TeamEvalCallback
 from sb3_emmarl.common.centralized import register_envs
@@ -70,11 +69,12 @@ from sb3_emmarl.common.checkpoints import (
 from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm
-from sb3_emmarl.common.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
-from sb3_emmarl.common.safe_pickle import load_data_pickle, load_vec_normalize
-from sb3_emmarl.common.safe_zip import safe_data_objects
 from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
-from sb3_emmarl.common.validation import check_hyperparams
+from sb3_emmarl.common.trust.atomic_files import save_model, save_pickle, write_text
+from sb3_emmarl.common.trust.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
+from sb3_emmarl.common.trust.safe_pickle import load_data_pickle, load_vec_normalize
+from sb3_emmarl.common.trust.safe_zip import safe_data_objects
+from sb3_emmarl.common.trust.validation import check_hyperparams
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO
 from sb3_emmarl.message_ppo.message_ppo import wrap_with_messages
@@ -96,7 +96,7 @@ EVAL_SEED_OFFSET = 10_000
 
 
 def read_yaml(path: str | Path, what: str) -> Any:
-    """A YAML file read as data (:func:`~sb3_emmarl.common.safe_config.load_yaml`): a Python tag, an oversized file and
+    """A YAML file read as data (:func:`~sb3_emmarl.common.trust.safe_config.load_yaml`): a Python tag, an oversized file and
     aliases that expand beyond the limit are refused with a message naming the file.
 
     :param path: the file
@@ -281,7 +281,7 @@ class ReserveExperimentManager(ExperimentManager):
         self.created_root: Path | None = None
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
-        """rl_zoo3's reading, checked (:func:`~sb3_emmarl.common.validation.check_hyperparams`), except that
+        """rl_zoo3's reading, checked (:func:`~sb3_emmarl.common.trust.validation.check_hyperparams`), except that
         ``--env-kwargs`` update the YAML's ``env_kwargs`` instead of replacing them (so ``ddpg.yml``'s
         ``continuous_actions: true`` survives ``--env-kwargs n_uavs:20``). A resumed run reads its own
         ``config.yml``."""
@@ -360,7 +360,7 @@ class ReserveExperimentManager(ExperimentManager):
         import torch as th
         from stable_baselines3.common.callbacks import BaseCallback
 
-        from sb3_emmarl.common.signatures import check_arguments, check_optimizer
+        from sb3_emmarl.common.trust.signatures import check_arguments, check_optimizer
 
         algo, source = ZOO_ALGOS[self.algo], self.settings_source()
         check_arguments(algo, {key: value for key, value in kwargs.items() if key not in ZOO_ONLY or key == "policy"},

@@ -35,14 +35,14 @@ from sb3_emmarl.common.latent.em import EStep
 from sb3_emmarl.common.latent.features import generic_features
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-from sb3_emmarl.common.zone_evidence import zone_features, zone_readings
+from sb3_emmarl.common.latent.zone_evidence import zone_features, zone_readings
 from wildlife_reserve import zone_patrol_v0
 from wildlife_reserve.zone_patrol.scripted import BlindTeam
 from wildlife_reserve.zone_patrol.world import ZonePatrolConfig, ZonePatrolWorld
 
 
 def zone_map_features(cfg: ZonePatrolConfig):
-    """EM's zone features (:func:`~sb3_emmarl.common.zone_evidence.zone_features`) of ``cfg``'s map. (The first two
+    """EM's zone features (:func:`~sb3_emmarl.common.latent.zone_evidence.zone_features`) of ``cfg``'s map. (The first two
     tables of the notebook were made with this script's own copy of them, before they joined the package: the same
     features, the track counts not yet capped at 5.)"""
     return zone_features(zone_patrol_v0.parallel_env(**cfg.__dict__).zone_map)

@@ -29,7 +29,7 @@ TASK = "zone_raids"
 def main() -> None:
     import torch as th
 
-    from sb3_emmarl.common.atomic_files import write_text
+    from sb3_emmarl.common.trust.atomic_files import write_text
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("variant", choices=bench.VARIANTS)

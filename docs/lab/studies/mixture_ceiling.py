@@ -44,13 +44,13 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
 from em_speed import build  # benchmarks/em_speed.py: an algorithm with its zoo YAML's settings
 
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.latent.counts import PoissonMixture
 from sb3_emmarl.common.latent.em import EStep, Transitions, transition_log_likelihoods
 from sb3_emmarl.common.latent.metrics import align_components
-from sb3_emmarl.common.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
+from sb3_emmarl.common.latent.reserve_evidence import COUNT_EVIDENCE_WEIGHT, ReadingCounter
 from sb3_emmarl.common.vec_env import make_vec_env
-from sb3_emmarl.common.wrapping import find_wrapper
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, WEATHERS
 
 #: Points of the episode, as fractions of its length.

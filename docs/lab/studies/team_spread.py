@@ -36,7 +36,7 @@ from sb3_emmarl.zoo.cli import latest_run
 from sb3_emmarl.zoo.compare import parse_variant, run_eval_env, run_settings
 from wildlife_reserve import reserve_v1
 from wildlife_reserve.reserve.actors import STEPS
-from wildlife_reserve.reserve.constants import N_MOVES
+from wildlife_reserve.reserve.kernels.constants import N_MOVES
 
 
 class SpreadMonitor(VecEnvWrapper):

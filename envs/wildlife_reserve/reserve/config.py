@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from wildlife_reserve.checks import check_array, check_bool, check_float, check_int, show
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES
 from wildlife_reserve.reserve.terrain import REGIONS, TERRAIN_NAMES, as_risk
+from wildlife_reserve.utils.checks import check_array, check_bool, check_float, check_int, show
 
 N_STRATEGIES = len(STRATEGIES)
 

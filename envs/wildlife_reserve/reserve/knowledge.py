@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wildlife_reserve.reserve.constants import NEVER
 from wildlife_reserve.reserve.kernels import Team, sender_masks, senders_by_receiver
+from wildlife_reserve.reserve.kernels.constants import NEVER
 
 #: A block's sign value is ``1 - exp(-signs known there / SIGN_MAP_SCALE)``.
 SIGN_MAP_SCALE = 2.0

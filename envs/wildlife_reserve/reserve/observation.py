@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from wildlife_reserve.reserve.config import ReserveConfig
-from wildlife_reserve.reserve.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
 from wildlife_reserve.reserve.kernels import Observe
+from wildlife_reserve.reserve.kernels.constants import N_CHANNELS, POACHER_ACTIVE, POACHER_GONE
 from wildlife_reserve.reserve.knowledge import SIGN_VALUES, sign_values
 from wildlife_reserve.reserve.modes import STRATEGIES
 from wildlife_reserve.reserve.view import ReserveView

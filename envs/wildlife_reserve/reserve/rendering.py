@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from wildlife_reserve.extras import requires
-from wildlife_reserve.reserve.constants import POACHER_ACTIVE, POACHER_CAUGHT
+from wildlife_reserve.reserve.kernels.constants import POACHER_ACTIVE, POACHER_CAUGHT
 from wildlife_reserve.reserve.view import ReserveView
+from wildlife_reserve.utils.extras import requires
 
 TERRAIN_COLOURS = np.array([[196, 214, 150], [52, 110, 60], [128, 118, 108]], dtype=np.float64)
 RISK_COLOUR = np.array([230, 120, 40], dtype=np.float64)

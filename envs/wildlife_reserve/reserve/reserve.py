@@ -71,20 +71,11 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
 from wildlife_reserve.reserve import actors, kernels, sensing
 from wildlife_reserve.reserve import signs as signs_lib
 from wildlife_reserve.reserve import terrain as terrain_lib
 from wildlife_reserve.reserve.compilation import announce_compilation
 from wildlife_reserve.reserve.config import ENERGY_COSTS, ReserveConfig
-from wildlife_reserve.reserve.constants import (
-    COMM_BROADCAST,
-    COMM_NONE,
-    COMM_QUERY,
-    N_COMMS,
-    N_MOVES,
-    POACHER_WAITING,
-)
 from wildlife_reserve.reserve.kernels import (
     Coverage,
     Flight,
@@ -100,6 +91,14 @@ from wildlife_reserve.reserve.kernels import (
     World,
     plain,
 )
+from wildlife_reserve.reserve.kernels.constants import (
+    COMM_BROADCAST,
+    COMM_NONE,
+    COMM_QUERY,
+    N_COMMS,
+    N_MOVES,
+    POACHER_WAITING,
+)
 from wildlife_reserve.reserve.knowledge import TeamKnowledge
 from wildlife_reserve.reserve.modes import N_MODES, STRATEGIES, Weather, decode_mode
 from wildlife_reserve.reserve.observation import (
@@ -111,6 +110,7 @@ from wildlife_reserve.reserve.observation import (
     state_size,
 )
 from wildlife_reserve.reserve.stream import Stream
+from wildlife_reserve.utils.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
 
 if TYPE_CHECKING:
     from wildlife_reserve.reserve.rendering import ReserveRenderer
@@ -377,7 +377,7 @@ class ReserveParallelEnv(ParallelEnv):
         :param seed: seeds every random draw of the episode (and of later unseeded resets)
         :param options: ``{"mode": int}`` fixes the hidden mode for this episode;
             ``{"uav_positions": array (n, 2)}`` sets the UAVs' start cells (row, col); a misspelling of these is
-            refused, another key is named in a warning and ignored (:func:`~wildlife_reserve.checks.check_options`).
+            refused, another key is named in a warning and ignored (:func:`~wildlife_reserve.utils.checks.check_options`).
         :raise ValueError: for a bad seed or option, before anything changes (the previous episode, if any, is left as
             it was)
         """

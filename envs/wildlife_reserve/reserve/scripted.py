@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wildlife_reserve.reserve.actors import STEPS
-from wildlife_reserve.reserve.constants import COMM_BROADCAST, N_COMMS, N_MOVES, POACHER_CAUGHT
+from wildlife_reserve.reserve.kernels.constants import COMM_BROADCAST, N_COMMS, N_MOVES, POACHER_CAUGHT
 from wildlife_reserve.reserve.modes import STRATEGIES
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv, parallel_env
 

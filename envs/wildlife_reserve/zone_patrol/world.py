@@ -12,7 +12,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from wildlife_reserve.checks import check_bool, check_float, check_int
+from wildlife_reserve.utils.checks import check_bool, check_float, check_int
 from wildlife_reserve.zone_patrol import kernels
 
 #: Sensors: the action is ``move + N_MOVES * sensor``.

@@ -76,8 +76,8 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from wildlife_reserve.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
-from wildlife_reserve.extras import requires
+from wildlife_reserve.utils.checks import check_action_dict, check_agent, check_int, check_options, check_seed, discrete_action
+from wildlife_reserve.utils.extras import requires
 from wildlife_reserve.zone_patrol.world import N_MOVES, N_SENSORS, N_ZONES, ZonePatrolConfig, ZonePatrolWorld
 
 #: The render modes (``metadata["render_modes"]``).
@@ -155,7 +155,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
     def zone_map(self) -> dict[str, Any]:
         """Where the zones lie and where an observation holds the window and the UAV's cell, as plain values: the map
         a reader of the evidence needs to tell in which zone a track was seen (EM's zone features,
-        :func:`sb3_emmarl.common.zone_evidence.zone_features`)."""
+        :func:`sb3_emmarl.common.latent.zone_evidence.zone_features`)."""
         cfg, cells = self.config, self.config.window_cells
         return {"grid_size": cfg.grid_size, "zone_size": cfg.zone_size, "window_radius": cfg.window_radius,
                 "zone_origins": cfg.zone_origins().tolist(), "tracks": [0, cells], "detections": [cells, 2 * cells],
@@ -172,7 +172,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
 
         :param seed: an int >= 0 seeds the episode's draws (and later unseeded resets'), or None
         :param options: ``{"mode": int}`` fixes the hidden mode for this episode; a misspelling of it is refused,
-            another key is named in a warning and ignored (:func:`~wildlife_reserve.checks.check_options`)
+            another key is named in a warning and ignored (:func:`~wildlife_reserve.utils.checks.check_options`)
         :raise ValueError: for a bad seed or option, before anything changes
         """
         seed = check_seed(seed)

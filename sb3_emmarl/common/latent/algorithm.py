@@ -15,6 +15,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.wrapping import WrapsObservations, ensure_wrapped, find_wrapper
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy
 from sb3_emmarl.common.latent.config import (
     E_STEP_DEFAULTS,
@@ -28,7 +29,6 @@ from sb3_emmarl.common.latent.evidence import evidence_from_spec
 from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
-from sb3_emmarl.common.wrapping import WrapsObservations, ensure_wrapped, find_wrapper
 
 if TYPE_CHECKING:
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
@@ -425,7 +425,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):
         """As SB3's ``load`` (an ``env`` gets the belief wrapper:
-        :class:`~sb3_emmarl.common.wrapping.WrapsObservations`), with the E-step's state restored."""
+        :class:`~sb3_emmarl.common.appended.wrapping.WrapsObservations`), with the E-step's state restored."""
         model = super().load(path, env=env, device=device, custom_objects=custom_objects,
                              print_system_info=print_system_info, force_reset=force_reset, **kwargs)
         e_step_state = model.__dict__.pop("_e_step_state", None)  # (saved before 0.17.0: in the data)

@@ -39,14 +39,14 @@ from gymnasium import spaces
 from numba import njit
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 from sb3_emmarl.common.latent.config import LatentConfig
 from sb3_emmarl.common.latent.evidence import CountEvidence, evidence_of
 from sb3_emmarl.common.latent.features import encode_actions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
-from sb3_emmarl.common.validation import LATENT_RULES
+from sb3_emmarl.common.trust.validation import LATENT_RULES
 from sb3_emmarl.common.vec_env import LINKS_KEY
-from sb3_emmarl.common.wrapping import TERMINAL_OBSERVATION, AppendingVecEnvWrapper
 
 #: Probabilities below this are 0 in the beliefs the policies read: sharp beliefs reached float32 subnormals
 #: (1e-45 seen), and a matrix product over inputs holding subnormals runs at about two thirds of its speed on

@@ -27,7 +27,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_emmarl.common.atomic_files import write_atomic
+from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.latent.algorithm import (
     augmented_features,
     e_step_and_log,
@@ -43,8 +43,8 @@ from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
 from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
-from sb3_emmarl.common.validation import integer
-from sb3_emmarl.common.wrapping import find_wrapper
+from sb3_emmarl.common.trust.atomic_files import write_atomic
+from sb3_emmarl.common.trust.validation import integer
 
 Part = TypeVar("Part", Transitions, EpisodeCounts)
 

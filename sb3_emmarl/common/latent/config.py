@@ -4,8 +4,8 @@ EM-PPO, EM-DDPG, VDN+EM and :class:`~sb3_emmarl.common.latent.callback.EMCallbac
 argument, ``latent_kwargs`` (a :class:`LatentConfig` or a dict of its fields), as SB3 takes a policy's settings as
 ``policy_kwargs``. Each algorithm's own defaults are its class attribute ``latent_defaults``; :meth:`LatentConfig.updated`
 lays the given fields over them (``e_step_kwargs`` key by key) and fills the E-step's defaults in. The record checks
-every field by its rule in :data:`~sb3_emmarl.common.validation.LATENT_RULES` (the one place the rules live) and how the fields
-fit together. The model keeps it whole as ``model.latent_config``; what it saves is the record's fields
+every field by its rule in :data:`~sb3_emmarl.common.trust.validation.LATENT_RULES` (the one place the rules live)
+and how the fields fit together. The model keeps it whole as ``model.latent_config``; what it saves is the record's fields
 (``model.latent_kwargs``, plain data, as SB3 saves ``policy_kwargs``), and a model saved before the record existed
 (its settings as attributes of their own) loads through :func:`upgrade_saved_settings`.
 """
@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from sb3_emmarl.common.latent.counts import check_factors
-from sb3_emmarl.common.validation import LATENT_RULES
+from sb3_emmarl.common.trust.validation import LATENT_RULES
 
 #: Defaults of the E-step: the arguments of :class:`~sb3_emmarl.common.latent.em.EStep` that ``e_step_kwargs`` may
 #: override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).

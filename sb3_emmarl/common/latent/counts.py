@@ -1,7 +1,7 @@
 """The count model: a mixture of Poisson models of what is read *where*, fitted by EM in closed form.
 
 An environment's plug-in may count its readings by *bin* (:class:`~sb3_emmarl.common.latent.evidence.CountEvidence`:
-on the reserve, three window channels by map block and window ring, :mod:`sb3_emmarl.common.reserve_evidence`), with
+on the reserve, three window channels by map block and window ring, :mod:`sb3_emmarl.common.latent.reserve_evidence`), with
 each bin's *exposure* (how much of the bin was looked at). Under component ``k`` a bin's count of channel ``c`` is
 Poisson with mean ``exposure * rate[k, c, bin]``, independently over bins and steps.
 

@@ -14,7 +14,8 @@ An environment's plug-in is a :class:`LatentEvidence` subclass registered with :
 model reads observations as it did in training without an environment. :func:`evidence_of` asks the registered
 plug-ins in turn and falls back to :class:`GenericEvidence` (the observation itself, or a fixed projection of it:
 the generic transition mixture, no counts). The package's own plug-ins, the reserve's
-(:mod:`sb3_emmarl.common.reserve_evidence`) and ZonePatrol's (:mod:`sb3_emmarl.common.zone_evidence`), are registered
+(:mod:`sb3_emmarl.common.latent.reserve_evidence`) and ZonePatrol's
+(:mod:`sb3_emmarl.common.latent.zone_evidence`), are registered
 when ``sb3_emmarl`` is imported; ``docs/em.md`` ("Your own evidence") shows how to write one.
 """
 

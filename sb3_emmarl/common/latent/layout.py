@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from sb3_emmarl.common.validation import LATENT_RULES
+from sb3_emmarl.common.trust.validation import LATENT_RULES
 
 
 @dataclass(frozen=True)

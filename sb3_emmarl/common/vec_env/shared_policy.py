@@ -14,8 +14,8 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 from supersuit.vector import ConcatVecEnv, MakeCPUAsyncConstructor, MarkovVectorEnv, ProcConcatVec
 
-from sb3_emmarl.common.pickling import dumps
-from sb3_emmarl.common.safe_pickle import ENV_STATE_MODULES, loads
+from sb3_emmarl.common.trust.pickling import dumps
+from sb3_emmarl.common.trust.safe_pickle import ENV_STATE_MODULES, loads
 from sb3_emmarl.common.vec_env.memory import check_copies_fit
 
 #: Key of the ``reset`` options that carries one seed per reserve copy.
@@ -215,7 +215,7 @@ class SharedPolicyVecEnv(VecEnv):
 
     def set_state(self, state: bytes) -> None:
         """Restore :meth:`get_state` (the copies then continue their episodes), read as data only: a checkpoint may
-        hold instances of the environments' own classes (:data:`~sb3_emmarl.common.safe_pickle.ENV_STATE_MODULES`)
+        hold instances of the environments' own classes (:data:`~sb3_emmarl.common.trust.safe_pickle.ENV_STATE_MODULES`)
         and nothing else.
 
         :raise ValueError: if the state is not this environment's (other copies, a foreign or unsafe pickle)

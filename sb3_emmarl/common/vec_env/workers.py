@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium.vector.utils import CloudpickleWrapper
 from pettingzoo import ParallelEnv
 
-from sb3_emmarl.common.pickling import dumps
+from sb3_emmarl.common.trust.pickling import dumps
 from sb3_emmarl.common.vec_env.shared_policy import (
     COPY_SEEDS_KEY,
     LINKS_KEY,

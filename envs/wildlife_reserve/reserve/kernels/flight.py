@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import COMM_NONE
+from wildlife_reserve.reserve.kernels.constants import COMM_NONE
 from wildlife_reserve.reserve.kernels.records import Flight
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import POACHER_ACTIVE, POACHER_GONE, POACHER_WAITING
+from wildlife_reserve.reserve.kernels.constants import POACHER_ACTIVE, POACHER_GONE, POACHER_WAITING
 from wildlife_reserve.reserve.kernels.records import Ground, Leopards, Poachers
 
 

@@ -6,7 +6,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_RISK, CH_SIGN, CH_STALENESS, CH_UAV
+from wildlife_reserve.reserve.kernels.constants import (
+    CH_LEOPARD,
+    CH_OCCLUSION,
+    CH_POACHER,
+    CH_RISK,
+    CH_SIGN,
+    CH_STALENESS,
+    CH_UAV,
+)
 from wildlife_reserve.reserve.kernels.records import Flight, Observe, Team
 
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import POACHER_ACTIVE
+from wildlife_reserve.reserve.kernels.constants import POACHER_ACTIVE
+from wildlife_reserve.reserve.kernels.draws import standard_normal
 from wildlife_reserve.reserve.kernels.records import Candidates, Ground, Sensing, SignRecords, Spots, Team
-from wildlife_reserve.reserve.stream import standard_normal
 
 
 @njit(cache=True)

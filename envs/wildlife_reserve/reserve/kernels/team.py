@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import NEVER
+from wildlife_reserve.reserve.kernels.constants import NEVER
 from wildlife_reserve.reserve.kernels.records import Coverage, Jammer, Looks, Talk, Team
 from wildlife_reserve.reserve.kernels.signs import learn_signs
 

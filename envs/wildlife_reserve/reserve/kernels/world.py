@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wildlife_reserve.reserve.constants import N_COMMS, N_MOVES, POACHER_ACTIVE, POACHER_CAUGHT
+from wildlife_reserve.reserve.kernels.constants import N_COMMS, N_MOVES, POACHER_ACTIVE, POACHER_CAUGHT
+from wildlife_reserve.reserve.kernels.draws import uniform
 from wildlife_reserve.reserve.kernels.flight import decode_actions, fly_and_collide
 from wildlife_reserve.reserve.kernels.ground import enter_poachers, move_ground_actors, move_jammer, poach, poaching_timers
 from wildlife_reserve.reserve.kernels.observe import fill_observations
@@ -38,7 +39,6 @@ from wildlife_reserve.reserve.kernels.signs import (
     sign_candidates,
 )
 from wildlife_reserve.reserve.kernels.team import jam, look_and_talk, record_readings_seen, sender_masks
-from wildlife_reserve.reserve.stream import uniform
 
 
 class ActionError(ValueError):

@@ -7,12 +7,12 @@ import argparse
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-from sb3_emmarl.common.safe_config import parse_value
+from sb3_emmarl.common.trust.safe_config import parse_value
 
 
 def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
     """rl-zoo's ``key:value`` pairs; values are Python literals read as data by
-    :func:`~sb3_emmarl.common.safe_config.parse_value` (quote strings: ``region:"'forest'"``), never evaluated.
+    :func:`~sb3_emmarl.common.trust.safe_config.parse_value` (quote strings: ``region:"'forest'"``), never evaluated.
 
     :param items: the ``key:value`` strings
     :param flag: the flag's name, for error messages

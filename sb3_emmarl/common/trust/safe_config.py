@@ -17,7 +17,7 @@ Everything a user hands the zoo as text (``-params`` and ``--env-kwargs`` values
 - :func:`check_imports` accepts for the keys that make rl_zoo3 import or call something (``callback``,
   ``env_wrapper``, ``vec_env_wrapper``) only the names of :data:`IMPORT_KEYS`, with keyword arguments that are plain
   data, that the class takes (every required one) and of the types its signature says
-  (:func:`~sb3_emmarl.common.signatures.check_arguments`).
+  (:func:`~sb3_emmarl.common.trust.signatures.check_arguments`).
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ import torch as th
 import yaml
 from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
 
-from sb3_emmarl.common.extras import requires
-from sb3_emmarl.common.signatures import check_arguments
+from sb3_emmarl.common.trust.extras import requires
+from sb3_emmarl.common.trust.signatures import check_arguments
 
 #: Longest text :func:`parse_value` reads (a value longer than this is a mistake or an attack).
 MAX_VALUE_CHARS = 10_000
@@ -80,7 +80,7 @@ SAFE_CALLS = ("dict", "list", "tuple")
 #: rl_zoo3's schedule strings, kept as they are (``lin_3e-4``: a linear schedule from 3e-4).
 SCHEDULE_TEXT = re.compile(r"^lin_[-+0-9.eE]+$")
 _HINT = ("values are literals (numbers, strings, lists, dicts, tuples, True/False/None), dict(...), and the names of "
-         "sb3_emmarl.common.safe_config.SAFE_NAMES such as nn.ReLU or th.optim.Adam")
+         "sb3_emmarl.common.trust.safe_config.SAFE_NAMES such as nn.ReLU or th.optim.Adam")
 
 
 def _short(text: str) -> str:

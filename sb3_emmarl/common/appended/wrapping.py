@@ -25,7 +25,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, unwrap_vec_wrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sb3_emmarl.common.safe_zip import safe_data_objects
+from sb3_emmarl.common.trust.safe_zip import safe_data_objects
 
 if TYPE_CHECKING:  # the type checker sees the SB3 algorithm the mixin is placed before; at run time it is a plain class
     from stable_baselines3.common.base_class import BaseAlgorithm as _AlgorithmBase
@@ -62,7 +62,7 @@ class WrapsEnv(_AlgorithmBase):
     def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict | None = None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs: Any) -> Any:
         """As SB3's ``load``, the zip's pickled data read as data only
-        (:func:`~sb3_emmarl.common.safe_zip.safe_data_objects`: nothing in the file runs); ``env`` (a plain
+        (:func:`~sb3_emmarl.common.trust.safe_zip.safe_data_objects`: nothing in the file runs); ``env`` (a plain
         environment is fine) gets the wrapper the model was trained with."""
         custom_objects = safe_data_objects(path, custom_objects)
         if env is not None:

@@ -16,7 +16,7 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
-from sb3_emmarl.common.extractors import SplitFeaturesExtractor
+from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 
 
 def features_end_with_observation_tail(extractor: th.nn.Module, obs_dim: int, n_tail: int) -> bool:

@@ -1,7 +1,7 @@
 """Optional dependencies: an import that needs an extra of the ``sb3-emmarl`` distribution (``[render]``, ``[zoo]``,
 ``[plots]``, ``[ray]``) fails with one line naming the extra to install.
 
-Both packages of the distribution use :func:`requires` (``sb3_emmarl.common.extras`` re-exports it), as in::
+Both packages of the distribution use :func:`requires` (``sb3_emmarl.common.trust.extras`` re-exports it), as in::
 
     with requires("pygame", "render", "drawing the reserve"):
         import pygame

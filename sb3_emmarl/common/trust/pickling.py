@@ -1,7 +1,7 @@
 """Pickling that keeps numpy views views of their base arrays: a reserve's step records hold views of its arrays
 (written through one, read through another), which plain pickle would copy apart. The vector environments pickle
 their copies with :func:`dumps` (for checkpoints and for moving copies between processes); between processes
-``pickle.loads`` reads it back, from a checkpoint file :mod:`sb3_emmarl.common.safe_pickle` does (as data only)."""
+``pickle.loads`` reads it back, from a checkpoint file :mod:`sb3_emmarl.common.trust.safe_pickle` does (as data only)."""
 
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_emmarl.common.safe_config import ACTIVATIONS, OPTIMIZERS, check_imports, is_plain, parse_kwargs, parse_value
+from sb3_emmarl.common.trust.safe_config import ACTIVATIONS, OPTIMIZERS, check_imports, is_plain, parse_kwargs, parse_value
 
 #: Keys of a zoo YAML entry that are not constructor arguments (rl_zoo3 handles them).
 ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "env_kwargs", "env_wrapper", "vec_env_wrapper", "callback",
@@ -317,7 +317,7 @@ RULES: dict[str, Rule] = {
     # the EM algorithms' latent settings (LATENT_RULES: their record, sb3_emmarl.common.latent.config.LatentConfig,
     # also checks how they fit together)
     "latent_kwargs": mapping(LATENT_RULES, "latent_kwargs"),
-    # the weights that read what an algorithm appends to the observation (sb3_emmarl.common.initialization)
+    # the weights that read what an algorithm appends to the observation (sb3_emmarl.common.appended.initialization)
     "zero_mode_weights": boolean(),
     "mode_input": choice("both", "policy", "value"),
     "random_label": boolean(),
@@ -350,7 +350,7 @@ POLICY_CLASS_KEYS: dict[str, dict[str, type]] = {"activation_fn": ACTIVATIONS, "
 
 def parse_policy_kwargs(value: Any) -> dict[str, Any]:
     """``policy_kwargs`` as a dict: rl_zoo3's ``"dict(net_arch=[64, 64])"`` string (read by
-    :func:`~sb3_emmarl.common.safe_config.parse_value`, never evaluated) or a mapping; ``net_arch`` checked (layer
+    :func:`~sb3_emmarl.common.trust.safe_config.parse_value`, never evaluated) or a mapping; ``net_arch`` checked (layer
     sizes, or ``dict(pi=[...], vf=[...])`` / ``qf``), classes only as ``activation_fn`` (an activation) and
     ``optimizer_class`` (an optimizer).
 

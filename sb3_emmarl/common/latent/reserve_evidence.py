@@ -35,7 +35,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_emmarl.common.latent.evidence import LatentEvidence, env_attribute, observation_size
 from sb3_emmarl.common.latent.features import FeatureFn
-from wildlife_reserve.reserve.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_SIGN, CH_UAV
+from wildlife_reserve.reserve.kernels.constants import CH_LEOPARD, CH_OCCLUSION, CH_POACHER, CH_SIGN, CH_UAV
 
 #: The window channels counted, in order: signs of poacher activity, leopards, poachers.
 COUNTED_CHANNELS = ("sign", "leopard", "poacher")

@@ -2,7 +2,7 @@
 
 SB3 builds a model without reading most of its arguments: ``ent_coef='auto'`` (SAC's) builds a PPO that fails in
 its first update, a ``policy_kwargs`` ``optimizer_class`` given as a string builds nothing, a callback's
-``max_episodes: 'abc'`` fails at the first step. The zoo's rules (:mod:`sb3_emmarl.common.validation`) say what each
+``max_episodes: 'abc'`` fails at the first step. The zoo's rules (:mod:`sb3_emmarl.common.trust.validation`) say what each
 hyperparameter may be on any algorithm; :func:`check_arguments` adds what the receiving class says in its signature:
 a value must be of the outer type the parameter is annotated with (``float``: any finite number; ``int``; ``bool``;
 ``str``; ``type[X]``: a subclass of ``X``; a ``Callable``: a callable; ``dict``/``list``/``tuple``: a mapping, a

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_emmarl.common.pickling import dumps
+from sb3_emmarl.common.trust.pickling import dumps
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm

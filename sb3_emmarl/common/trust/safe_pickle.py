@@ -9,7 +9,7 @@ what they are given (``numpy.random._pickle.__generator_ctor`` calls a callable 
 :class:`DataUnpickler` is the standard library's own unpickler (``pickle._Unpickler``, the Python one, because its
 opcodes can be overridden one by one; the C one cannot) with:
 
-- ``find_class`` limited to :func:`~sb3_emmarl.common.safe_zip.allowed_global` (plus any extra classes a caller names),
+- ``find_class`` limited to :func:`~sb3_emmarl.common.trust.safe_zip.allowed_global` (plus any extra classes a caller names),
   and the helper functions that call or deserialise replaced by versions that take data only (:data:`SUBSTITUTES`);
 - calls (``REDUCE``) limited to :data:`CALLABLES`, the substitutes and enum lookups, with arguments that allocate
   checked against :data:`MAX_ITEMS` and :data:`MAX_BYTES`; ``INST`` and ``OBJ`` (protocol 0 and 1 constructor calls,
@@ -141,9 +141,9 @@ def _reconstructor(cls: Any, base: Any, state: Any) -> Any:
 
 
 def _view(base: Any, offset: Any, shape: Any, strides: Any, dtype: Any, writeable: Any) -> Any:
-    """:func:`~sb3_emmarl.common.pickling.rebuild_view` of an array the pickle holds (numpy checks that the view lies
+    """:func:`~sb3_emmarl.common.trust.pickling.rebuild_view` of an array the pickle holds (numpy checks that the view lies
     within it)."""
-    from sb3_emmarl.common.pickling import rebuild_view
+    from sb3_emmarl.common.trust.pickling import rebuild_view
 
     if type(base) is not np.ndarray or not isinstance(offset, int) or not isinstance(writeable, bool):
         raise UnsafePickle(f"its numpy view is given {_name(base)}, not an array")
@@ -158,7 +158,8 @@ def _substitutes() -> dict[tuple[str, str], Callable[..., Any]]:
         ("numpy.random._pickle", "__generator_ctor"): _generator(np.random.Generator),
         ("numpy.random._pickle", "__randomstate_ctor"): _generator(np.random.RandomState),
         ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"): _seed_sequence,
-        ("sb3_emmarl.common.pickling", "rebuild_view"): _view,
+        ("sb3_emmarl.common.trust.pickling", "rebuild_view"): _view,
+        ("sb3_emmarl.common.pickling", "rebuild_view"): _view,  # where it was before the trust folder
         ("sb3_emmarl.common.checkpoints", "_view"): _view,  # what checkpoints before the pickling module named
     }
     for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
@@ -169,6 +170,12 @@ def _substitutes() -> dict[tuple[str, str], Callable[..., Any]]:
     table[("collections", "deque")] = _bounded(collections.deque, "deque", "collections")
     return table
 
+
+#: Classes saved files name where they were before they moved (old name -> today's), read at today's place.
+MOVED: dict[tuple[str, str], tuple[str, str]] = {
+    ("sb3_emmarl.common.extractors", "SplitFeaturesExtractor"): ("sb3_emmarl.common.appended.extractor",
+                                                                 "SplitFeaturesExtractor"),
+}
 
 #: Allowed globals that call or deserialise what they are given, or allocate what an argument asks for, and the
 #: versions of them :class:`DataUnpickler` uses instead.
@@ -219,8 +226,9 @@ class DataUnpickler(_PythonUnpickler):
         self.classes: set[type] = set()
 
     def find_class(self, module: str, name: str) -> Any:
-        from sb3_emmarl.common.safe_zip import allowed_global
+        from sb3_emmarl.common.trust.safe_zip import allowed_global
 
+        module, name = MOVED.get((module, name), (module, name))
         if (module, name) in SUBSTITUTES:
             return SUBSTITUTES[(module, name)]
         if any(module == root or module.startswith(root + ".") for root in self.class_modules) \

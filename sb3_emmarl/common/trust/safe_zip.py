@@ -9,7 +9,8 @@ buffers, extractors, action noise, schedules, their data classes), Gymnasium's s
 generators, torch's activation and optimizer classes, ``collections.deque``/``OrderedDict`` and a few builtin types.
 Naming allowed globals only is not enough (some call or deserialise what they are given, data types allocate what an
 argument asks for), so :func:`safe_data_objects` then unpickles the entries as data only
-(:mod:`sb3_emmarl.common.safe_pickle`) and hands them to SB3's ``load`` as ``custom_objects``, which SB3 takes in place of
+(:mod:`sb3_emmarl.common.trust.safe_pickle`) and hands them to SB3's ``load`` as ``custom_objects``, which SB3 takes in
+place of
 unpickling them itself. The weights (``*.pth``) are loaded by SB3 with ``torch.load(weights_only=True)``, which takes
 tensors only.
 """
@@ -67,7 +68,7 @@ def _allowed_kinds() -> tuple[type, ...]:
 
 def allowed_global(module: str, name: str) -> bool:
     """Whether a model's pickle may name ``module.name``: one of :data:`ALLOWED_GLOBALS`; a Gymnasium space class; an
-    activation or optimizer class of :data:`~sb3_emmarl.common.safe_config.SAFE_NAMES`; or a class of
+    activation or optimizer class of :data:`~sb3_emmarl.common.trust.safe_config.SAFE_NAMES`; or a class of
     :data:`CLASS_PACKAGES` that is a policy, buffer, features extractor, action noise or ``torch`` module, a schedule
     (``*Schedule``), an enum, a named tuple or a data class (constructors that only store their arguments; a class
     that writes files, e.g. a logger, is refused).
@@ -75,7 +76,7 @@ def allowed_global(module: str, name: str) -> bool:
     :param module: the global's module
     :param name: its name
     """
-    from sb3_emmarl.common.safe_config import SAFE_NAMES
+    from sb3_emmarl.common.trust.safe_config import SAFE_NAMES
 
     if (module, name) in ALLOWED_GLOBALS:
         return True
@@ -201,14 +202,14 @@ def _decoded(path: object, entry: str, text: str) -> bytes:
 
 def safe_data_objects(path: str | Path | io.IOBase, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
     """Every pickled entry of a model zip's ``data``, unpickled as data only
-    (:func:`~sb3_emmarl.common.safe_pickle.loads`), as SB3's ``custom_objects``: given to ``load`` or
+    (:func:`~sb3_emmarl.common.trust.safe_pickle.loads`), as SB3's ``custom_objects``: given to ``load`` or
     ``load_from_zip_file``, SB3 takes them in place of unpickling the entries itself.
 
     :param path: the zip
     :param custom_objects: the caller's own objects, which win
     :raise ValueError: one line naming the file, the entry and what it names, calls or allocates
     """
-    from sb3_emmarl.common.safe_pickle import loads
+    from sb3_emmarl.common.trust.safe_pickle import loads
 
     if isinstance(path, (str, os.PathLike)) and not Path(path).exists() and Path(f"{path}.zip").exists():
         path = f"{path}.zip"  # as SB3's load finds it

@@ -1,0 +1,1 @@
+"""What the environments share: their argument checks (:mod:`.checks`) and the optional extras (:mod:`.extras`)."""
