@@ -72,7 +72,7 @@ def task_env(arm: str, n_envs: int, seed: int):
     """The vector environment an arm trains or is scored on (the ``em`` arm's without its belief yet)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_emmarl.common.envs import ModeCueEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     if arm == "told":
         return make_vec_env(ModeCueEnv, n_envs=n_envs, seed=seed, env_kwargs={"told": True})
@@ -110,10 +110,10 @@ def gate(episodes: int, fit_episodes: int, seed: int = 0) -> dict:
     import torch as th
     from stable_baselines3.common.logger import Logger
 
-    from sb3_emmarl.common.envs import ModeCueEnv
     from sb3_emmarl.common.latent.algorithm import augmented_features, e_step_and_log, make_transitions
     from sb3_emmarl.common.latent.belief import BeliefWrapper
     from sb3_emmarl.common.latent.callback import EMCallback
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     th.set_num_threads(1)
     callback = EMCallback(seed=seed)
@@ -282,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
             sub.add_argument("--budget", type=int, default=None, help="agent-steps (default: the protocol's)")
             sub.add_argument("--eval-episodes", type=int, default=200)
     args = parser.parse_args(argv)
-    from sb3_emmarl.common.envs import ModeCueEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     env = ModeCueEnv()
     cue_level = env.length * (env.cue_accuracy + (1 - env.cue_accuracy) / env.n_modes)

@@ -1,6 +1,6 @@
 """EM-PPO with default arguments on the hidden-mode tasks, against PPO told the mode and plain PPO, with learning curves.
 
-The tasks (:mod:`sb3_emmarl.common.envs`): ``cue`` shows the mode only through a weak cue at every step;
+The tasks (:mod:`sb3_emmarl.common.mode_tasks`): ``cue`` shows the mode only through a weak cue at every step;
 ``dynamics`` changes only what the actions do; ``reach`` changes what the actions do and ends an episode on
 arrival; ``goal`` decides where the reward lies, shown by a weak cue. Every run trains on 8 copies (SB3's
 ``make_vec_env``) in its own process with one torch thread: ``EMPPO("MlpPolicy", env)`` with its defaults, and PPO
@@ -49,7 +49,7 @@ TOLD_SHARE, TARGET = 0.9, 0.85
 
 
 def task_class(task: str):
-    from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
     return {"cue": ModeCueEnv, "dynamics": ModeDynamicsEnv, "reach": ModeReachEnv, "goal": ModeGoalEnv}[task]
 

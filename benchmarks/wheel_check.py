@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         checker.run("emmarl train without [zoo]", ["emmarl", "train", "--help"], expect_code=1,
                     expect_line=f"emmarl train: {ZOO_MESSAGE}")
         checker.pip("the wheel with [zoo]", f"{wheel}[zoo]")
-        env_id = checker.run("the reserve's zoo id", [python, "-c", "from sb3_emmarl.common.environments import ENV_ID; "
+        env_id = checker.run("the reserve's zoo id", [python, "-c", "from sb3_emmarl.common.env_ids import ENV_ID; "
                                                       "print(ENV_ID)"], show=1).stdout.strip()
         checker.run(f"emmarl train --algo em_ppo -n {args.zoo_steps}",
                     ["emmarl", "train", "--algo", "em_ppo", "--env", env_id, "-n", str(args.zoo_steps), "--seed", "0",

@@ -237,3 +237,48 @@ def test_no_folder_imports_a_folder_that_imports_it_back():
     assert not both, "folders importing each other:\n" + "\n".join(
         f"  {a} <-> {b}: {pairs[a, b][0].source} imports {pairs[a, b][0].target}; "
         f"{pairs[b, a][0].source} imports {pairs[b, a][0].target}" for a, b in both)
+
+
+# ---------------------------------------------------------------------------------------------- long functions
+#: The most lines a function's body (its docstring left out) has without a comment saying why it is long.
+MAX_BODY_LINES = 60
+#: What that comment starts with.
+LONG_BECAUSE = "# Long because"
+#: Exempt: constructors (an algorithm's mirrors SB3's; a config's checks every field) and the compiled kernels.
+CONSTRUCTORS = ("__init__", "__post_init__")
+
+
+def long_functions(path: Path) -> Iterator[tuple[str, int, int]]:
+    """``(name, line, body lines)`` of the functions of ``path`` whose body is longer than :data:`MAX_BODY_LINES` and
+    that hold no :data:`LONG_BECAUSE` comment."""
+    text = path.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    for node in ast.walk(ast.parse(text)):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) or node.name in CONSTRUCTORS:
+            continue
+        body = node.body
+        first = body[0]
+        if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str) \
+                and len(body) > 1:
+            first = body[1]
+        length = (node.end_lineno or node.lineno) - first.lineno + 1
+        if length > MAX_BODY_LINES and not any(line.strip().startswith(LONG_BECAUSE)
+                                               for line in lines[node.lineno - 1:node.end_lineno]):
+            yield node.name, node.lineno, length
+
+
+def test_long_functions_are_found_unless_they_say_why(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_BODY_LINES + 1))
+    path = tmp_path / "m.py"
+    path.write_text(f'def f():\n    """Doc."""\n{body}\n\ndef __init__():\n{body}\n')
+    assert list(long_functions(path)) == [("f", 1, MAX_BODY_LINES + 1)]
+    path.write_text(f'def f():\n    {LONG_BECAUSE} it is SB3\'s.\n{body}\n')
+    assert not list(long_functions(path))
+
+
+def test_no_long_function_without_a_comment_saying_why():
+    found = [f"{path.relative_to(ROOT)}:{line} {name} ({length} lines)"
+             for folder in PACKAGES.values() for path in sorted(folder.rglob("*.py")) if "kernels" not in path.parts
+             for name, line, length in long_functions(path)]
+    assert not found, (f"functions over {MAX_BODY_LINES} lines without a '{LONG_BECAUSE} ...' comment (split them, or "
+                       "say why they are one piece):\n" + "\n".join(found))

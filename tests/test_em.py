@@ -11,12 +11,12 @@ from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMDDPG, EMPPO
 from sb3_emmarl.common.appended.initialization import zero_tail_weights
-from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper
 from sb3_emmarl.common.latent.em import EStep, Transitions, episode_ids
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.metrics import align_components
 from sb3_emmarl.common.latent.model import LatentModel, StepLikelihood
+from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv
 from sb3_emmarl.common.vec_env import make_vec_env
 from wildlife_reserve import reserve_v1
 

@@ -16,9 +16,9 @@ from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMCallback
 from sb3_emmarl.common.appended.wrapping import find_wrapper
-from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv
 from sb3_emmarl.common.latent.belief import BeliefWrapper
 from sb3_emmarl.common.latent.policies import BeliefFeaturesExtractor
+from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv
 
 EM_PAGE = Path(__file__).resolve().parents[1] / "docs" / "em.md"
 

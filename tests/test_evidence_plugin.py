@@ -82,9 +82,9 @@ def test_the_generic_latent_package_imports_nothing_of_an_environment():
 def test_each_environment_gets_its_plug_in_and_the_others_the_default():
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    from sb3_emmarl.common.envs import ModeCueEnv
     from sb3_emmarl.common.latent.reserve_evidence import ReadingCounter, ReserveEvidence
     from sb3_emmarl.common.latent.zone_evidence import ZoneEvidence
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
     from wildlife_reserve import zone_patrol_v0
 
     reserve = evidence_of(make_vec_env(1, seed=0, env_kwargs=TINY))
@@ -168,7 +168,7 @@ def test_a_plug_in_s_counts_enter_the_beliefs_and_the_e_step(plugins):
     import torch as th
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    from sb3_emmarl.common.envs import ModeCueEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     @register_evidence
     class CountedCue(GenericEvidence):

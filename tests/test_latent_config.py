@@ -88,12 +88,14 @@ def test_the_settings_are_validated_once_per_model(monkeypatch):
     assert tracker.fusion is model.latent_config.fusion
 
 
-@pytest.mark.parametrize("owner", [EMPPO, EMDDPG, EMCallback])
+@pytest.mark.parametrize("owner", [EMPPO, EMDDPG, EMVDN, EMCallback])
 def test_a_latent_setting_given_on_its_own_is_refused_naming_latent_kwargs(owner):
     env = make_vec_env(1, seed=0, env_kwargs={**TINY, "continuous_actions": owner is EMDDPG})
     arguments = () if owner is EMCallback else ("MlpPolicy", env)
     with pytest.raises(TypeError, match=r"latent_kwargs=dict\(n_components=8\)"):
         owner(*arguments, n_components=8)
+    with pytest.raises(TypeError, match="n_componentz"):
+        owner(*arguments, n_componentz=8)
 
 
 def test_unknown_fields_and_foreign_callback_fields_are_refused():
@@ -130,7 +132,7 @@ def test_a_model_saved_with_its_settings_as_attributes_loads_them():
 def test_a_callback_saved_with_its_settings_as_arguments_loads_them(tmp_path):
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    from sb3_emmarl.common.envs import ModeCueEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     callback = EMCallback({"n_components": 3, "likelihood_temperature": 0.5}, e_step_every=64, seed=2)
     callback.wrap_env(sb3_make_vec_env(ModeCueEnv, n_envs=1, seed=0))

@@ -7,8 +7,8 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_emmarl import EMPPO
 from sb3_emmarl.common.appended.initialization import zero_tail_weights
-from sb3_emmarl.common.envs import ModeCueEnv
 from sb3_emmarl.common.latent.diagnostics import assignment_agreement, belief_entropy, belief_use, permute_beliefs
+from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
 
 def test_permuting_moves_each_component_s_mass_on_and_leaves_the_observation():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scripts import load_benchmark
 
-from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
+from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
 
 @pytest.mark.expensive

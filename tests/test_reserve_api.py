@@ -101,11 +101,11 @@ def test_the_former_name_reserve_v0_warns_once_and_gives_reserve_v1():
 def test_the_former_zoo_id_warns_once_and_gives_the_current_one(monkeypatch):
     import warnings
 
-    from sb3_emmarl.common import environments
-    from sb3_emmarl.common.environments import ENV_ID, check_env_id, current_env_id
+    from sb3_emmarl.common import env_ids
+    from sb3_emmarl.common.env_ids import ENV_ID, check_env_id, current_env_id
 
     assert ENV_ID == "WildlifeReserve-v1"
-    monkeypatch.setattr(environments, "_warned", set())
+    monkeypatch.setattr(env_ids, "_warned", set())
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert current_env_id("WildlifeReserve-v0") == ENV_ID
@@ -118,10 +118,10 @@ def test_the_former_zoo_id_warns_once_and_gives_the_current_one(monkeypatch):
 
 
 def test_the_zoo_takes_the_former_id_as_the_current_one(monkeypatch):
-    from sb3_emmarl.common import environments
+    from sb3_emmarl.common import env_ids
     from sb3_emmarl.zoo.cli import enjoy_parser, train_parser
 
-    monkeypatch.setattr(environments, "_warned", set())
+    monkeypatch.setattr(env_ids, "_warned", set())
     with pytest.warns(FutureWarning):
         assert train_parser().parse_args(["--algo", "ppo", "--env", "WildlifeReserve-v0"]).env == "WildlifeReserve-v1"
     assert enjoy_parser().parse_args(["--algo", "ppo"]).env == "WildlifeReserve-v1"

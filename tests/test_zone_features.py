@@ -85,7 +85,7 @@ def test_the_latent_model_reads_zone_features_on_zone_patrol_and_keeps_them_when
 def test_an_environment_without_a_zone_map_gets_the_generic_features():
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    from sb3_emmarl.common.envs import ModeCueEnv
+    from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
     assert evidence_of(sb3_make_vec_env(ModeCueEnv, n_envs=2)).spec["kind"] == "generic"
 

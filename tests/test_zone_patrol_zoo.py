@@ -9,7 +9,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_emmarl.common.centralized import CentralizedZonePatrolEnv, centralized_env
-from sb3_emmarl.common.environments import ENV_MODULES, ZONE_PATROL_ID, check_env_id, parallel_env_fn
+from sb3_emmarl.common.env_ids import ENV_MODULES, ZONE_PATROL_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize, team_metric_keys
 from sb3_emmarl.zoo.cli import enjoy_main, latest_run, run_env_id, train_main

@@ -70,7 +70,7 @@ class LatentMetricsCallback(BaseCallback):
     agent per copy), also ``latent/evidence_reach_25``, ``_50`` and ``_100``: the share of the team's evidence in the
     beliefs at those steps (:meth:`~sb3_emmarl.common.latent.belief.BeliefTracker.evidence_reach`).
 
-    Needs an environment whose infos carry ``"mode"`` (the reserve, the tasks of :mod:`sb3_emmarl.common.envs`);
+    Needs an environment whose infos carry ``"mode"`` (the reserve, the tasks of :mod:`sb3_emmarl.common.mode_tasks`);
     components are aligned to modes over the rollout's finished episodes (Hungarian matching).
 
     :param verbose: verbosity

@@ -25,7 +25,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from sb3_emmarl.common.environments import ENV_ID, ZONE_PATROL_ID, ZONE_PATROL_V0_ID, check_env_id
+from sb3_emmarl.common.env_ids import ENV_ID, ZONE_PATROL_ID, ZONE_PATROL_V0_ID, check_env_id
 from wildlife_reserve import reserve_v1, zone_patrol_v0, zone_patrol_v1
 from wildlife_reserve.reserve.reserve import ReserveParallelEnv
 

@@ -20,7 +20,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, is_vecenv_wrapped
 
 from sb3_emmarl.common.appended.wrapping import find_wrapper
-from sb3_emmarl.common.environments import ENV_ID, parallel_env_fn
+from sb3_emmarl.common.env_ids import ENV_ID, parallel_env_fn
 from sb3_emmarl.common.latent.diagnostics import BELIEF_USE_ROWS, belief_use
 from sb3_emmarl.common.trust.safe_pickle import load_vec_normalize
 from sb3_emmarl.common.trust.safe_zip import safe_data_objects
@@ -70,7 +70,7 @@ def make_eval_env(seed: int, env_kwargs: dict[str, Any] | None = None, centraliz
     :param model: a model with ``wrap_env`` (EM-PPO, EM-DDPG, oracle PPO) gets its wrapper on top
     :param vec_env_wrapper: the wrapper the model was trained under (rl-zoo's ``vec_env_wrapper``, e.g.
         ``HideObservationParts``), applied where training applied it: on the plain parameter-sharing view
-    :param env_id: the environment (:data:`~sb3_emmarl.common.environments.ENV_MODULES`; default the reserve)
+    :param env_id: the environment (:data:`~sb3_emmarl.common.env_ids.ENV_MODULES`; default the reserve)
     """
     env_kwargs = dict(env_kwargs or {})
     if centralized and vec_env_wrapper is not None:
@@ -260,6 +260,8 @@ def evaluate_policy(
     :return: the mean and std of the team reward per episode, or, with ``return_episode_rewards``, the list of team
         rewards and the list of episode lengths (in steps), one item per team episode
     """
+    # Long because it is SB3's evaluate_policy in one piece, its loop per copy instead of per entry: the two read side by
+    # side, and a change in SB3's carries over line by line.
     n_eval_episodes = check_episode_count(n_eval_episodes)
     if hasattr(model, "wrap_env"):
         env = model.wrap_env(env)

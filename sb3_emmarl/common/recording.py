@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_emmarl.common.environments import ENV_ID
+from sb3_emmarl.common.env_ids import ENV_ID
 from sb3_emmarl.common.evaluation import Predictor, is_centralized, make_eval_env
 from sb3_emmarl.common.trust.atomic_files import write_atomic
 from sb3_emmarl.common.trust.extras import requires

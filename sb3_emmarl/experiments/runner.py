@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from sb3_emmarl.cli import child_failure, os_error_text
-from sb3_emmarl.common.environments import ENV_ID
+from sb3_emmarl.common.env_ids import ENV_ID
 from sb3_emmarl.common.model_files import load_model
 from sb3_emmarl.common.trust.extras import requires
 from sb3_emmarl.common.trust.safe_config import load_yaml_text

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_emmarl.common.environments import ENV_ID, check_env_id, check_env_kwargs
+from sb3_emmarl.common.env_ids import ENV_ID, check_env_id, check_env_kwargs
 from sb3_emmarl.common.trust.safe_config import load_yaml
 
 #: Where the package's specifications live.

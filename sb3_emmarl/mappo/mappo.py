@@ -280,6 +280,8 @@ class MAPPO(WrapsEnv, PPO):
         """MAPPO's update on the rollout just collected: update the value normaliser with its returns, then
         ``n_epochs`` passes of PPO's clipped surrogate, MAPPO's clipped Huber value loss on normalised targets and the
         entropy bonus, with the actor's and the critic's gradients clipped separately."""
+        # Long because it is SB3's PPO.train in one piece with MAPPO's value loss and separate clipping: the two read side
+        # by side, and a change in SB3's carries over line by line.
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         # (schedules since _setup_model, though PPO annotates them as floats or schedules)

@@ -25,7 +25,7 @@ FORMATS = ("png", "pdf", "svg")
 
 def plot_parser() -> argparse.ArgumentParser:
     """The flags of ``emmarl plot`` (rl-baselines3-zoo's ``plot_train`` / ``all_plots`` names where they fit)."""
-    from sb3_emmarl.common.environments import ENV_MODULES
+    from sb3_emmarl.common.env_ids import ENV_MODULES
     from sb3_emmarl.common.trust.validation import float_flag, int_flag
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
     from sb3_emmarl.zoo.cli import OneLineParser

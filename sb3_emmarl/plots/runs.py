@@ -52,7 +52,7 @@ def make_run(algo: str, env_id: str, folder: Path, env_kwargs: Mapping[str, Any]
     """
     import importlib
 
-    from sb3_emmarl.common.environments import ENV_CONFIGS
+    from sb3_emmarl.common.env_ids import ENV_CONFIGS
     from sb3_emmarl.zoo.algos import CENTRALIZED_ALGOS
 
     module, name = ENV_CONFIGS[env_id].split(":")
@@ -77,10 +77,10 @@ def zoo_runs(log_folders: Sequence[str | Path], algos: Sequence[str] | None = No
     :param log_folders: the folders given to ``train -f``
     :param algos: the algorithms (None: every zoo algorithm that has a folder)
     :param env_id: the environment (None: every known environment); the runs saved under its former ids
-        (:func:`~sb3_emmarl.common.environments.folder_ids`) count as its own
+        (:func:`~sb3_emmarl.common.env_ids.folder_ids`) count as its own
     :return: the runs, by algorithm (in ``algos``' order), environment and run number
     """
-    from sb3_emmarl.common.environments import ENV_MODULES, folder_ids
+    from sb3_emmarl.common.env_ids import ENV_MODULES, folder_ids
     from sb3_emmarl.zoo.algos import ZOO_ALGOS
 
     names = list(algos) if algos is not None else sorted(ZOO_ALGOS)
@@ -132,7 +132,7 @@ def tensorboard_runs(tensorboard_log: str | Path, zoo: Sequence[Run]) -> list[Ru
             raise ValueError(f"{names[name]} and {algo} both write their tensorboard runs as {name}_<n>, which cannot "
                              f"be told apart: plot them one at a time, each from the -tb folder it was trained with")
         names[name] = algo
-    from sb3_emmarl.common.environments import folder_ids
+    from sb3_emmarl.common.env_ids import folder_ids
 
     runs = []
     for name, algo in names.items():

@@ -59,6 +59,7 @@ class EMVDN(LatentAlgorithmMixin, VDN):
     :param seed: seed
     :param device: torch device
     :param _init_setup_model: build the networks now
+    :param kwargs: none (a latent setting given here is refused, naming ``latent_kwargs``)
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": LatentVDNPolicy}
@@ -95,8 +96,12 @@ class EMVDN(LatentAlgorithmMixin, VDN):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
+        **kwargs: Any,
     ) -> None:
-        env, policy_kwargs = self._init_latent(env, latent_kwargs, policy_kwargs, verbose, loading=not _init_setup_model)
+        env, policy_kwargs = self._init_latent(env, latent_kwargs, policy_kwargs, verbose, loading=not _init_setup_model,
+                                               kwargs=kwargs)
+        if kwargs:  # (VDN takes no other arguments; a latent setting among them was named above)
+            raise TypeError(f"EMVDN got unexpected keyword arguments {sorted(kwargs)}")
         super().__init__(policy, env, learning_rate=learning_rate, buffer_size=buffer_size,
                          learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                          train_freq=train_freq, gradient_steps=gradient_steps,

@@ -35,7 +35,7 @@ from sb3_emmarl.common.checkpoints import (
     list_checkpoints,
     vec_normalize_stats,
 )
-from sb3_emmarl.common.environments import ENV_ID, ENV_MODULES, current_env_id, folder_ids, parallel_env_fn
+from sb3_emmarl.common.env_ids import ENV_ID, ENV_MODULES, current_env_id, folder_ids, parallel_env_fn
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, network_shapes

@@ -66,7 +66,7 @@ from sb3_emmarl.common.checkpoints import (
     SaveVecNormalize,
     companion,
 )
-from sb3_emmarl.common.environments import ENV_ID, check_env_id, parallel_env_fn
+from sb3_emmarl.common.env_ids import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm
 from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators

@@ -20,8 +20,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_emmarl import EMPPO
-from sb3_emmarl.common.envs import ModeGoalEnv
 from sb3_emmarl.common.latent import belief
+from sb3_emmarl.common.mode_tasks import ModeGoalEnv
 
 #: log P(cue = c | mode = m), rows c, columns m (ModeGoalEnv's defaults: cue_accuracy 0.5, 4 corners)
 CUE_LOG_LIKELIHOOD = np.log(np.where(np.eye(4, dtype=bool), 0.5 + 0.5 / 4, 0.5 / 4))

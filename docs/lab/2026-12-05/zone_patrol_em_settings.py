@@ -14,7 +14,7 @@ import torch as th
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
 import zone_patrol_value as bench
 
-from sb3_emmarl.common.environments import ZONE_PATROL_ID
+from sb3_emmarl.common.env_ids import ZONE_PATROL_ID
 from sb3_emmarl.common.latent.metrics import align_components, latent_accuracy
 from sb3_emmarl.zoo.exp_manager import zoo_model
 

@@ -56,7 +56,7 @@ class ToldZoneOffset(VecEnvWrapper):
 def main() -> None:
     import torch as th
 
-    from sb3_emmarl.common.environments import ENV_ID
+    from sb3_emmarl.common.env_ids import ENV_ID
     from sb3_emmarl.zoo.exp_manager import zoo_model
 
     th.set_num_threads(1)

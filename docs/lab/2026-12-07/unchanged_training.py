@@ -16,7 +16,7 @@ from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_emmarl
 from sb3_emmarl import EMPPO
-from sb3_emmarl.common.envs import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
+from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
 th.set_num_threads(1)
 print(sb3_emmarl.__file__)

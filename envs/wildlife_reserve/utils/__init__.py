@@ -1,1 +1,1 @@
-"""What the environments share: their argument checks (:mod:`.checks`) and the optional extras (:mod:`.extras`)."""
+"""What the environments share: their argument checks (``checks``) and the optional extras (``extras``)."""
