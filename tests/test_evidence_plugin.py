@@ -37,7 +37,7 @@ SAVED_EVIDENCE = [[-742.4769285065754, -657.7297416281575, -714.8286995883109, -
 
 def test_a_model_saved_by_0_21_0_loads_and_predicts_as_it_did():
     model = EMPPO.load(DATA / "em_ppo_0_21_0.zip")
-    assert model.feature_spec["kind"] == "reserve" and model.policy.latent_model.has_counts
+    assert model.evidence_spec["kind"] == "reserve" and model.policy.latent_model.has_counts
     assert model.e_step is not None and len(model.e_step.count_table["ids"]) > 0  # the E-step's counts came back
     env = make_vec_env(1, seed=0, env_kwargs=TINY)
     obs, state, starts, actions = env.reset(), None, np.ones(env.num_envs, dtype=bool), []
@@ -129,7 +129,7 @@ def test_the_method_page_s_plug_in_runs_as_written_and_its_model_loads(plugins, 
     assert "latent/log_likelihood" in model.logger.name_to_value  # an E-step ran on the plug-in's features
     model.save(tmp_path / "cue")
     loaded = EMPPO.load(tmp_path / "cue")
-    assert type(evidence_from_spec(loaded.feature_spec)).__name__ == "CueEvidence"
+    assert type(evidence_from_spec(loaded.evidence_spec)).__name__ == "CueEvidence"
     obs = np.eye(4, dtype=np.float32)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
     PLUGINS.pop("cue")

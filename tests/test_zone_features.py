@@ -73,11 +73,11 @@ def test_the_latent_model_reads_zone_features_on_zone_patrol_and_keeps_them_when
     np.testing.assert_array_equal(rebuilt.features(obs), evidence.features(obs))
     assert rebuilt.feature_dim == dim
     model = EMPPO("MlpPolicy", venv, n_steps=16, batch_size=32, n_epochs=1, latent_kwargs=dict(n_components=8), seed=0)
-    assert model.latent_layout.feature_dim == 10 and model.feature_spec["kind"] == "zones"
+    assert model.latent_layout.feature_dim == 10 and model.evidence_spec["kind"] == "zones"
     model.learn(64)
     model.save(tmp_path / "em")
     loaded = EMPPO.load(tmp_path / "em", env=model.get_env())
-    assert loaded.feature_spec == model.feature_spec and loaded.latent_layout == model.latent_layout
+    assert loaded.evidence_spec == model.evidence_spec and loaded.latent_layout == model.latent_layout
     probe = model.get_env().reset()
     np.testing.assert_array_equal(loaded.predict(probe, deterministic=True)[0], model.predict(probe, deterministic=True)[0])
 

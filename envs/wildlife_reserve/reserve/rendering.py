@@ -32,9 +32,11 @@ class ReserveRenderer:
 
     :param env: the environment to draw
     :param mode: ``"rgb_array"`` (returns frames) or ``"human"`` (a pygame window)
+    :param fps: frames per second of the window (``"human"``)
     """
 
-    def __init__(self, env: ReserveView, mode: str) -> None:
+    def __init__(self, env: ReserveView, mode: str, fps: int) -> None:
+        self.fps = fps
         if mode == "rgb_array":
             os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         with requires("pygame", "render", "drawing the reserve"):
@@ -113,7 +115,7 @@ class ReserveRenderer:
             self.pygame.event.pump()
             self.window.blit(canvas, (0, 0))
             self.pygame.display.update()
-            self.clock.tick(env.metadata["render_fps"])
+            self.clock.tick(self.fps)
             return None
         return np.ascontiguousarray(np.transpose(pg.surfarray.pixels3d(canvas), (1, 0, 2)))
 

@@ -1,10 +1,11 @@
 """What the observation builder and the renderer read of a reserve: :class:`ReserveView`, the public read-only face
-of :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv` (which matches it by its shape, without naming it),
-so that ``observation`` and ``rendering`` depend on this module rather than on the environment that uses them."""
+of :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv` and of its world (which match it by their shape,
+without naming it), so that ``observation`` and ``rendering`` depend on this module rather than on the environment
+that uses them."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
     import numpy as np
@@ -19,13 +20,12 @@ if TYPE_CHECKING:
 class ReserveView(Protocol):
     """A reserve mid-episode, read-only (every member as
     :class:`~wildlife_reserve.reserve.reserve.ReserveParallelEnv` documents it). Runtime-checkable:
-    ``isinstance(env, ReserveView)`` tells whether ``env`` has every member (mypy cannot check the environment against
-    it, as PettingZoo's classes carry no types)."""
+    ``isinstance(env, ReserveView)`` tells whether ``env`` has every member; mypy checks the reserve's world
+    (:class:`~wildlife_reserve.reserve.world.ReserveWorld`, which PettingZoo's untyped classes do not hide) against it
+    where the world hands itself to the observation builder."""
 
     @property
     def config(self) -> ReserveConfig: ...
-    @property
-    def metadata(self) -> dict[str, Any]: ...
     @property
     def observation_layout(self) -> dict[str, tuple[slice, tuple[int, ...]]]: ...
     @property

@@ -166,7 +166,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     latent_config: LatentConfig
     #: the same settings as plain data: what the model saves and a loaded model's record is built from
     latent_kwargs: dict[str, Any]
-    feature_spec: dict[str, Any]
+    evidence_spec: dict[str, Any]
     # Set by _setup_latent (and _init_replay_e_step, off-policy).
     e_step: EStep | None
     _feature_fn: Callable[[np.ndarray], np.ndarray]
@@ -201,7 +201,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         venv = wrap_with_belief(env, config.n_components, verbose, strict=not loading)
         wrapper = find_wrapper(venv, BeliefWrapper)
         assert wrapper is not None  # (wrap_with_belief gives an environment with one)
-        self.feature_spec = wrapper.feature_spec
+        self.evidence_spec = wrapper.evidence_spec
         policy_kwargs.update(latent_layout=wrapper.layout(config.decoder_hidden, config.reading_counts).to_dict(),
                              use_latent=config.use_latent, belief_input=config.belief_input)
         return venv, policy_kwargs
@@ -231,7 +231,7 @@ class LatentAlgorithmMixin(WrapsObservations):
 
     def _setup_latent(self) -> None:
         """After the policy exists: the E-step, the feature function and the belief wrapper's model."""
-        evidence = evidence_from_spec(self.feature_spec)
+        evidence = evidence_from_spec(self.evidence_spec)
         self._feature_fn = evidence.features
         self._counter = evidence.counts if self.latent_layout.count_bins else None
         self._encode_action = encode_actions(self.action_space)[0]

@@ -264,7 +264,7 @@ class BeliefWrapper(AppendingVecEnvWrapper):
         #: the environment's evidence (:func:`~sb3_emmarl.common.latent.evidence.evidence_of`): its features, the
         #: specification saved with a model, and its count evidence (None: the transition mixture alone)
         self.evidence = evidence_of(venv)
-        self.feature_fn, self.feature_spec = self.evidence.features, self.evidence.spec
+        self.feature_fn, self.evidence_spec = self.evidence.features, self.evidence.spec
         self.feature_dim, self.counter = self.evidence.feature_dim, self.evidence.counts
         self.encode_action, self.action_dim = encode_actions(venv.action_space)
         self.obs_dim, self.n_components = int(space.shape[0]), int(n_components)

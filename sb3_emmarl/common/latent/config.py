@@ -141,11 +141,14 @@ def reject_flat_latent_settings(owner: str, kwargs: Mapping[str, Any]) -> None:
 
 def upgrade_saved_settings(data: dict[str, Any]) -> dict[str, Any]:
     """A model's saved data from before ``latent_kwargs`` (its latent settings as attributes of their own, the latent
-    layout as ``policy_kwargs["latent_kwargs"]``) in today's form (``latent_kwargs``; the layout as
-    ``policy_kwargs["latent_layout"]``); today's data is returned unchanged.
+    layout as ``policy_kwargs["latent_kwargs"]``, the evidence plug-in's specification as ``feature_spec``) in today's
+    form (``latent_kwargs``; the layout as ``policy_kwargs["latent_layout"]``; ``evidence_spec``); today's data is
+    returned unchanged.
 
     :param data: the attributes SB3 saved (changed in place and returned)
     """
+    if "feature_spec" in data:  # (the evidence plug-in's specification, named for its features before)
+        data["evidence_spec"] = data.pop("feature_spec")
     policy_kwargs = data.get("policy_kwargs")
     if isinstance(policy_kwargs, dict) and "latent_kwargs" in policy_kwargs:
         policy_kwargs["latent_layout"] = policy_kwargs.pop("latent_kwargs")

@@ -83,7 +83,7 @@ class LatentEvidence(ABC):
     :param spec: plain values (JSON): ``kind``, ``obs_dim`` and what the plug-in needs to rebuild itself
     """
 
-    #: the name saved in :attr:`spec` (``feature_spec["kind"]`` of a saved model)
+    #: the name saved in :attr:`spec` (``evidence_spec["kind"]`` of a saved model)
     kind: ClassVar[str]
     #: ``d_x``, the size of :meth:`features`' rows
     feature_dim: int
@@ -176,7 +176,7 @@ def evidence_of(venv: VecEnv) -> LatentEvidence:
 
 
 def evidence_from_spec(spec: dict[str, Any]) -> LatentEvidence:
-    """The plug-in a specification (:attr:`LatentEvidence.spec`, a saved model's ``feature_spec``) was made by."""
+    """The plug-in a specification (:attr:`LatentEvidence.spec`, a saved model's ``evidence_spec``) was made by."""
     plugins: dict[str, type[LatentEvidence]] = {**PLUGINS, GenericEvidence.kind: GenericEvidence}
     kind = spec.get("kind")
     if kind not in plugins:
