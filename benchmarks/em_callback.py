@@ -203,6 +203,26 @@ def run(algo: str, arm: str, seed: int, budget: int, eval_episodes: int) -> dict
     return record
 
 
+#: The settings each algorithm's report names (every arm takes SB3's defaults of them).
+SETTINGS = {"a2c": ("learning_rate", "n_steps", "gamma", "gae_lambda", "ent_coef", "vf_coef"),
+            "dqn": ("learning_rate", "buffer_size", "learning_starts", "batch_size", "train_freq",
+                    "target_update_interval", "exploration_fraction", "exploration_final_eps")}
+
+
+def algo_settings(algo: str) -> str:
+    """``algo``'s settings every arm trains with (SB3's defaults) and the callback's (its defaults), as a line."""
+    import inspect
+
+    from stable_baselines3 import A2C, DQN
+
+    from sb3_emmarl.common.latent.callback import EMCallback
+
+    parameters = inspect.signature({"a2c": A2C, "dqn": DQN}[algo].__init__).parameters
+    every_arm = ", ".join(f"{name} {parameters[name].default}" for name in SETTINGS[algo])
+    callback = inspect.signature(EMCallback.__init__).parameters["e_step_every"].default
+    return f"every arm: SB3's {algo.upper()} defaults ({every_arm}); em: EMCallback's defaults (e_step_every {callback})"
+
+
 def run_file(folder: Path, algo: str, arm: str, seed: int) -> Path:
     return folder / f"{algo}_{arm}_{seed}.json"
 
@@ -235,6 +255,7 @@ def _report(algo: str, seeds: list[int], folder: Path, cue_level: float) -> str:
     first = runs["told"][seeds[0]]
     lines = [f"{algo.upper()} on ModeCueEnv (defaults), {first['budget']:,} agent-steps, seeds {seeds}, "
              f"{first['eval_episodes']} held-out episodes (seed {EVAL_SEED}); cue-following level {cue_level:.2f}",
+             f"  {algo_settings(algo)}",
              f"  {'arm':<16}{'deterministic':>36}{'sampled':>36}   per seed (deterministic)"]
     for arm in arms:
         lines.append(f"  {arm:<16}{describe(values(arm)):>36}{describe(values(arm, 'return_sampled')):>36}   "

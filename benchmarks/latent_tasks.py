@@ -13,9 +13,11 @@ episode's first step and how far its actions move when the belief is permuted
 (:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`).
 
 ``run`` writes one JSON file per run into ``--folder`` (atomically; a run already there is skipped, so a killed sweep
-resumes); ``report`` reads them: per task, the checkpoint at which told PPO's mean return first reaches 0.9 of its
-return at the full budget, and at that checkpoint each variant's return, EM-PPO's ratio to told PPO's per seed, the
-seeds at 0.85 or more, and the permutation's cost against half of EM-PPO's gain over PPO (paired t and Wilcoxon).
+resumes); ``report`` reads them: the PPO settings every variant trained with; per task, the checkpoint at which told PPO's mean
+return first reaches 0.9 of its return at the full budget, and at that checkpoint each variant's return, EM-PPO's
+ratio to told PPO's per seed, the seeds at 0.85 or more, and the permutation's cost against half of EM-PPO's gain over
+PPO (paired t and Wilcoxon); and a criterion that does not charge for identification, over the whole budget: EM-PPO's
+area under its return curve (:func:`curve_area`) and its final return, each over told PPO's, per seed.
 
 Example: ``python benchmarks/latent_tasks.py run --seeds 0 1 2 3 4 5 6 7 8 9 --folder logs/latent_tasks`` then
 ``python benchmarks/latent_tasks.py report --folder logs/latent_tasks`` (or ``make benchmark-latent-tasks``);
@@ -46,6 +48,23 @@ CHECKPOINTS = (0.2, 0.4, 0.6, 0.8, 1.0)
 #: Told PPO's share of its full-budget return that sets the budget of the comparison; EM-PPO's target share of told
 #: PPO's return there.
 TOLD_SHARE, TARGET = 0.9, 0.85
+#: The learning-curve criterion's targets (issue 67): EM-PPO's area under its return curve over the whole budget, and
+#: its return at the full budget, each as a share of told PPO's on the same seed.
+AREA_TARGET, FINAL_TARGET = 0.85, 0.95
+
+
+def curve_area(curve: list[dict], key: str = "return") -> float:
+    """The area under a run's curve of ``key`` over its budget, per agent-step (a constant return ``r`` has area ``r``):
+    the trapezoid rule over its checkpoints, so a learner that finds the mode late loses only the return it missed
+    meanwhile, not its whole run's worth.
+
+    :param curve: the run's checkpoints (``steps`` and ``key`` each), in order
+    """
+    steps = np.array([point["steps"] for point in curve], dtype=float)
+    values = np.array([point[key] for point in curve], dtype=float)
+    if len(steps) < 2:
+        return float(values[0])
+    return float(((values[1:] + values[:-1]) / 2 * np.diff(steps)).sum() / (steps[-1] - steps[0]))
 
 
 def task_class(task: str):
@@ -223,8 +242,8 @@ def load_runs(folder: Path) -> list[dict]:
 
 
 def report(runs: list[dict]) -> str:
-    """The tables of the module's text, one block per task."""
-    lines = []
+    """The tables of the module's text, one block per task, after the settings every variant trained with."""
+    lines = [f"PPO settings of every variant (EM-PPO's defaults; told PPO and PPO take them too): {ppo_settings()}"]
     for task in dict.fromkeys(r["task"] for r in runs):
         mine = {v: {r["seed"]: r for r in runs if r["task"] == task and r["variant"] == v} for v in VARIANTS}
         seeds = sorted(set.intersection(*(set(m) for m in mine.values())))
@@ -262,6 +281,14 @@ def report(runs: list[dict]) -> str:
                      f"{cost.mean():+.3f} (p {paired_p_value(em, permuted):.3g}); cost - half the gain "
                      f"{(cost - gain / 2).mean():+.3f}: paired t p {paired_p_value(cost, gain / 2):.3g}, Wilcoxon p "
                      f"{wilcoxon:.3g}, higher on {int((cost > gain / 2).sum())} of {len(seeds)}")
+        area = np.array([curve_area(mine["em_ppo"][s]["curve"]) / curve_area(mine["told_ppo"][s]["curve"])
+                         for s in seeds])
+        final = np.array([mine["em_ppo"][s]["curve"][-1]["return"] / mine["told_ppo"][s]["curve"][-1]["return"]
+                          for s in seeds])
+        lines.append(f"  over the whole budget, em_ppo / told_ppo per seed: area under the return curve "
+                     f"{' '.join(f'{x:.2f}' for x in area)} (>= {AREA_TARGET}: {int((area >= AREA_TARGET).sum())} of "
+                     f"{len(seeds)}); final return {' '.join(f'{x:.2f}' for x in final)} (>= {FINAL_TARGET}: "
+                     f"{int((final >= FINAL_TARGET).sum())} of {len(seeds)})")
         seconds = {v: np.mean([mine[v][s]["curve"][-1]["seconds"] for s in seeds]) for v in VARIANTS}
         lines.append("  training seconds per run at the full budget: "
                      + ", ".join(f"{v} {seconds[v]:.0f}" for v in VARIANTS))

@@ -125,6 +125,17 @@ def test_the_report_compares_at_the_checkpoint_where_told_ppo_reaches_nine_tenth
     assert "first at 0.9 of its last at 200 agent-steps" in text  # told's mean 10.0 at 200 (0.9 of 10 is 9)
     assert "em_ppo / told_ppo per seed: 0.89 1.00 1.09; at >= 0.85: 3 of 3" in text
     assert "permuting costs +7.000" in text and "em_ppo - ppo +8.000" in text
+    # told's areas 8.625, 8.875, 9.125 (trapezoids over 100..500 agent-steps), em_ppo's 7.75, 8.25, 8.75; finals 9 / 10
+    assert ("area under the return curve 0.90 0.93 0.96 (>= 0.85: 3 of 3); final return 0.90 0.90 0.90 (>= 0.95: 0 of 3)"
+            in text)
+    assert text.startswith("PPO settings of every variant") and "'n_steps': 128" in text
+
+
+def test_the_curve_area_is_the_mean_return_over_the_budget():
+    bench = load_benchmark("latent_tasks")
+    assert bench.curve_area([{"steps": 100, "return": 2.0}, {"steps": 300, "return": 2.0}]) == 2.0
+    assert bench.curve_area([{"steps": 0, "return": 0.0}, {"steps": 100, "return": 1.0},
+                             {"steps": 300, "return": 1.0}]) == pytest.approx((50 + 200) / 300)
 
 
 def test_the_report_refuses_runs_of_different_budgets_and_an_empty_folder(tmp_path):
