@@ -17,7 +17,8 @@ resumes); ``report`` reads them: the PPO settings every variant trained with; pe
 return first reaches 0.9 of its return at the full budget, and at that checkpoint each variant's return, EM-PPO's
 ratio to told PPO's per seed, the seeds at 0.85 or more, and the permutation's cost against half of EM-PPO's gain over
 PPO (paired t and Wilcoxon); and a criterion that does not charge for identification, over the whole budget: EM-PPO's
-area under its return curve (:func:`curve_area`) and its final return, each over told PPO's, per seed.
+area under its return curve (:func:`curve_area`) and its final return, each over told PPO's, per seed (told PPO at the
+better of EM-PPO's PPO settings and SB3's defaults, ``--variants ... told_ppo_sb3``, when those runs are there).
 
 Example: ``python benchmarks/latent_tasks.py run --seeds 0 1 2 3 4 5 6 7 8 9 --folder logs/latent_tasks`` then
 ``python benchmarks/latent_tasks.py report --folder logs/latent_tasks`` (or ``make benchmark-latent-tasks``);
@@ -42,6 +43,10 @@ from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
 #: it, so the comparison is made at or before it; see ``report``).
 BUDGETS = {"cue": 100_000, "dynamics": 300_000, "reach": 150_000, "goal": 150_000}
 VARIANTS = ("em_ppo", "told_ppo", "ppo")
+#: Told PPO at SB3's own PPO defaults (``n_steps`` 2048, ``batch_size`` 64, ``ent_coef`` 0): beside the variants, not
+#: required by ``report``; when present, the whole-budget criterion takes the better told learner per task.
+TOLD_SB3 = "told_ppo_sb3"
+ALL_VARIANTS = (*VARIANTS, TOLD_SB3)
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.
 CHECKPOINTS = (0.2, 0.4, 0.6, 0.8, 1.0)
@@ -132,10 +137,12 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     from sb3_emmarl import EMPPO
 
     th.set_num_threads(1)
-    told = variant == "told_ppo"
+    told = variant in ("told_ppo", TOLD_SB3)
     env = make_task(task, told=told, seed=seed)
     if variant == "em_ppo":
         model = EMPPO("MlpPolicy", env, seed=seed)
+    elif variant == TOLD_SB3:  # SB3's own PPO defaults
+        model = PPO("MlpPolicy", env, seed=seed)
     else:  # EM-PPO's PPO settings, so that the variants differ only in what they see
         model = PPO("MlpPolicy", env, seed=seed, **ppo_settings())
     record = {"task": task, "variant": variant, "seed": seed, "budget": budget, "eval_episodes": eval_episodes,
@@ -243,7 +250,8 @@ def load_runs(folder: Path) -> list[dict]:
 
 def report(runs: list[dict]) -> str:
     """The tables of the module's text, one block per task, after the settings every variant trained with."""
-    lines = [f"PPO settings of every variant (EM-PPO's defaults; told PPO and PPO take them too): {ppo_settings()}"]
+    lines = [f"PPO settings of every variant (EM-PPO's defaults; told PPO and PPO take them too): {ppo_settings()}; "
+             f"{TOLD_SB3}: SB3's PPO defaults"]
     for task in dict.fromkeys(r["task"] for r in runs):
         mine = {v: {r["seed"]: r for r in runs if r["task"] == task and r["variant"] == v} for v in VARIANTS}
         seeds = sorted(set.intersection(*(set(m) for m in mine.values())))
@@ -281,11 +289,19 @@ def report(runs: list[dict]) -> str:
                      f"{cost.mean():+.3f} (p {paired_p_value(em, permuted):.3g}); cost - half the gain "
                      f"{(cost - gain / 2).mean():+.3f}: paired t p {paired_p_value(cost, gain / 2):.3g}, Wilcoxon p "
                      f"{wilcoxon:.3g}, higher on {int((cost > gain / 2).sum())} of {len(seeds)}")
-        area = np.array([curve_area(mine["em_ppo"][s]["curve"]) / curve_area(mine["told_ppo"][s]["curve"])
-                         for s in seeds])
-        final = np.array([mine["em_ppo"][s]["curve"][-1]["return"] / mine["told_ppo"][s]["curve"][-1]["return"]
+        sb3 = {r["seed"]: r for r in runs if r["task"] == task and r["variant"] == TOLD_SB3}
+        reference = "told_ppo"
+        if set(seeds) <= set(sb3):  # the better told learner (mean final return) is the reference
+            finals = {name: np.mean([runs_of[s]["curve"][-1]["return"] for s in seeds])
+                      for name, runs_of in (("told_ppo", mine["told_ppo"]), (TOLD_SB3, sb3))}
+            lines.append(f"  told PPO's final return: at EM-PPO's settings {finals['told_ppo']:.3f}, at SB3's defaults "
+                         f"{finals[TOLD_SB3]:.3f}")
+            reference = max(finals, key=lambda name: finals[name])
+        told_runs = mine["told_ppo"] if reference == "told_ppo" else sb3
+        area = np.array([curve_area(mine["em_ppo"][s]["curve"]) / curve_area(told_runs[s]["curve"]) for s in seeds])
+        final = np.array([mine["em_ppo"][s]["curve"][-1]["return"] / told_runs[s]["curve"][-1]["return"]
                           for s in seeds])
-        lines.append(f"  over the whole budget, em_ppo / told_ppo per seed: area under the return curve "
+        lines.append(f"  over the whole budget, em_ppo / {reference} per seed: area under the return curve "
                      f"{' '.join(f'{x:.2f}' for x in area)} (>= {AREA_TARGET}: {int((area >= AREA_TARGET).sum())} of "
                      f"{len(seeds)}); final return {' '.join(f'{x:.2f}' for x in final)} (>= {FINAL_TARGET}: "
                      f"{int((final >= FINAL_TARGET).sum())} of {len(seeds)})")
@@ -300,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     run_parser = commands.add_parser("run", help="train and score the runs missing from --folder")
     run_parser.add_argument("--tasks", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
-    run_parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    run_parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(ALL_VARIANTS))
     run_parser.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     run_parser.add_argument("--eval-episodes", type=int, default=100)
     run_parser.add_argument("--n-jobs", type=int, default=2, help="runs at once, each in its own process")

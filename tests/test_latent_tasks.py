@@ -129,6 +129,12 @@ def test_the_report_compares_at_the_checkpoint_where_told_ppo_reaches_nine_tenth
     assert ("area under the return curve 0.90 0.93 0.96 (>= 0.85: 3 of 3); final return 0.90 0.90 0.90 (>= 0.95: 0 of 3)"
             in text)
     assert text.startswith("PPO settings of every variant") and "'n_steps': 128" in text
+    for seed in range(3):  # told PPO at SB3's defaults, better here: it becomes the whole-budget reference
+        run = fake_run("goal", "told_ppo_sb3", seed, [2.0, 10.0, 12.0, 12.0, 12.0])
+        (tmp_path / f"goal_told_ppo_sb3_{seed}.json").write_text(json.dumps(run))
+    text = bench.report(bench.load_runs(tmp_path))
+    assert "told PPO's final return: at EM-PPO's settings 10.000, at SB3's defaults 12.000" in text
+    assert "em_ppo / told_ppo_sb3 per seed" in text and "final return 0.75 0.75 0.75" in text
 
 
 def test_the_curve_area_is_the_mean_return_over_the_budget():
