@@ -56,6 +56,9 @@ TOLD_SHARE, TARGET = 0.9, 0.85
 #: The learning-curve criterion's targets (issue 67): EM-PPO's area under its return curve over the whole budget, and
 #: its return at the full budget, each as a share of told PPO's on the same seed.
 AREA_TARGET, FINAL_TARGET = 0.85, 0.95
+#: A run whose final return is below the task's mean PPO final return minus this many of their standard deviations
+#: is flagged collapsed (reported, never dropped).
+COLLAPSE_STDS = 2.0
 
 
 def curve_area(curve: list[dict], key: str = "return") -> float:
@@ -305,6 +308,13 @@ def report(runs: list[dict]) -> str:
                      f"{' '.join(f'{x:.2f}' for x in area)} (>= {AREA_TARGET}: {int((area >= AREA_TARGET).sum())} of "
                      f"{len(seeds)}); final return {' '.join(f'{x:.2f}' for x in final)} (>= {FINAL_TARGET}: "
                      f"{int((final >= FINAL_TARGET).sum())} of {len(seeds)})")
+        ppo_final = np.array([mine["ppo"][s]["curve"][-1]["return"] for s in seeds])
+        floor = ppo_final.mean() - COLLAPSE_STDS * ppo_final.std()
+        learners = {**{v: mine[v] for v in VARIANTS}, **({TOLD_SB3: sb3} if sb3 else {})}
+        collapsed = [f"{v} seed {s}" for v, by_seed in learners.items() for s in seeds
+                     if s in by_seed and by_seed[s]["curve"][-1]["return"] < floor]
+        lines.append(f"  collapsed (final return below PPO's mean - {COLLAPSE_STDS} std, {floor:.3f}): "
+                     f"{', '.join(collapsed) or 'none'}")
         seconds = {v: np.mean([mine[v][s]["curve"][-1]["seconds"] for s in seeds]) for v in VARIANTS}
         lines.append("  training seconds per run at the full budget: "
                      + ", ".join(f"{v} {seconds[v]:.0f}" for v in VARIANTS))

@@ -135,6 +135,10 @@ def test_the_report_compares_at_the_checkpoint_where_told_ppo_reaches_nine_tenth
     text = bench.report(bench.load_runs(tmp_path))
     assert "told PPO's final return: at EM-PPO's settings 10.000, at SB3's defaults 12.000" in text
     assert "em_ppo / told_ppo_sb3 per seed" in text and "final return 0.75 0.75 0.75" in text
+    assert "collapsed (final return below PPO's mean - 2.0 std, 2.000): none" in text
+    collapsed = fake_run("goal", "em_ppo", 0, [1.0, 1.0, 1.0, 1.0, 1.0], [1.0] * 5)
+    (tmp_path / "goal_em_ppo_0.json").write_text(json.dumps(collapsed))
+    assert "2.000): em_ppo seed 0" in bench.report(bench.load_runs(tmp_path))
 
 
 def test_the_curve_area_is_the_mean_return_over_the_budget():
