@@ -182,6 +182,25 @@ def test_finished_run_reads_todays_yaml_through_its_base(tmp_path):
         finished_run(tmp_path, "em_ppo", 0, 256, [], None)
 
 
+def test_finished_run_merges_a_variants_latent_settings_and_reads_runs_saved_before_latent_kwargs(tmp_path):
+    from sb3_emmarl.zoo.algos import merge_hyperparams
+
+    run = tmp_path / "em_ppo" / "WildlifeReserve-v1_1"
+    (run / "WildlifeReserve-v1").mkdir(parents=True)
+    params = ["latent_kwargs:dict(use_latent=False)"]
+    trained = merge_hyperparams(zoo_hyperparams("em_ppo"), {"latent_kwargs": {"use_latent": False}})
+    (run / "WildlifeReserve-v1" / "config.yml").write_text(yaml.safe_dump(trained))
+    (run / "WildlifeReserve-v1" / "args.yml").write_text(yaml.safe_dump({
+        "algo": "em_ppo", "seed": 0, "n_timesteps": 256, "hyperparams": {"latent_kwargs": {"use_latent": False}}}))
+    (run / "run_stats.json").write_text("{}")
+    (run / "WildlifeReserve-v1.zip").write_bytes(b"")
+    assert finished_run(tmp_path, "em_ppo", 0, 256, params, None) == run  # the YAML's other latent settings kept
+    # the same run's config as 0.22.0 wrote it: each latent setting a hyperparameter of its own
+    flat = {**{k: v for k, v in trained.items() if k != "latent_kwargs"}, **trained["latent_kwargs"]}
+    (run / "WildlifeReserve-v1" / "config.yml").write_text(yaml.safe_dump(flat))
+    assert finished_run(tmp_path, "em_ppo", 0, 256, params, None) == run
+
+
 def test_finished_run_checks_the_runs_hyperparameters_against_todays_yaml(tmp_path):
     assert finished_run(tmp_path, "ppo", 0, 256, [], None) is None  # no run at all
     run = tmp_path / "ppo" / "WildlifeReserve-v1_1"

@@ -5,6 +5,7 @@ import shutil
 import numpy as np
 import pytest
 import torch as th
+import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_emmarl.common.checkpoints import REPLAY_BUFFER, TRAINING_STATE, companion, list_checkpoints
@@ -44,6 +45,11 @@ def killed_after_first_checkpoint(tmp_path, algo, *args):
 def test_resume_continues_a_killed_run_to_the_same_model(tmp_path, capsys):
     run, killed = killed_after_first_checkpoint(tmp_path, "em_ppo", "-n", "3000")
     (killed / ".rl_model_2048_steps.zip.123.tmp").write_bytes(b"half a zip")  # a file being written at the kill
+    # its config.yml as runs of 0.22.0 wrote it, each latent setting a hyperparameter of its own: resumed alike
+    config_file = killed / ENV / "config.yml"
+    config = yaml.safe_load(config_file.read_text())
+    config_file.write_text(yaml.safe_dump({**{k: v for k, v in config.items() if k != "latent_kwargs"},
+                                           **config["latent_kwargs"]}))
     capsys.readouterr()
     assert train_main(["--algo", "em_ppo", "--resume", "-f", str(tmp_path / "b"), "--verbose", "0"]) == 0
     assert "Resuming" in capsys.readouterr().out

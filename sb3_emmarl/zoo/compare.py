@@ -24,7 +24,7 @@ from sb3_emmarl.common.trust.safe_config import wrapper_from_config
 from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
 from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import ZOO_ALGOS
+from sb3_emmarl.zoo.algos import ZOO_ALGOS, lift_latent_settings, merge_hyperparams
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values
 from sb3_emmarl.zoo.exp_manager import plain, read_yaml, zoo_hyperparams
 
@@ -168,9 +168,9 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     given = {key: (saved.get(key) or None) if isinstance(saved.get(key), dict) else saved.get(key) for key in flags}
     differences = [(key, given[key], value) for key, value in flags.items() if given[key] != value]
     if not differences:  # the YAML may have changed since: compare the run's hyperparameters with today's
-        today = plain({**zoo_hyperparams(algo, ENV_ID), **overrides})
+        today = plain(merge_hyperparams(zoo_hyperparams(algo, ENV_ID), overrides))
         today["env_kwargs"] = {**(today.get("env_kwargs") or {}), **(env_kwargs or {})}
-        config = read_yaml(run / ENV_ID / "config.yml", "the run's config")
+        config = lift_latent_settings(read_yaml(run / ENV_ID / "config.yml", "the run's config"))
         differences = [(key, config.get(key), value) for key, value in today.items()
                        if key != "n_timesteps" and config.get(key) != value]
     if differences:

@@ -85,6 +85,7 @@ from sb3_emmarl.zoo.algos import (
     SHARED_HYPERPARAMS,
     STATE_ALGOS,
     ZOO_ALGOS,
+    lift_latent_settings,
     merge_hyperparams,
     register_algorithms,
 )
@@ -287,7 +288,7 @@ class ReserveExperimentManager(ExperimentManager):
         ``config.yml``."""
         content = read_yaml(self.config, "a hyperparameter file")
         if self.resume_run is not None:
-            hyperparams = content
+            hyperparams = lift_latent_settings(content) if isinstance(content, dict) else content
         else:
             hyperparams = merge_hyperparams(yaml_section(content, self.env_name.gym_id, self.config),
                                             self.custom_hyperparams or {})
