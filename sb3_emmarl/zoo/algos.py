@@ -132,21 +132,6 @@ def merge_hyperparams(base: dict[str, Any], update: dict[str, Any]) -> dict[str,
     return merged
 
 
-def lift_latent_settings(hyperparams: dict[str, Any]) -> dict[str, Any]:
-    """A run's saved hyperparameters (its ``config.yml``) from before ``latent_kwargs``, when each latent setting was a
-    hyperparameter of its own, in today's form; today's are returned unchanged.
-
-    :param hyperparams: the saved hyperparameters
-    """
-    from sb3_emmarl.common.latent.config import LatentConfig
-
-    flat = {key: hyperparams[key] for key in LatentConfig.names() if key in hyperparams}
-    if not flat:
-        return hyperparams
-    rest = {key: value for key, value in hyperparams.items() if key not in flat}
-    return {**rest, "latent_kwargs": {**flat, **(hyperparams.get("latent_kwargs") or {})}}
-
-
 def _latent_sampler(algo: str, base_sampler: Callable[..., dict[str, Any]]) -> Callable[..., dict[str, Any]]:
     def sample(trial: Any, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict[str, Any]:
         return {**base_sampler(trial, n_actions, n_envs, additional_args), **sample_latent_params(trial, algo)}

@@ -17,6 +17,7 @@ from sb3_emmarl.cli import child_failure
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.checkpoints import vec_normalize_stats
 from sb3_emmarl.common.evaluation import evaluate_team, load_for_evaluation, make_eval_env
+from sb3_emmarl.common.latent.config import lift_flat_settings
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from sb3_emmarl.common.model_files import check_model_file
 from sb3_emmarl.common.statistics import paired_p_value
@@ -24,7 +25,7 @@ from sb3_emmarl.common.trust.safe_config import wrapper_from_config
 from sb3_emmarl.common.trust.validation import MAX_EPISODES, MAX_SEED, MAX_TIMESTEPS, int_flag
 from sb3_emmarl.common.vec_env import compile_reserve
 from sb3_emmarl.oracle_ppo import OraclePPO
-from sb3_emmarl.zoo.algos import ZOO_ALGOS, lift_latent_settings, merge_hyperparams
+from sb3_emmarl.zoo.algos import ZOO_ALGOS, merge_hyperparams
 from sb3_emmarl.zoo.cli import KeyValues, latest_run, parse_key_values
 from sb3_emmarl.zoo.exp_manager import plain, read_yaml, zoo_hyperparams
 
@@ -170,7 +171,7 @@ def finished_run(folder: str | Path, algo: str, seed: int, n_timesteps: int, par
     if not differences:  # the YAML may have changed since: compare the run's hyperparameters with today's
         today = plain(merge_hyperparams(zoo_hyperparams(algo, ENV_ID), overrides))
         today["env_kwargs"] = {**(today.get("env_kwargs") or {}), **(env_kwargs or {})}
-        config = lift_latent_settings(read_yaml(run / ENV_ID / "config.yml", "the run's config"))
+        config = lift_flat_settings(read_yaml(run / ENV_ID / "config.yml", "the run's config"))
         differences = [(key, config.get(key), value) for key, value in today.items()
                        if key != "n_timesteps" and config.get(key) != value]
     if differences:

@@ -67,6 +67,7 @@ from sb3_emmarl.common.checkpoints import (
     companion,
 )
 from sb3_emmarl.common.env_ids import ENV_ID, check_env_id, parallel_env_fn
+from sb3_emmarl.common.latent.config import lift_flat_settings
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm
 from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
@@ -85,7 +86,6 @@ from sb3_emmarl.zoo.algos import (
     SHARED_HYPERPARAMS,
     STATE_ALGOS,
     ZOO_ALGOS,
-    lift_latent_settings,
     merge_hyperparams,
     register_algorithms,
 )
@@ -288,7 +288,7 @@ class ReserveExperimentManager(ExperimentManager):
         ``config.yml``."""
         content = read_yaml(self.config, "a hyperparameter file")
         if self.resume_run is not None:
-            hyperparams = lift_latent_settings(content) if isinstance(content, dict) else content
+            hyperparams = lift_flat_settings(content) if isinstance(content, dict) else content
         else:
             hyperparams = merge_hyperparams(yaml_section(content, self.env_name.gym_id, self.config),
                                             self.custom_hyperparams or {})

@@ -18,7 +18,6 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_emmarl.common.appended.wrapping import WrapsObservations, ensure_wrapped, find_wrapper
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy
 from sb3_emmarl.common.latent.config import (
-    E_STEP_DEFAULTS,
     LatentConfig,
     reject_flat_latent_settings,
     upgrade_saved_settings,
@@ -53,7 +52,8 @@ def wrap_with_belief(env: Any, n_components: int, verbose: int = 0, strict: bool
 
 def make_e_step(latent_model: LatentModel, config: LatentConfig, counter: CountEvidence | None, seed: int) -> EStep:
     """The E-step of ``latent_model`` with ``config``'s estimator, likelihood temperature, count factors and
-    ``e_step_kwargs`` (:data:`E_STEP_DEFAULTS` filled in; see :class:`~sb3_emmarl.common.latent.em.EStep`); the count
+    ``e_step_kwargs`` (the rest at :class:`~sb3_emmarl.common.latent.em.EStep`'s defaults, which are
+    :data:`~sb3_emmarl.common.latent.config.E_STEP_DEFAULTS`); the count
     factors, rings and weight come with a ``counter`` (the environment's count evidence). A bad value in
     ``e_step_kwargs`` raises one ``ValueError`` naming ``e_step_kwargs``."""
     try:
@@ -61,7 +61,7 @@ def make_e_step(latent_model: LatentModel, config: LatentConfig, counter: CountE
                      seed=seed, count_factors=config.count_factors if counter is not None else None,
                      count_rings=counter.n_rings if counter is not None else 1,
                      count_weight=counter.weight if counter is not None else 1.0,
-                     **{**E_STEP_DEFAULTS, **(config.e_step_kwargs or {})})
+                     **(config.e_step_kwargs or {}))
     except ValueError as error:
         raise ValueError(f"e_step_kwargs: {error}") from None
 
@@ -222,9 +222,9 @@ class LatentAlgorithmMixin(WrapsObservations):
     def _setup_model(self) -> None:
         """SB3's algorithm's, after the saved data of an older version is brought to today's form, then
         :meth:`_setup_latent`."""
-        upgraded = upgrade_saved_settings(self.__dict__)
-        if "latent_kwargs" in upgraded and upgraded["latent_kwargs"] != self.latent_config.to_dict():
-            self.latent_config = self.latent_defaults.updated(upgraded["latent_kwargs"])  # (a loaded model's)
+        upgrade_saved_settings(self.__dict__)
+        if self.latent_kwargs != self.latent_config.to_dict():  # (a loaded model's saved settings)
+            self.latent_config = self.latent_defaults.updated(self.latent_kwargs)
             self.latent_kwargs = self.latent_config.to_dict()
         super()._setup_model()  # type: ignore[safe-super]  # the SB3 algorithm's (BaseAlgorithm declares it abstract)
         self._setup_latent()

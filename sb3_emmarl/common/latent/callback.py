@@ -38,7 +38,12 @@ from sb3_emmarl.common.latent.algorithm import (
     wrap_with_belief,
 )
 from sb3_emmarl.common.latent.belief import BeliefWrapper, agents_per_copy
-from sb3_emmarl.common.latent.config import LatentConfig, check_latent_kwargs, reject_flat_latent_settings
+from sb3_emmarl.common.latent.config import (
+    LatentConfig,
+    check_latent_kwargs,
+    lift_flat_settings,
+    reject_flat_latent_settings,
+)
 from sb3_emmarl.common.latent.em import EpisodeCounts, EStep, Transitions
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
@@ -183,11 +188,7 @@ class EMCallback(BaseCallback):
         only, nothing that runs code). Its latent model is built again by the first :meth:`wrap_env`, from the
         environment (which must give the saved sizes), and then takes the saved weights and E-step state."""
         state = th.load(Path(path), map_location="cpu", weights_only=True)
-        arguments = dict(state["arguments"])
-        flat = {name: arguments.pop(name) for name in LatentConfig.names() if name in arguments}
-        if flat:  # (a callback saved before latent_kwargs)
-            arguments["latent_kwargs"] = flat
-        callback = cls(**arguments, verbose=verbose)
+        callback = cls(**lift_flat_settings(state["arguments"]), verbose=verbose)  # (saved before latent_kwargs too)
         callback._saved = state
         return callback
 

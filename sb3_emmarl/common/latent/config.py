@@ -139,6 +139,20 @@ def reject_flat_latent_settings(owner: str, kwargs: Mapping[str, Any]) -> None:
         raise TypeError(f"{owner} takes its latent settings {flat} in latent_kwargs: latent_kwargs=dict({example})")
 
 
+def lift_flat_settings(mapping: Mapping[str, Any]) -> dict[str, Any]:
+    """``mapping`` (a saved run's hyperparameters, a saved callback's arguments) with the latent settings written at
+    its top level, as before ``latent_kwargs``, moved under ``latent_kwargs`` (beneath the fields already there); a
+    mapping without them comes back as it is.
+
+    :param mapping: the saved settings
+    """
+    flat = {name: mapping[name] for name in LatentConfig.names() if name in mapping}
+    if not flat:
+        return dict(mapping)
+    rest = {key: value for key, value in mapping.items() if key not in flat}
+    return {**rest, "latent_kwargs": {**flat, **(mapping.get("latent_kwargs") or {})}}
+
+
 def upgrade_saved_settings(data: dict[str, Any]) -> dict[str, Any]:
     """A model's saved data from before ``latent_kwargs`` (its latent settings as attributes of their own, the latent
     layout as ``policy_kwargs["latent_kwargs"]``, the evidence plug-in's specification as ``feature_spec``) in today's
