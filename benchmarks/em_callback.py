@@ -219,7 +219,7 @@ def algo_settings(algo: str) -> str:
 
     parameters = inspect.signature({"a2c": A2C, "dqn": DQN}[algo].__init__).parameters
     every_arm = ", ".join(f"{name} {parameters[name].default}" for name in SETTINGS[algo])
-    callback = inspect.signature(EMCallback.__init__).parameters["e_step_every"].default
+    callback = EMCallback.latent_defaults.e_step_every
     return f"every arm: SB3's {algo.upper()} defaults ({every_arm}); em: EMCallback's defaults (e_step_every {callback})"
 
 

@@ -2,7 +2,8 @@
 
 The tasks (:mod:`sb3_emmarl.common.mode_tasks`): ``cue`` shows the mode only through a weak cue at every step;
 ``dynamics`` changes only what the actions do; ``reach`` changes what the actions do and ends an episode on
-arrival; ``goal`` decides where the reward lies, shown by a weak cue. Every run trains on 8 copies (SB3's
+arrival; ``goal`` decides where the reward lies, shown by a weak cue; ``corridor`` decides which action moves
+forward and ends an episode on success (its modes solved are counted per mode). Every run trains on 8 copies (SB3's
 ``make_vec_env``) in its own process with one torch thread: ``EMPPO("MlpPolicy", env)`` with its defaults, and PPO
 with the same PPO settings as EM-PPO's defaults on the plain task (``ppo``) and on the task whose observation ends
 with the mode's one-hot (``told_ppo``). At each fifth of the budget the run is scored by SB3's ``evaluate_policy``
@@ -33,6 +34,7 @@ import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -41,12 +43,17 @@ from sb3_emmarl.common.statistics import paired_p_value, wilcoxon_p_value
 
 #: Agent-steps per run of each task, for every variant alike (told PPO reaches 0.9 of its return at this budget within
 #: it, so the comparison is made at or before it; see ``report``).
-BUDGETS = {"cue": 100_000, "dynamics": 300_000, "reach": 150_000, "goal": 150_000}
+BUDGETS = {"cue": 100_000, "dynamics": 300_000, "reach": 150_000, "goal": 150_000, "corridor": 150_000}
 VARIANTS = ("em_ppo", "told_ppo", "ppo")
 #: Told PPO at SB3's own PPO defaults (``n_steps`` 2048, ``batch_size`` 64, ``ent_coef`` 0): beside the variants, not
 #: required by ``report``; when present, the whole-budget criterion takes the better told learner per task.
 TOLD_SB3 = "told_ppo_sb3"
-ALL_VARIANTS = (*VARIANTS, TOLD_SB3)
+#: Candidate EM-PPO settings (issue 67's stage 2), each reported in place of ``em_ppo`` with ``report --em NAME``:
+#: keyword arguments of ``EMPPO``, SB3's PPO defaults being ``"sb3"``.
+EM_CANDIDATES = {"em_ppo_sb3": {"ppo": "sb3", "latent_kwargs": {"e_step_every": 1024}},
+                 "em_ppo_film": {"policy_kwargs": {"belief_conditioning": "film"}},
+                 "em_ppo_mixture": {"policy_kwargs": {"belief_conditioning": "mixture"}}}
+ALL_VARIANTS = (*VARIANTS, TOLD_SB3, *EM_CANDIDATES)
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.
 CHECKPOINTS = (0.2, 0.4, 0.6, 0.8, 1.0)
@@ -56,6 +63,11 @@ TOLD_SHARE, TARGET = 0.9, 0.85
 #: The learning-curve criterion's targets (issue 67): EM-PPO's area under its return curve over the whole budget, and
 #: its return at the full budget, each as a share of told PPO's on the same seed.
 AREA_TARGET, FINAL_TARGET = 0.85, 0.95
+#: The best return a learner not told the mode can earn, where it is below told PPO's (docs/em.md, section 10, the
+#: protocol's amendment): ``cue``'s Bayes-optimal player of the cues (docs/lab/2026-12-06/em_callback.md);
+#: ``corridor``'s best policy not told, 7.5 steps on average at a cost of 0.01 each (``ModeCorridorEnv``). The final
+#: bar is taken against it on those tasks.
+BLIND_CEILINGS = {"cue": 28.84, "corridor": 0.925}
 #: A run whose final return is below the task's mean PPO final return minus this many of their standard deviations
 #: is flagged collapsed (reported, never dropped).
 COLLAPSE_STDS = 2.0
@@ -76,9 +88,10 @@ def curve_area(curve: list[dict], key: str = "return") -> float:
 
 
 def task_class(task: str):
-    from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
+    from sb3_emmarl.common.mode_tasks import ModeCorridorEnv, ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
-    return {"cue": ModeCueEnv, "dynamics": ModeDynamicsEnv, "reach": ModeReachEnv, "goal": ModeGoalEnv}[task]
+    return {"cue": ModeCueEnv, "dynamics": ModeDynamicsEnv, "reach": ModeReachEnv, "goal": ModeGoalEnv,
+            "corridor": ModeCorridorEnv}[task]
 
 
 def make_task(task: str, told: bool = False, n_envs: int = N_ENVS, seed: int = 0):
@@ -144,6 +157,10 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     env = make_task(task, told=told, seed=seed)
     if variant == "em_ppo":
         model = EMPPO("MlpPolicy", env, seed=seed)
+    elif variant in EM_CANDIDATES:
+        candidate = dict(EM_CANDIDATES[variant])
+        ppo = ppo_settings(PPO) if candidate.pop("ppo", None) == "sb3" else {}
+        model = EMPPO("MlpPolicy", env, seed=seed, **ppo, **candidate)
     elif variant == TOLD_SB3:  # SB3's own PPO defaults
         model = PPO("MlpPolicy", env, seed=seed)
     else:  # EM-PPO's PPO settings, so that the variants differ only in what they see
@@ -158,15 +175,27 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
         seconds += time.perf_counter() - start
         done += steps
         eval_env = make_task(task, told=told, n_envs=5, seed=100_000 + seed)
+        ends: list[tuple[int, bool]] = []
         point = {"steps": done, "seconds": seconds,
-                 "return": float(evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes)[0])}
-        if variant == "em_ppo":
+                 "return": float(evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes,
+                                                 callback=partial(keep_episode_end, ends=ends))[0])}
+        if hasattr(task_class(task), "solved_modes"):
+            modes, successes = zip(*ends)
+            point["solved"] = task_class(task).solved_modes(modes, successes).tolist()
+        if isinstance(model, EMPPO):
             k = model.latent_layout.n_components
             permuted = permuted_env(model.wrap_env(make_task(task, n_envs=5, seed=100_000 + seed)), k)
             point["permuted_return"] = float(evaluate_policy(model, permuted, n_eval_episodes=eval_episodes)[0])
             point.update(belief_diagnostics(model, task, 200_000 + seed))
         record["curve"].append(point)
     return record
+
+
+def keep_episode_end(local: dict, _: dict, ends: list[tuple[int, bool]]) -> None:
+    """``evaluate_policy``'s callback: keep each counted episode's mode and success (``info["success"]``, where the
+    task tells it) as it ends."""
+    if local["done"]:
+        ends.append((int(local["info"]["mode"]), bool(local["info"].get("success", False))))
 
 
 #: What ``trace`` prints per rollout: the latent metrics any EM-PPO run logs (``latent/...``, with
@@ -215,14 +244,14 @@ def trace_table(task: str, kept: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def ppo_settings() -> dict:
-    """EM-PPO's default PPO settings (its constructor's defaults), for the PPO variants."""
+def ppo_settings(algorithm: type | None = None) -> dict:
+    """The default PPO settings of ``algorithm``'s constructor (default: EM-PPO's, for the PPO variants)."""
     import inspect
 
     from sb3_emmarl import EMPPO
 
     names = ("learning_rate", "n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range", "ent_coef")
-    parameters = inspect.signature(EMPPO.__init__).parameters
+    parameters = inspect.signature((algorithm or EMPPO).__init__).parameters
     return {name: parameters[name].default for name in names}
 
 
@@ -241,7 +270,8 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     write_text(path, json.dumps({**record, "version": __version__}))
     last = record["curve"][-1]
     return (f"{path.name}: return {last['return']:.3f}" + (f", permuted {last['permuted_return']:.3f}, accuracy "
-                                                           f"{last['latent_accuracy']:.3f}" if variant == "em_ppo" else ""))
+                                                           f"{last['latent_accuracy']:.3f}" if "permuted_return" in last
+                                                           else ""))
 
 
 def load_runs(folder: Path) -> list[dict]:
@@ -251,12 +281,20 @@ def load_runs(folder: Path) -> list[dict]:
     return runs
 
 
-def report(runs: list[dict]) -> str:
-    """The tables of the module's text, one block per task, after the settings every variant trained with."""
+def report(runs: list[dict], em_variant: str = "em_ppo") -> str:
+    """The tables of the module's text, one block per task, after the settings every variant trained with.
+
+    :param em_variant: the EM-PPO variant measured against told PPO: ``"em_ppo"`` (default arguments) or one of
+        :data:`EM_CANDIDATES`
+    """
     lines = [f"PPO settings of every variant (EM-PPO's defaults; told PPO and PPO take them too): {ppo_settings()}; "
              f"{TOLD_SB3}: SB3's PPO defaults"]
+    if em_variant != "em_ppo":
+        lines.append(f"measured in em_ppo's place: {em_variant}, EMPPO with {EM_CANDIDATES[em_variant]} ('sb3': SB3's "
+                     "PPO defaults)")
     for task in dict.fromkeys(r["task"] for r in runs):
-        mine = {v: {r["seed"]: r for r in runs if r["task"] == task and r["variant"] == v} for v in VARIANTS}
+        mine = {v: {r["seed"]: r for r in runs if r["task"] == task and r["variant"] == (em_variant if v == "em_ppo" else v)}
+                for v in VARIANTS}
         seeds = sorted(set.intersection(*(set(m) for m in mine.values())))
         if not seeds:
             lines.append(f"{task}: no seed has all three variants")
@@ -308,6 +346,11 @@ def report(runs: list[dict]) -> str:
                      f"{' '.join(f'{x:.2f}' for x in area)} (>= {AREA_TARGET}: {int((area >= AREA_TARGET).sum())} of "
                      f"{len(seeds)}); final return {' '.join(f'{x:.2f}' for x in final)} (>= {FINAL_TARGET}: "
                      f"{int((final >= FINAL_TARGET).sum())} of {len(seeds)})")
+        if task in BLIND_CEILINGS:
+            blind = np.array([mine["em_ppo"][s]["curve"][-1]["return"] for s in seeds]) / BLIND_CEILINGS[task]
+            lines.append(f"  final return over the blind ceiling {BLIND_CEILINGS[task]} per seed: "
+                         f"{' '.join(f'{x:.2f}' for x in blind)} (>= {FINAL_TARGET}: {int((blind >= FINAL_TARGET).sum())} "
+                         f"of {len(seeds)})")
         ppo_final = np.array([mine["ppo"][s]["curve"][-1]["return"] for s in seeds])
         floor = ppo_final.mean() - COLLAPSE_STDS * ppo_final.std()
         learners = {**{v: mine[v] for v in VARIANTS}, **({TOLD_SB3: sb3} if sb3 else {})}
@@ -315,10 +358,27 @@ def report(runs: list[dict]) -> str:
                      if s in by_seed and by_seed[s]["curve"][-1]["return"] < floor]
         lines.append(f"  collapsed (final return below PPO's mean - {COLLAPSE_STDS} std, {floor:.3f}): "
                      f"{', '.join(collapsed) or 'none'}")
+        lines.extend(solved_lines(mine, sb3, seeds))
         seconds = {v: np.mean([mine[v][s]["curve"][-1]["seconds"] for s in seeds]) for v in VARIANTS}
         lines.append("  training seconds per run at the full budget: "
                      + ", ".join(f"{v} {seconds[v]:.0f}" for v in VARIANTS))
     return "\n".join(lines)
+
+
+def solved_lines(mine: dict[str, dict[int, dict]], sb3: dict[int, dict], seeds: list[int]) -> list[str]:
+    """Where the task counts its modes solved (``solved`` at each checkpoint): per seed, the modes each learner solves
+    at the full budget, and the seeds where EM-PPO misses a mode told PPO (either) solves."""
+    last = {v: {s: runs_of[s]["curve"][-1].get("solved") for s in seeds if s in runs_of}
+            for v, runs_of in {**mine, **({TOLD_SB3: sb3} if sb3 else {})}.items()}
+    if any(solved is None for by_seed in last.values() for solved in by_seed.values()):
+        return []
+    lines = ["  modes solved at the full budget per seed: " + "; ".join(
+        f"{v} {' '.join(str(sum(by_seed[s])) for s in seeds if s in by_seed)}" for v, by_seed in last.items())]
+    missed = [s for s in seeds if any(not em and any(told[s][m] for told in (last["told_ppo"], last.get(TOLD_SB3, {}))
+                                                     if s in told)
+                                      for m, em in enumerate(last["em_ppo"][s]))]
+    lines.append(f"  seeds where em_ppo misses a mode told PPO solves: {missed or 'none'}")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -333,6 +393,8 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("--folder", required=True)
     report_parser = commands.add_parser("report", help="the tables of the runs in --folder")
     report_parser.add_argument("--folder", required=True)
+    report_parser.add_argument("--em", default="em_ppo", choices=["em_ppo", *EM_CANDIDATES],
+                               help="the EM-PPO variant measured against told PPO (default: default arguments)")
     trace_parser = commands.add_parser("trace", help="EM-PPO's latent metrics over one run per task (TRACE_KEYS)")
     trace_parser.add_argument("--tasks", nargs="+", default=list(BUDGETS), choices=list(BUDGETS))
     trace_parser.add_argument("--seed", type=int, default=0)
@@ -347,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     folder = Path(args.folder)
     if args.command == "report":
-        print(report(load_runs(folder)))
+        print(report(load_runs(folder), args.em))
         return 0
     if args.eval_episodes < 1 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds) or min(args.seeds) < 0:
         parser.error("--eval-episodes and --n-jobs must be >= 1 and --seeds distinct and >= 0")

@@ -43,7 +43,7 @@ def latent_values(callback):
 def test_a2c_gets_a_belief_whose_e_step_reads_whole_episodes_across_rollouts():
     # 2 copies, 5 steps a rollout: the first E-step comes at the first rollout end at >= 128 agent-steps (130), on 65
     # steps of each copy: episodes of 32, 32 and 1 steps (6 episodes), every transition but the 2 terminal ones per copy
-    callback = EMCallback(e_step_every=128, seed=0)
+    callback = EMCallback(latent_kwargs=dict(e_step_every=128), seed=0)
     env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=2, seed=0))
     model = A2C("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, seed=0)
     assert isinstance(model.policy.features_extractor, BeliefFeaturesExtractor)
@@ -58,7 +58,7 @@ def test_a2c_gets_a_belief_whose_e_step_reads_whole_episodes_across_rollouts():
 
 def test_dqn_reads_the_replay_buffer_s_new_rows():
     # 1 copy, a rollout every 4 steps: at 100 agent-steps every row so far (terminal transitions included), 4 episodes
-    callback = EMCallback(e_step_every=100, seed=0)
+    callback = EMCallback(latent_kwargs=dict(e_step_every=100), seed=0)
     env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=1, seed=0))
     model = DQN("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, learning_starts=50, seed=0)
     model.learn(100, callback=callback)
@@ -68,7 +68,7 @@ def test_dqn_reads_the_replay_buffer_s_new_rows():
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_other_algorithms_train_and_evaluate_with_the_belief(algo):
-    callback = EMCallback(e_step_every=64, seed=0)
+    callback = EMCallback(latent_kwargs=dict(e_step_every=64), seed=0)
     if algo == "ppo":
         env = callback.wrap_env(make_vec_env(ModeDynamicsEnv, n_envs=2, seed=0))
         model = PPO("MlpPolicy", env, n_steps=32, batch_size=32, policy_kwargs=callback.policy_kwargs, seed=0)
@@ -84,7 +84,7 @@ def test_other_algorithms_train_and_evaluate_with_the_belief(algo):
 
 
 def test_the_belief_moves_with_the_evidence_once_fitted():
-    callback = EMCallback(e_step_every=256, seed=0)
+    callback = EMCallback(latent_kwargs=dict(e_step_every=256), seed=0)
     env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=4, seed=0))
     A2C("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, seed=0).learn(2048, callback=callback)
     venv = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=4, seed=3))
@@ -99,7 +99,7 @@ def test_the_belief_moves_with_the_evidence_once_fitted():
 def test_freeze_e_step_keeps_the_latent_model_and_the_seed_decides_it():
     runs = []
     for freeze in (True, False):
-        callback = EMCallback(e_step_every=64, latent_kwargs=dict(freeze_e_step=freeze), seed=3)
+        callback = EMCallback(latent_kwargs=dict(e_step_every=64, freeze_e_step=freeze), seed=3)
         env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=2, seed=0))
         before = latent_values(callback)
         A2C("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, seed=0).learn(200, callback=callback)
@@ -112,7 +112,7 @@ def test_freeze_e_step_keeps_the_latent_model_and_the_seed_decides_it():
 
 def test_a_saved_callback_gives_the_same_beliefs_and_trains_on_as_if_it_had_not_stopped(tmp_path):
     def trained(budget, callback=None, path=None):
-        callback = callback or EMCallback(e_step_every=100, seed=0)
+        callback = callback or EMCallback(latent_kwargs=dict(e_step_every=100), seed=0)
         env = callback.wrap_env(make_vec_env(ModeCueEnv, n_envs=2, seed=0))
         A2C("MlpPolicy", env, policy_kwargs=callback.policy_kwargs, seed=0).learn(budget, callback=callback)
         if path is not None:
@@ -144,8 +144,12 @@ def test_building_the_latent_model_leaves_torch_s_generator_alone():
 
 
 def test_bad_use_fails_early_with_one_line():
-    with pytest.raises(ValueError, match="e_step_every"):
-        EMCallback(e_step_every=0)
+    with pytest.raises(ValueError, match=r"e_step_every must be null or an int in \[1, "):
+        EMCallback(latent_kwargs=dict(e_step_every=0))
+    with pytest.raises(ValueError, match=r"every latent_kwargs\['e_step_every'\] agent-steps: an int >= 1, got None"):
+        EMCallback(latent_kwargs=dict(e_step_every=None))
+    with pytest.raises(TypeError, match=r"in latent_kwargs: latent_kwargs=dict\(e_step_every=100\)"):
+        EMCallback(e_step_every=100)  # (its own argument until latent_kwargs held it)
     with pytest.raises(ValueError, match="n_components"):
         EMCallback(latent_kwargs=dict(n_components=0))
     with pytest.raises(ValueError, match=r"wrap_env\(env\) first"):

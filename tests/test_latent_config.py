@@ -134,7 +134,7 @@ def test_a_callback_saved_with_its_settings_as_arguments_loads_them(tmp_path):
 
     from sb3_emmarl.common.mode_tasks import ModeCueEnv
 
-    callback = EMCallback({"n_components": 3, "likelihood_temperature": 0.5}, e_step_every=64, seed=2)
+    callback = EMCallback({"n_components": 3, "likelihood_temperature": 0.5, "e_step_every": 64}, seed=2)
     callback.wrap_env(sb3_make_vec_env(ModeCueEnv, n_envs=1, seed=0))
     callback.save(tmp_path / "em.pt")
     assert EMCallback.load(tmp_path / "em.pt").config == callback.config
@@ -143,4 +143,8 @@ def test_a_callback_saved_with_its_settings_as_arguments_loads_them(tmp_path):
                           "decoder_hidden": (64, 64)}  # as callbacks were saved before latent_kwargs
     th.save(state, tmp_path / "old.pt")
     old = EMCallback.load(tmp_path / "old.pt")
-    assert old.config == callback.config and old.e_step_every == 64 and old.seed == 2
+    assert old.config == callback.config and old.config.e_step_every == 64 and old.seed == 2
+    state["arguments"] = {"latent_kwargs": {"n_components": 3, "likelihood_temperature": 0.5}, "e_step_every": 64,
+                          "seed": 2}  # as saved while e_step_every was its own argument
+    th.save(state, tmp_path / "old.pt")
+    assert EMCallback.load(tmp_path / "old.pt").config == callback.config

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scripts import load_benchmark
 
-from sb3_emmarl.common.mode_tasks import ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
+from sb3_emmarl.common.mode_tasks import ModeCorridorEnv, ModeCueEnv, ModeDynamicsEnv, ModeGoalEnv, ModeReachEnv
 
 
 @pytest.mark.expensive
-@pytest.mark.parametrize("task", ["cue", "dynamics", "reach", "goal"])
+@pytest.mark.parametrize("task", ["cue", "dynamics", "reach", "goal", "corridor"])
 def test_em_ppo_defaults_reach_the_mode_and_most_of_the_told_return(task):
     bench = load_benchmark("latent_tasks")
     em = bench.run(task, "em_ppo", 0, bench.BUDGETS[task], eval_episodes=50)["curve"][-1]
@@ -24,7 +24,7 @@ def test_em_ppo_defaults_reach_the_mode_and_most_of_the_told_return(task):
     assert em["permuted_return"] < em["return"]
 
 
-@pytest.mark.parametrize("env_class", [ModeCueEnv, ModeDynamicsEnv, ModeReachEnv, ModeGoalEnv])
+@pytest.mark.parametrize("env_class", [ModeCueEnv, ModeDynamicsEnv, ModeReachEnv, ModeGoalEnv, ModeCorridorEnv])
 @pytest.mark.parametrize("told", [False, True])
 def test_the_tasks_follow_gymnasium_s_api_and_hide_the_mode_unless_told(env_class, told):
     from gymnasium.utils.env_checker import check_env
@@ -80,6 +80,38 @@ def test_the_reach_task_pays_progress_and_ends_on_arrival():
     assert reward == pytest.approx(start - np.linalg.norm(env.position)) and not terminated
     with pytest.raises(ValueError, match="radius must be in"):
         ModeReachEnv(radius=0.7)
+
+
+def test_the_corridor_moves_by_the_mode_s_action_and_ends_on_success():
+    env = ModeCorridorEnv(cells=3, length=5, step_cost=0.2)
+    obs, info = env.reset(seed=4)
+    mode = info["mode"]
+    assert obs.tolist() == pytest.approx([1 / 3])
+    obs, reward, terminated, truncated, info = env.step((mode + 1) % 4)  # stays
+    assert obs.tolist() == pytest.approx([1 / 3]) and reward == pytest.approx(-0.2) and "success" not in info
+    obs, *_ = env.step((mode + 2) % 4)  # back
+    obs, *_ = env.step((mode + 2) % 4)  # back, not below cell 0
+    assert obs.tolist() == [0.0]
+    for _ in range(2):
+        obs, reward, terminated, truncated, info = env.step(mode)
+    assert not terminated and truncated and info["success"] is False  # 5 steps used, at cell 2 of 3
+    env.reset(seed=4)
+    env.step(mode)
+    obs, reward, terminated, truncated, info = env.step(mode)
+    assert terminated and not truncated and info["success"] and reward == pytest.approx(1 - 0.2)
+    with pytest.raises(ValueError, match="cells must be an int >= 2"):
+        ModeCorridorEnv(cells=1)
+    with pytest.raises(ValueError, match=r"length must be at least cells \(7\)"):
+        ModeCorridorEnv(length=5)
+    with pytest.raises(ValueError, match=r"step_cost must be in \[0, 1 / length = 0.03333\], got 0.5"):
+        ModeCorridorEnv(step_cost=0.5)
+
+
+def test_solved_modes_counts_successes_per_mode():
+    solved = ModeCorridorEnv.solved_modes([0, 0, 1, 1, 1, 2], [True, True, True, False, True, False], share=0.6)
+    assert solved.tolist() == [True, True, False, False]  # mode 3 has no episode
+    with pytest.raises(ValueError, match="one entry per episode"):
+        ModeCorridorEnv.solved_modes([0, 1], [True])
 
 
 def info_mode(env) -> int:
@@ -139,6 +171,31 @@ def test_the_report_compares_at_the_checkpoint_where_told_ppo_reaches_nine_tenth
     collapsed = fake_run("goal", "em_ppo", 0, [1.0, 1.0, 1.0, 1.0, 1.0], [1.0] * 5)
     (tmp_path / "goal_em_ppo_0.json").write_text(json.dumps(collapsed))
     assert "2.000): em_ppo seed 0" in bench.report(bench.load_runs(tmp_path))
+
+
+def test_the_report_counts_modes_solved_and_measures_a_candidate_in_em_ppo_s_place(tmp_path):
+    bench = load_benchmark("latent_tasks")
+    solved = {"told_ppo": [[True] * 4, [True, True, True, False]], "ppo": [[True, False, False, False]] * 2,
+              "em_ppo": [[True, True, False, True], [True, True, True, False]],
+              "em_ppo_sb3": [[True] * 4, [True] * 4]}
+    for variant, per_seed in solved.items():
+        for seed, modes in enumerate(per_seed):
+            last = {"ppo": 0.3 + 0.07 * seed, "told_ppo": 0.9}.get(variant, 0.8 - 0.03 * seed)
+            run = fake_run("corridor", variant, seed, [0.5] + [last] * 4, [0.0] + [0.1 * seed] * 4)
+            if variant == "em_ppo_sb3":
+                for point in run["curve"]:
+                    point.update(permuted_return=0.1 * seed, latent_accuracy=0.9, belief_use=1.0)
+            for point in run["curve"]:
+                point["solved"] = modes
+            (tmp_path / f"corridor_{variant}_{seed}.json").write_text(json.dumps(run))
+    text = bench.report(bench.load_runs(tmp_path))
+    assert "modes solved at the full budget per seed: em_ppo 3 3; told_ppo 4 3; ppo 1 1" in text
+    # em_ppo's final returns 0.8 and 0.77 over the corridor's blind ceiling 0.925
+    assert "final return over the blind ceiling 0.925 per seed: 0.86 0.83 (>= 0.95: 0 of 2)" in text
+    assert "seeds where em_ppo misses a mode told PPO solves: [0]" in text  # seed 1: told misses mode 3 too
+    text = bench.report(bench.load_runs(tmp_path), "em_ppo_sb3")
+    assert "measured in em_ppo's place: em_ppo_sb3" in text
+    assert "em_ppo 4 4; told_ppo 4 3" in text and "misses a mode told PPO solves: none" in text
 
 
 def test_the_curve_area_is_the_mean_return_over_the_budget():

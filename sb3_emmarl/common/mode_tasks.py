@@ -1,6 +1,6 @@
-"""Two small tasks with a hidden mode, for testing latent-variable methods (as SB3 ships ``IdentityEnv``).
+"""Small tasks with a hidden mode, for testing latent-variable methods (as SB3 ships ``IdentityEnv``).
 
-In both, each episode draws one of ``n_modes`` modes that no single observation reveals and acting on
+In each, each episode draws one of ``n_modes`` modes that no single observation reveals and acting on
 which pays; ``info["mode"]`` holds it (for evaluation only), and ``told=True`` appends a one-hot of it to
 the observation: the upper bound a method that infers the mode is measured against.
 
@@ -8,6 +8,8 @@ the observation: the upper bound a method that infers the mode is measured again
 - :class:`ModeDynamicsEnv`: the mode changes only what the actions do.
 - :class:`ModeReachEnv`: the mode changes what the actions do, and an episode ends when the goal is reached.
 - :class:`ModeGoalEnv`: the mode decides where the reward lies, shown only by a weak cue at every step.
+- :class:`ModeCorridorEnv`: the mode decides which action moves forward; an episode ends on success, and
+  ``info["success"]`` tells which modes a policy solves.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from gymnasium import spaces
 
 
 class _ModeEnv(gym.Env):
-    """What both tasks share: the mode drawn at reset, ``info["mode"]``, the ``told`` variant."""
+    """What the tasks share: the mode drawn at reset, ``info["mode"]``, the ``told`` variant."""
 
     def __init__(self, n_modes: int, length: int, told: bool, own_dim: int) -> None:
         if isinstance(n_modes, bool) or not isinstance(n_modes, int) or n_modes < 2:
@@ -215,3 +217,68 @@ class ModeGoalEnv(_ModeEnv):
         goal = self.SIGNS[self.mode] * self.corner
         reward = float(np.linalg.norm(self.position - goal) < self.radius)
         return self._observation(), reward, False, self.t >= self.length, self._info()
+
+
+class ModeCorridorEnv(_ModeEnv):
+    """Walk to the end of a corridor when the mode decides which action moves forward; the episode ends on arrival.
+
+    Observation: the position ``cell / cells`` (starting at cell 1 of ``0 .. cells``). Action: ``Discrete(4)``; in mode
+    ``m`` action ``m`` moves one cell forward, action ``(m + 2) % 4`` one cell back (not below cell 0), the other two
+    leave the position as it is. Each step costs ``step_cost``; arriving at cell ``cells`` pays 1 and ends the episode
+    (``terminated``, ``info["success"]`` True); an episode that never arrives is truncated after ``length`` steps
+    (``info["success"]`` False). A policy that keeps pressing one action solves one mode of four, and counting
+    successes per mode (:meth:`solved_modes`) shows which modes a learner solves. At most two actions tell the mode
+    (one that moves does), and a memoryless policy cannot keep it. With the defaults a policy told the mode earns
+    ``1 - 6 * 0.01 = 0.94``; the best policy not told (the exact posterior: one action, a second if it did not move)
+    takes 7.5 steps on average and earns 0.925, 0.98 of it: the task asks for every mode solved, at a small cost of
+    identification.
+
+    :param cells: the corridor's last cell, the goal (at least 2)
+    :param length: steps per episode at most (at least ``cells``)
+    :param step_cost: the cost of a step, in [0, 1 / length] (an episode that fails costs at most 1)
+    :param told: append the mode's one-hot to the observation
+    """
+
+    def __init__(self, cells: int = 7, length: int = 30, step_cost: float = 0.01, told: bool = False) -> None:
+        if isinstance(cells, bool) or not isinstance(cells, int) or cells < 2:
+            raise ValueError(f"cells must be an int >= 2, got {cells!r}")
+        if isinstance(length, int) and not isinstance(length, bool) and length < cells:
+            raise ValueError(f"length must be at least cells ({cells}), got {length!r}")
+        super().__init__(4, length, told, 1)
+        if not 0 <= step_cost <= 1 / length:
+            raise ValueError(f"step_cost must be in [0, 1 / length = {1 / length:.4g}], got {step_cost!r}")
+        self.cells, self.step_cost = cells, float(step_cost)
+        self.action_space = spaces.Discrete(4)
+        self.cell = 1
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._start(seed)
+        self.cell = 1
+        return self._observe(np.array([self.cell / self.cells])), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        effect = (int(action) - self.mode) % 4
+        self.cell = max(0, self.cell + (1 if effect == 0 else -1 if effect == 2 else 0))
+        self.t += 1
+        arrived = self.cell >= self.cells
+        reward = float(arrived) - self.step_cost
+        truncated = self.t >= self.length and not arrived
+        info = {**self._info(), "success": arrived} if arrived or truncated else self._info()
+        return self._observe(np.array([self.cell / self.cells])), reward, arrived, truncated, info
+
+    @staticmethod
+    def solved_modes(modes: list[int] | np.ndarray, successes: list[bool] | np.ndarray, n_modes: int = 4,
+                     share: float = 0.9) -> np.ndarray:
+        """Which modes a learner solves: per mode, whether at least ``share`` of its episodes ended in success.
+
+        :param modes: each finished episode's mode (``info["mode"]`` at its end)
+        :param successes: whether it succeeded (``info["success"]``)
+        :param n_modes: modes
+        :param share: the share of successes that counts as solved
+        :return: ``(n_modes,)`` flags (a mode without episodes is not solved)
+        """
+        modes, successes = np.asarray(modes, dtype=int), np.asarray(successes, dtype=bool)
+        if modes.shape != successes.shape:
+            raise ValueError(f"modes and successes must have one entry per episode, got {modes.shape} and "
+                             f"{successes.shape}")
+        return np.array([(modes == m).any() and successes[modes == m].mean() >= share for m in range(n_modes)])

@@ -7,6 +7,7 @@ from typing import Any, ClassVar, TypeVar, cast
 import numpy as np
 import torch as th
 from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
@@ -18,6 +19,22 @@ from sb3_emmarl.common.trust.validation import RULES
 from sb3_emmarl.em_ppo.policies import MlpPolicy
 
 SelfEMPPO = TypeVar("SelfEMPPO", bound="EMPPO")
+
+
+class EStepDuringRollout(BaseCallback):
+    """EM-PPO's own callback when its E-steps run every ``latent_kwargs["e_step_every"]`` agent-steps: at each step of a
+    rollout it lets the model hand the rows collected since the last handover to the E-step (SB3 calls a callback
+    after each environment step, before the step is added to the buffer: the rows so far and the next observation are
+    complete transitions)."""
+
+    model: EMPPO
+
+    def _on_rollout_start(self) -> None:
+        self.model._e_step_row = self.model._handed_rows = 0
+
+    def _on_step(self) -> bool:
+        self.model._e_step_during_rollout()
+        return True
 
 
 class EMPPO(LatentAlgorithmMixin, PPO):
@@ -61,6 +78,10 @@ class EMPPO(LatentAlgorithmMixin, PPO):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
     policy: MlpPolicy
+    steps_e_step: ClassVar[bool] = True
+    #: the rollout's first row not yet handed to the E-step, and the rows handed over during the rollout
+    _e_step_row: int = 0
+    _handed_rows: int = 0
 
     def __init__(
         self,
@@ -100,17 +121,47 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         if self.zero_belief_weights and self.policy.latent_model is not None:
             zero_tail_weights(self.policy, self.policy.features_extractor.belief_width)
 
-    def _rollout_transitions(self) -> tuple[Transitions, EpisodeCounts | None]:
-        """The E-step's data from the rollout just collected: every step whose successor is in the same episode
-        (the one after the rollout's last step is the algorithm's next observation)."""
+    def _rollout_transitions(self, stop: int | None = None) -> tuple[Transitions, EpisodeCounts | None]:
+        """The E-step's data from the rollout's rows not yet handed over, up to ``stop`` (default: the rollout's end):
+        every step whose successor is in the same episode (the one after the last row is the algorithm's next
+        observation, during the rollout as after it)."""
         last_obs = self._last_obs
         starts = self._last_episode_starts
         assert isinstance(last_obs, np.ndarray) and starts is not None  # (set by the rollout; flat Box observations)
-        return rollout_transitions(self.rollout_buffer, last_obs, starts, self._features,
-                                   self._transitions)
+        start, self._e_step_row = self._e_step_row, 0 if stop is None else stop
+        return rollout_transitions(self.rollout_buffer, last_obs, starts, self._features, self._transitions,
+                                   start=start, stop=stop)
 
     def _e_step_data(self) -> tuple[Transitions, EpisodeCounts | None]:
         return self._rollout_transitions()
+
+    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None], agent_steps: int = 0) -> bool:
+        # (at the rollout's end: the rows not handed over during it)
+        rows = self.rollout_buffer.buffer_size - self._handed_rows
+        self._handed_rows = 0
+        return super()._run_e_step(data, agent_steps or rows * self.n_envs)
+
+    def _e_step_during_rollout(self) -> None:
+        """With ``e_step_every``: at each step of a rollout, once that many agent-steps were collected since the last
+        E-step, hand the rows not yet handed over to the E-step and run it (:class:`EStepDuringRollout` calls this)."""
+        every = self.latent_config.e_step_every
+        buffer = self.rollout_buffer
+        if self.e_step is None or every is None or self._e_step_steps + (buffer.pos - self._e_step_row) * self.n_envs < every:
+            return
+        start, stop = self._e_step_row, buffer.pos
+        self._handed_rows += stop - start
+        if super()._run_e_step(self._rollout_transitions(stop), (stop - start) * self.n_envs):
+            self._log_belief_use(buffer.observations[start:stop])
+
+    def _init_callback(self, callback: Any, progress_bar: bool = False) -> BaseCallback:
+        """SB3's, with :class:`EStepDuringRollout` after the user's callbacks when E-steps run every ``e_step_every``
+        agent-steps."""
+        callback = super()._init_callback(callback, progress_bar)
+        if self.e_step is None or self.latent_config.e_step_every is None:
+            return callback
+        both = CallbackList([callback, EStepDuringRollout()])
+        both.init_callback(self)
+        return both
 
     def _m_step_optimizers(self) -> th.optim.Optimizer:
         return self.policy.optimizer

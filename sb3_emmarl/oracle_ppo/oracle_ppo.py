@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 from stable_baselines3 import PPO
-from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.conditioning import ConditionedPolicyMixin, ContextActorCriticPolicy
 from sb3_emmarl.common.appended.initialization import hold_tail_weights_at_zero, zero_tail_weights
 from sb3_emmarl.common.appended.wrapping import WrapsObservations, find_wrapper
 from sb3_emmarl.common.mode_aware import ModeObservationWrapper, wrap_with_mode
@@ -47,8 +48,14 @@ class OraclePPO(WrapsObservations, PPO):
     :param random_label: append a random label per episode instead of the mode (the control above); saved with the
         model, so that ``load`` and :meth:`wrap_env` give it random labels again
 
-    Every other argument, and ``policy_aliases``, is PPO's (see :class:`stable_baselines3.PPO`).
+    How the networks read the one-hot is ``policy_kwargs["belief_conditioning"]`` (``"concat"``, SB3's networks, the
+    default; ``"mixture"``, a network per mode; ``"film"``: see :mod:`sb3_emmarl.common.appended.conditioning`), with
+    ``"MlpPolicy"``, which is :class:`~sb3_emmarl.common.appended.conditioning.ContextActorCriticPolicy` here.
+
+    Every other argument is PPO's (see :class:`stable_baselines3.PPO`).
     """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**PPO.policy_aliases, "MlpPolicy": ContextActorCriticPolicy}
 
     def __init__(self, policy: str | type[ActorCriticPolicy], env: Any, *args: Any, zero_mode_weights: bool = True,
                  mode_input: str = "both", random_label: bool = False, **kwargs: Any) -> None:
@@ -59,6 +66,10 @@ class OraclePPO(WrapsObservations, PPO):
         told = loading and find_wrapper(env, ModeObservationWrapper) is not None
         if env is not None and not isinstance(env, str) and not told:
             env = wrap_with_mode(env, kwargs.get("verbose", 0), self.random_label)
+        wrapper = find_wrapper(env, ModeObservationWrapper) if isinstance(env, VecEnv) else None
+        policy_class = self.policy_aliases.get(policy, policy) if isinstance(policy, str) else policy
+        if wrapper is not None and isinstance(policy_class, type) and issubclass(policy_class, ConditionedPolicyMixin):
+            kwargs["policy_kwargs"] = {**(kwargs.get("policy_kwargs") or {}), "context_dim": wrapper.n_modes}
         super().__init__(policy, env, *args, **kwargs)
 
     def _setup_model(self) -> None:
@@ -70,8 +81,10 @@ class OraclePPO(WrapsObservations, PPO):
         if self.mode_input != "both":
             blind = "value" if self.mode_input == "policy" else "policy"
             if not hold_tail_weights_at_zero(self.policy, n_modes, blind):
-                raise ValueError(f"mode_input={self.mode_input!r} needs SB3's FlattenExtractor (the first layers "
-                                 f"must read the one-hot directly), got {type(self.policy.features_extractor).__name__}")
+                raise ValueError(f"mode_input={self.mode_input!r} needs SB3's FlattenExtractor and belief_conditioning "
+                                 f"'concat' (the first layers must read the one-hot directly), got "
+                                 f"{type(self.policy.features_extractor).__name__} and "
+                                 f"{getattr(self.policy, 'belief_conditioning', 'concat')!r}")
 
     def wrap_env(self, venv: VecEnv) -> VecEnv:
         """``venv`` with the true mode (or the random label) appended to its observations (for evaluation and

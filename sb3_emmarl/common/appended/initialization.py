@@ -14,9 +14,16 @@ from typing import cast
 
 import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import FlattenExtractor
+from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
 
 from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
+
+
+def reads_tail_as_input(policy: ActorCriticPolicy) -> bool:
+    """Whether the policy's first layers read the features' tail as inputs among the others: SB3's ``MlpExtractor``
+    (``belief_conditioning="concat"``); the other conditionings read it apart
+    (:mod:`sb3_emmarl.common.appended.conditioning`), and start as networks that do not read it."""
+    return isinstance(policy.mlp_extractor, MlpExtractor)
 
 
 def features_end_with_observation_tail(extractor: th.nn.Module, obs_dim: int, n_tail: int) -> bool:
@@ -38,7 +45,8 @@ def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:
     of a flat observation (see the module's docstring for why).
 
     Returns False, changing nothing, where the features extractor does not pass those values through unchanged (see
-    :func:`features_end_with_observation_tail`), or where ``n_tail`` is 0.
+    :func:`features_end_with_observation_tail`), where the networks read them apart (:func:`reads_tail_as_input`), or
+    where ``n_tail`` is 0.
 
     :param policy: an SB3 actor-critic policy (its ``mlp_extractor`` and heads as built by SB3)
     :param n_tail: values at the end of the observation
@@ -46,7 +54,8 @@ def zero_tail_weights(policy: ActorCriticPolicy, n_tail: int) -> bool:
     assert policy.observation_space.shape is not None  # (a flat Box)
     obs_dim = int(policy.observation_space.shape[0])
     extractors = {id(e): e for e in (policy.features_extractor, policy.pi_features_extractor, policy.vf_features_extractor)}
-    if n_tail <= 0 or not all(features_end_with_observation_tail(e, obs_dim, n_tail) for e in extractors.values()):
+    if (n_tail <= 0 or not reads_tail_as_input(policy)
+            or not all(features_end_with_observation_tail(e, obs_dim, n_tail) for e in extractors.values())):
         return False
     for first in first_layers(policy).values():
         with th.no_grad():
@@ -60,7 +69,8 @@ def hold_tail_weights_at_zero(policy: ActorCriticPolicy, n_tail: int, network: s
 
     Their gradient is masked by a hook on the weight (hooks are not saved: call this again after loading, as
     ``_setup_model`` does), so no optimiser step moves them. Returns False, changing nothing, where the features
-    extractor does not pass those values through unchanged (see :func:`features_end_with_observation_tail`).
+    extractor does not pass those values through unchanged (see :func:`features_end_with_observation_tail`) or the
+    networks read them apart (:func:`reads_tail_as_input`).
 
     :param policy: an SB3 actor-critic policy
     :param n_tail: values at the end of the observation, at least 1
@@ -69,7 +79,7 @@ def hold_tail_weights_at_zero(policy: ActorCriticPolicy, n_tail: int, network: s
     assert policy.observation_space.shape is not None  # (a flat Box)
     obs_dim = int(policy.observation_space.shape[0])
     extractor = policy.pi_features_extractor if network == "policy" else policy.vf_features_extractor
-    if n_tail <= 0 or not features_end_with_observation_tail(extractor, obs_dim, n_tail):
+    if n_tail <= 0 or not reads_tail_as_input(policy) or not features_end_with_observation_tail(extractor, obs_dim, n_tail):
         return False
     layer = first_layers(policy)[network]
     mask = th.ones_like(layer.weight)
@@ -101,6 +111,9 @@ def tail_weight_norms(policy: ActorCriticPolicy, n_tail: int) -> dict[str, tuple
         :func:`features_end_with_observation_tail`)
     :param n_tail: features at the end, at least 1 and fewer than all
     """
+    if not reads_tail_as_input(policy):
+        raise ValueError("tail_weight_norms reads the first layers' weights on the tail: the policy's networks read it "
+                         "apart (belief_conditioning other than 'concat')")
     norms = {}
     for name, layer in first_layers(policy).items():
         columns = layer.weight.detach().norm(dim=0)

@@ -19,6 +19,7 @@ from sb3_emmarl.common.appended.wrapping import WrapsObservations, ensure_wrappe
 from sb3_emmarl.common.latent.belief import BeliefTracker, BeliefWrapper, agents_per_copy
 from sb3_emmarl.common.latent.config import (
     LatentConfig,
+    check_latent_kwargs,
     reject_flat_latent_settings,
     upgrade_saved_settings,
 )
@@ -105,19 +106,23 @@ TransitionsFn = Callable[..., tuple[Transitions, EpisodeCounts | None]]
 
 
 def rollout_transitions(buffer: RolloutBuffer, last_obs: np.ndarray, last_episode_starts: np.ndarray,
-                        features: Callable[[np.ndarray], np.ndarray],
-                        transitions: TransitionsFn) -> tuple[Transitions, EpisodeCounts | None]:
-    """The E-step's data from an on-policy rollout just collected: every step whose successor is in the same episode
-    (the one after the rollout's last step is the algorithm's next observation, ``last_obs``).
+                        features: Callable[[np.ndarray], np.ndarray], transitions: TransitionsFn,
+                        start: int = 0, stop: int | None = None) -> tuple[Transitions, EpisodeCounts | None]:
+    """The E-step's data from the rows ``start:stop`` of an on-policy rollout: every step whose successor is in the
+    same episode (the one after the last row is the algorithm's next observation, ``last_obs``, whether the rollout is
+    complete or, during it, ``stop`` is the buffer's position).
 
     :param features: compact features of augmented observations (:func:`augmented_features`)
     :param transitions: :func:`make_transitions` with the caller's counters and settings bound
+    :param start: the first row
+    :param stop: the row after the last (default: the buffer's size)
     """
+    observations = buffer.observations[start:stop]
     # The observations are not stacked with the last ones: that would copy the rollout's (220 MiB at 200 UAVs)
-    all_features = np.concatenate([features(buffer.observations), features(last_obs[None])])
-    starts = np.concatenate([buffer.episode_starts, np.asarray(last_episode_starts, dtype=np.float32)[None]])
-    return transitions(all_features[:-1], buffer.actions, all_features[1:], starts[:-1] > 0, starts[1:] == 0,
-                       next_observations=(buffer.observations[1:], last_obs[None]))
+    all_features = np.concatenate([features(observations), features(last_obs[None])])
+    starts = np.concatenate([buffer.episode_starts[start:stop], np.asarray(last_episode_starts, dtype=np.float32)[None]])
+    return transitions(all_features[:-1], buffer.actions[start:stop], all_features[1:], starts[:-1] > 0,
+                       starts[1:] == 0, next_observations=(observations[1:], last_obs[None]))
 
 
 def replay_transitions(buffer: ReplayBuffer, position: int, last_dones: np.ndarray,
@@ -160,6 +165,8 @@ class LatentAlgorithmMixin(WrapsObservations):
 
     #: The algorithm's own defaults of the latent settings (``latent_kwargs`` is laid over them)
     latent_defaults: ClassVar[LatentConfig] = LatentConfig()
+    #: whether the algorithm runs E-steps every ``e_step_every`` agent-steps during its rollouts (EM-PPO)
+    steps_e_step: ClassVar[bool] = False
     policy: LatentPolicyMixin
     replay_buffer: ReplayBuffer | None  # (the off-policy algorithms': EM-DDPG, VDN+EM)
     #: the latent settings (``e_step_kwargs`` with the E-step's defaults filled in); excluded from the saved data
@@ -174,6 +181,7 @@ class LatentAlgorithmMixin(WrapsObservations):
     _encode_action: Callable[[np.ndarray], np.ndarray]
     _episode_counters: np.ndarray
     _n_rollouts: int
+    _e_step_steps: int
     _e_step_pos: int
     _last_dones: np.ndarray
     _e_step_in_data: bool
@@ -192,6 +200,9 @@ class LatentAlgorithmMixin(WrapsObservations):
             ``latent_kwargs``)
         """
         reject_flat_latent_settings(type(self).__name__, kwargs or {})
+        if not self.steps_e_step and check_latent_kwargs(latent_kwargs).get("e_step_every") is not None:
+            raise ValueError(f"{type(self).__name__} runs its E-step every e_step_interval train() calls; "
+                             "e_step_every (agent-steps, during the rollout) is EM-PPO's")
         config = self.latent_defaults.updated(latent_kwargs)
         self.latent_config, self.latent_kwargs = config, config.to_dict()
         self.e_step = None
@@ -242,6 +253,7 @@ class LatentAlgorithmMixin(WrapsObservations):
         if getattr(self, "_episode_counters", None) is None or len(self._episode_counters) != self.n_envs:
             self._episode_counters = np.zeros(self.n_envs, dtype=np.int64)
         self._n_rollouts = int(getattr(self, "_n_rollouts", 0))
+        self._e_step_steps = int(getattr(self, "_e_step_steps", 0))  # agent-steps handed over since the last E-step
         self._attach_beliefs(self.env)
 
     def _attach_beliefs(self, env: VecEnv | None) -> None:
@@ -315,15 +327,23 @@ class LatentAlgorithmMixin(WrapsObservations):
                                                                       self._features, self._transitions)
         return data
 
-    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None]) -> bool:
-        """Remember the rollout's transitions (and reading counts); every ``e_step_interval`` rollouts, run the E-step
-        and log it. Returns whether it ran."""
+    def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None], agent_steps: int = 0) -> bool:
+        """Remember the transitions handed over (and reading counts); run the E-step and log it every
+        ``e_step_interval`` handovers, or, with ``e_step_every``, once the handovers since the last E-step hold that
+        many agent-steps (``agent_steps``: this handover's). Returns whether it ran."""
         if self.e_step is None:
             return False
         self.e_step.add(*data)
         self._n_rollouts += 1
-        if self._n_rollouts % self.latent_config.e_step_interval:
-            return False
+        every = self.latent_config.e_step_every
+        if every is None:
+            if self._n_rollouts % self.latent_config.e_step_interval:
+                return False
+        else:
+            self._e_step_steps += agent_steps
+            if self._e_step_steps < every:
+                return False
+            self._e_step_steps = 0
         e_step_and_log(self.e_step, self.logger, train=not self.latent_config.freeze_e_step)
         return True
 

@@ -9,16 +9,16 @@ policy the features extractor that reads ``[observation, belief]`` (:class:`~.po
 off-policy: every ``train_freq`` collection) the callback hands the new transitions to the E-step, read from the
 rollout buffer or from the rows the replay buffer gained, with the functions EM-PPO and EM-DDPG use
 (:func:`~.algorithm.rollout_transitions`, :func:`~.algorithm.replay_transitions`, :func:`~.algorithm.make_transitions`);
-every ``e_step_every`` agent-steps it runs one E-step (:class:`~.em.EStep`, built by :func:`~.algorithm.make_e_step`)
-on the transitions of the last ``window`` such intervals. The algorithm's own update then trains on observations that
-carry the belief, as EM-PPO's M-step does.
+every ``latent_kwargs["e_step_every"]`` agent-steps it runs one E-step (:class:`~.em.EStep`, built by
+:func:`~.algorithm.make_e_step`) on the transitions of the last ``window`` such intervals. The algorithm's own update
+then trains on observations that carry the belief, as EM-PPO's M-step does.
 """
 
 from __future__ import annotations
 
 from dataclasses import fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -71,12 +71,11 @@ class EMCallback(BaseCallback):
     that changes observations (e.g. ``VecNormalize``) may sit over the belief wrapper.
 
     :param latent_kwargs: the latent settings, a :class:`~sb3_emmarl.common.latent.config.LatentConfig` or a dict of
-        its fields (EM-PPO's defaults; the E-step's ``window`` counts E-step intervals here: the transitions of the
-        last ``window`` intervals of ``e_step_every`` steps). The settings of an algorithm's own networks and training
-        (``belief_input`` aside, which :attr:`policy_kwargs` carries) are the algorithm's: ``e_step_interval``,
-        ``use_latent`` and ``freeze_m_step`` are refused
-    :param e_step_every: agent-steps (``num_timesteps``) between E-steps; an E-step runs at the first rollout end at
-        least this many steps after the last one
+        its fields, laid over :attr:`latent_defaults` (EM-PPO's, with ``e_step_every=2000``: an E-step at the first
+        rollout end at least that many agent-steps, ``num_timesteps``, after the last one; the E-step's ``window``
+        counts E-step intervals here: the transitions of the last ``window`` intervals). The settings of an
+        algorithm's own networks and training (``belief_input`` aside, which :attr:`policy_kwargs` carries) are the
+        algorithm's: ``e_step_interval``, ``use_latent`` and ``freeze_m_step`` are refused
     :param seed: seed of the latent model's initial weights (drawn without touching torch's global generator) and of
         the E-step
     :param verbose: SB3's callback verbosity
@@ -84,8 +83,10 @@ class EMCallback(BaseCallback):
 
     #: the latent settings that belong to the algorithm being trained, not to the callback
     NOT_THE_CALLBACKS = ("e_step_interval", "use_latent", "freeze_m_step")
+    #: the callback's own defaults of the latent settings (``latent_kwargs`` is laid over them)
+    latent_defaults: ClassVar[LatentConfig] = LatentConfig(e_step_every=2000)
 
-    def __init__(self, latent_kwargs: LatentConfig | dict[str, Any] | None = None, e_step_every: int = 2000, *,
+    def __init__(self, latent_kwargs: LatentConfig | dict[str, Any] | None = None, *,
                  seed: int = 0, verbose: int = 0, **kwargs: Any) -> None:
         super().__init__(verbose)
         reject_flat_latent_settings(type(self).__name__, kwargs)
@@ -97,8 +98,10 @@ class EMCallback(BaseCallback):
             raise ValueError(f"latent_kwargs {foreign} are settings of the algorithm being trained, not of EMCallback "
                              "(which runs an E-step every e_step_every agent-steps)")
         #: the latent settings (``e_step_kwargs`` with the E-step's defaults filled in)
-        self.config = LatentConfig().updated(given)
-        self.e_step_every = integer(1, 10**12)("e_step_every", e_step_every)
+        self.config = self.latent_defaults.updated(given)
+        if self.config.e_step_every is None:
+            raise ValueError("EMCallback runs its E-steps every latent_kwargs['e_step_every'] agent-steps: an int >= 1, "
+                             "got None")
         self.seed = integer(0, 2**63 - 1)("seed", seed)
         self.latent_model: LatentModel | None = None
         self.e_step: EStep | None = None
@@ -174,7 +177,7 @@ class EMCallback(BaseCallback):
             raise ValueError("EMCallback has no latent model yet: call callback.wrap_env(env) first")
         latent_kwargs = {name: value for name, value in self.config.to_dict().items()
                          if name not in self.NOT_THE_CALLBACKS}
-        arguments = {"latent_kwargs": latent_kwargs, "e_step_every": self.e_step_every, "seed": self.seed}
+        arguments = {"latent_kwargs": latent_kwargs, "seed": self.seed}
         state = {"arguments": arguments, "layout": self.layout.to_dict(),
                  "latent_model": self.latent_model.state_dict(), "e_step": e_step.state_dict(),
                  "episode_counters": th.as_tensor(self._episode_counters),
@@ -226,7 +229,8 @@ class EMCallback(BaseCallback):
         data = self._rollout_data()
         if len(data[0]):
             self._pending.append(data)
-        if self.model.num_timesteps - self._last_e_step < self.e_step_every or not self._pending:
+        assert self.config.e_step_every is not None  # (checked by the constructor)
+        if self.model.num_timesteps - self._last_e_step < self.config.e_step_every or not self._pending:
             return
         e_step = self.e_step
         transitions, counts = self._joined_pending()

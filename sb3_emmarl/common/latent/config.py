@@ -49,10 +49,17 @@ class LatentConfig:
         matches its modes (poacher strategy x weather, ``em_ppo.yml``); None: every component's every bin its own
     :param e_step_interval: between E-steps: rollouts (EM-PPO) or ``train()`` calls (EM-DDPG, VDN+EM); every rollout's
         transitions are kept
+    :param e_step_every: agent-steps (``num_timesteps``, every copy and agent counted) between E-steps, whatever
+        ``n_steps`` is. EM-PPO runs the E-step during the rollout, on the transitions collected since the last one, so
+        that the belief is informed before the first policy update (None: every ``e_step_interval`` rollouts, at the
+        rollout's end; give one of the two); :class:`~sb3_emmarl.common.latent.callback.EMCallback` at the first
+        rollout end that many agent-steps after the last E-step (2000 by default); EM-DDPG and VDN+EM count
+        ``e_step_interval`` ``train()`` calls instead
     :param belief_input: how the networks read the belief: ``"probabilities"`` as they are, ``"map"`` the one-hot of
         the most likely component (the form of a told mode), ``"both"`` the one-hot after the probabilities
         (docs/em.md, "Reading the belief")
-    :param e_step_kwargs: overrides of :data:`E_STEP_DEFAULTS` (``window`` counts what ``e_step_interval`` counts)
+    :param e_step_kwargs: overrides of :data:`E_STEP_DEFAULTS` (``window`` counts what ``e_step_interval`` counts;
+        with ``e_step_every``, the parts handed to the E-step: each E-step's, and a rollout's remainder)
     :param use_latent: False is the no-latent ablation (same networks without the belief input, no E-step)
     :param freeze_e_step: ablation: the transition models and the prior keep their initial values (the belief is
         still computed, from an unfitted model)
@@ -69,6 +76,7 @@ class LatentConfig:
     reading_counts: bool = True
     count_factors: tuple[int, int] | None = None
     e_step_interval: int = 1
+    e_step_every: int | None = None
     belief_input: str = "probabilities"
     e_step_kwargs: dict[str, Any] | None = None
     use_latent: bool = True
@@ -86,6 +94,9 @@ class LatentConfig:
                 value = bool(value)
             object.__setattr__(self, field.name, value)
         object.__setattr__(self, "count_factors", check_factors(self.count_factors, self.n_components))
+        if self.e_step_every is not None and self.e_step_interval != 1:
+            raise ValueError(f"give one E-step schedule: e_step_every={self.e_step_every} (agent-steps) or "
+                             f"e_step_interval={self.e_step_interval} (rollouts or train() calls), not both")
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

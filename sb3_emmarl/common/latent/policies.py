@@ -17,6 +17,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.td3.policies import TD3Policy
 
+from sb3_emmarl.common.appended.conditioning import ConditionedPolicyMixin
 from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
@@ -85,6 +86,9 @@ class LatentPolicyMixin(_PolicyBase):
     def __init__(self, observation_space, action_space, lr_schedule, *args, latent_layout: dict[str, Any],
                  use_latent: bool = True, belief_input: str = "probabilities", **kwargs) -> None:
         layout = LatentLayout.from_dict(latent_layout)
+        if kwargs.get("belief_conditioning") == "mixture" and belief_input == "both":
+            raise ValueError("belief_conditioning='mixture' weighs one network per component by the belief: it needs "
+                             "belief_input 'probabilities' or 'map', got 'both'")
         # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
         object.__setattr__(self, "latent_layout", layout)
         object.__setattr__(self, "_latent_config", (layout.to_dict(), bool(use_latent), belief_input))
@@ -110,13 +114,19 @@ class LatentPolicyMixin(_PolicyBase):
         return data
 
 
-class LatentActorCriticPolicy(LatentPolicyMixin, ActorCriticPolicy):
-    """SB3's ``ActorCriticPolicy`` whose policy and value networks see the belief (EM-PPO).
+class LatentActorCriticPolicy(LatentPolicyMixin, ConditionedPolicyMixin, ActorCriticPolicy):
+    """SB3's ``ActorCriticPolicy`` whose policy and value networks see the belief (EM-PPO), read as
+    ``belief_conditioning`` says (:mod:`sb3_emmarl.common.appended.conditioning`).
 
-    Takes ``ActorCriticPolicy``'s arguments plus ``latent_layout`` (set by the algorithm), ``use_latent`` and ``belief_input``.
+    Takes ``ActorCriticPolicy``'s arguments plus ``latent_layout`` (set by the algorithm), ``use_latent``,
+    ``belief_input`` and ``belief_conditioning``.
     """
 
     features_extractor: BeliefFeaturesExtractor
+
+    def context_width(self) -> int:
+        """The belief's features (none without a latent model)."""
+        return self.features_extractor.belief_width if self._latent_config[1] else 0
 
 
 class LatentTD3Policy(LatentPolicyMixin, TD3Policy):

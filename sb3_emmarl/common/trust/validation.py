@@ -238,6 +238,10 @@ E_STEP_RULES: dict[str, Rule] = {
 }
 
 
+#: How the networks read the told mode or the belief (``policy_kwargs["belief_conditioning"]``,
+#: :mod:`sb3_emmarl.common.appended.conditioning`).
+CONDITIONINGS = ("concat", "mixture", "film")
+
 #: The rules of the EM algorithms' latent settings (the fields of ``latent_kwargs``).
 LATENT_RULES: dict[str, Rule] = {
     "n_components": integer(1, 64),
@@ -252,6 +256,7 @@ LATENT_RULES: dict[str, Rule] = {
                                    if isinstance(v, (list, tuple)) and len(v) == 2 else fail(n, v, "two ints"),
                                    "two ints in [1, 64] (where x how far)")),
     "e_step_interval": integer(1, 10**4),
+    "e_step_every": optional(integer(1, 10**9)),
     "e_step_kwargs": mapping(E_STEP_RULES, "e_step_kwargs"),
     "use_latent": boolean(),
     "freeze_e_step": boolean(),
@@ -273,6 +278,7 @@ RULES: dict[str, Rule] = {
     "replay_buffer_class": Rule(lambda n, v: v if v is None else fail(n, v, "null (the algorithms choose their own)"),
                                 "null"),
     "frame_stack": optional(integer(1, 64)),
+    "belief_conditioning": choice(*CONDITIONINGS),
     "callback": Rule(lambda n, v: check_imports(n, v), "an allowed callback"),
     "env_wrapper": Rule(lambda n, v: check_imports(n, v), "an allowed wrapper"),
     "vec_env_wrapper": Rule(lambda n, v: check_imports(n, v), "an allowed wrapper"),
@@ -371,6 +377,9 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any]:
                 fail(f"policy_kwargs {key}", item, f"one of {sorted(classes)}")
         elif not is_plain(item):
             fail(f"policy_kwargs {key}", item, "plain data (classes only as " + " or ".join(POLICY_CLASS_KEYS) + ")")
+    if "belief_conditioning" in value:
+        value["belief_conditioning"] = RULES["belief_conditioning"]("policy_kwargs belief_conditioning",
+                                                                    value["belief_conditioning"])
     if "net_arch" in value:
         arch = value["net_arch"]
         if isinstance(arch, dict):
