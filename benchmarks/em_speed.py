@@ -4,9 +4,12 @@ Each algorithm is built from its zoo YAML (``em_ppo.yml``, ``ppo.yml``, ``ppo_ls
 settings) on the default reserve and trains ``-n`` agent-steps; the algorithms take turns, ``--rounds``
 times (fresh models, seeds 0, 1, ...), with one torch thread, so that the machine's load drifts hit all
 of them alike. The table gives the median seconds and agent-steps per second of each, and the ratios of
-EM-PPO's median to the others'.
+EM-PPO's median to the others'. ``--belief-conditioning film mixture`` adds turns of EM-PPO and told PPO
+(``oracle_ppo``) whose networks read the belief or the told mode so (``policy_kwargs["belief_conditioning"]``), and the
+ratio of each to the same algorithm's concatenation (issue 67's wall-time bar).
 
-Example: ``python benchmarks/em_speed.py`` (or ``make benchmark-em-speed``; about 15 minutes)
+Example: ``python benchmarks/em_speed.py`` (or ``make benchmark-em-speed``; about 15 minutes); ``python
+benchmarks/em_speed.py --algos em_ppo --belief-conditioning concat film mixture``
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 import torch as th
 
 from sb3_emmarl.common.centralized import ENV_ID
+from sb3_emmarl.common.trust.validation import CONDITIONINGS, parse_policy_kwargs
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.exp_manager import zoo_hyperparams, zoo_model
@@ -32,15 +36,23 @@ def zoo_settings(algo: str) -> dict:
     return settings
 
 
+#: The algorithms whose policies take ``belief_conditioning``.
+CONDITIONED = ("em_ppo", "oracle_ppo")
+
+
 def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_cpus: int = 0,
-          n_copies: int | None = None):
+          n_copies: int | None = None, belief_conditioning: str = "concat"):
     """The algorithm with its zoo YAML's settings on ``n_envs`` (or ``n_copies``) default reserves (through
-    ``vec_env_type``, in ``num_cpus`` processes), or on ``env``."""
+    ``vec_env_type``, in ``num_cpus`` processes), or on ``env``; its networks reading the belief or the told mode as
+    ``belief_conditioning`` says."""
     settings = zoo_settings(algo)
     if env is None:
         env = make_vec_env(n_copies=int(n_copies or settings["n_envs"]), seed=seed,
                            env_kwargs=settings.get("env_kwargs") or {}, vec_env_type=vec_env_type, num_cpus=num_cpus)
-    return zoo_model(algo, env, seed)
+    if belief_conditioning == "concat":
+        return zoo_model(algo, env, seed)
+    policy_kwargs = {**parse_policy_kwargs(settings.get("policy_kwargs")), "belief_conditioning": belief_conditioning}
+    return zoo_model(algo, env, seed, policy_kwargs=policy_kwargs)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,26 +60,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-n", "--n-timesteps", type=int, default=100_000, help="agent-steps per turn")
     parser.add_argument("--rounds", type=int, default=3, help="turns of each algorithm")
     parser.add_argument("--algos", nargs="+", default=["em_ppo", "ppo", "ppo_lstm"], choices=sorted(ZOO_ALGOS))
+    parser.add_argument("--belief-conditioning", nargs="+", default=["concat"], choices=list(CONDITIONINGS),
+                        help=f"how {' and '.join(CONDITIONED)} read the belief or the told mode (one turn each)")
     args = parser.parse_args(argv)
     if args.n_timesteps < 1 or args.rounds < 1:
         parser.error(f"-n and --rounds must be >= 1, got {args.n_timesteps} and {args.rounds}")
     th.set_num_threads(1)
-    seconds: dict[str, list[float]] = {algo: [] for algo in args.algos}
+    arms = [(algo, conditioning) for algo in args.algos
+            for conditioning in (dict.fromkeys(["concat", *args.belief_conditioning]) if algo in CONDITIONED else ["concat"])]
+    seconds: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
     for round_ in range(args.rounds):
-        for algo in args.algos:
-            model = build(algo, seed=round_)
+        for algo, conditioning in arms:
+            model = build(algo, seed=round_, belief_conditioning=conditioning)
             start = time.perf_counter()
             model.learn(args.n_timesteps)
-            seconds[algo].append(time.perf_counter() - start)
-            print(f"round {round_} {algo}: {seconds[algo][-1]:.1f} s", flush=True)
+            seconds[arm_name(algo, conditioning)].append(time.perf_counter() - start)
+            print(f"round {round_} {arm_name(algo, conditioning)}: {seconds[arm_name(algo, conditioning)][-1]:.1f} s",
+                  flush=True)
     print(f"\n{args.n_timesteps:,} agent-steps per turn, {args.rounds} turns each, one process, one torch thread")
-    print(f"{'algo':<10}{'median s':>10}{'agent-steps/s':>15}")
-    for algo, values in seconds.items():
-        print(f"{algo:<10}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}")
+    print(f"{'algo':<20}{'median s':>10}{'agent-steps/s':>15}")
+    for name, values in seconds.items():
+        print(f"{name:<20}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}")
     if "em_ppo" in seconds:
-        for other in (a for a in seconds if a != "em_ppo"):
+        for other in (a for a in seconds if "+" not in a and a != "em_ppo"):
             print(f"em_ppo / {other}: {np.median(seconds['em_ppo']) / np.median(seconds[other]):.2f}")
+    for algo, conditioning in arms:
+        if conditioning != "concat":
+            ratio = np.median(seconds[arm_name(algo, conditioning)]) / np.median(seconds[algo])
+            print(f"{arm_name(algo, conditioning)} / {algo}: {ratio:.2f}")
     return 0
+
+
+def arm_name(algo: str, conditioning: str) -> str:
+    return algo if conditioning == "concat" else f"{algo}+{conditioning}"
 
 
 if __name__ == "__main__":

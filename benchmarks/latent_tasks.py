@@ -166,7 +166,7 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     else:  # EM-PPO's PPO settings, so that the variants differ only in what they see
         model = PPO("MlpPolicy", env, seed=seed, **ppo_settings())
     record = {"task": task, "variant": variant, "seed": seed, "budget": budget, "eval_episodes": eval_episodes,
-              "curve": []}
+              "parameters": policy_parameters(model), "curve": []}
     seconds, done = 0.0, 0
     for fraction in CHECKPOINTS:
         steps = round(fraction * budget) - done
@@ -189,6 +189,12 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
             point.update(belief_diagnostics(model, task, 200_000 + seed))
         record["curve"].append(point)
     return record
+
+
+def policy_parameters(model) -> int:
+    """The parameters of a model's policy and value networks (an EM policy's latent model left out: the E-step fits
+    it), for comparisons at equal sizes."""
+    return sum(p.numel() for name, p in model.policy.named_parameters() if not name.startswith("latent_model."))
 
 
 def keep_episode_end(local: dict, _: dict, ends: list[tuple[int, bool]]) -> None:
@@ -359,6 +365,9 @@ def report(runs: list[dict], em_variant: str = "em_ppo") -> str:
         lines.append(f"  collapsed (final return below PPO's mean - {COLLAPSE_STDS} std, {floor:.3f}): "
                      f"{', '.join(collapsed) or 'none'}")
         lines.extend(solved_lines(mine, sb3, seeds))
+        sizes = {v: mine[v][seeds[0]].get("parameters") for v in VARIANTS}
+        if all(sizes.values()):
+            lines.append("  policy and value parameters: " + ", ".join(f"{v} {n:,}" for v, n in sizes.items()))
         seconds = {v: np.mean([mine[v][s]["curve"][-1]["seconds"] for s in seeds]) for v in VARIANTS}
         lines.append("  training seconds per run at the full budget: "
                      + ", ".join(f"{v} {seconds[v]:.0f}" for v in VARIANTS))

@@ -54,13 +54,14 @@ def test_a_conditioned_policy_starts_as_one_function_of_every_context_and_then_l
     assert values == pytest.approx(targets.tolist(), abs=0.3)
 
 
-def test_the_mixture_is_the_context_weighted_sum_of_its_networks_and_film_scales_and_shifts_each_unit():
+def test_the_mixture_is_the_context_weighted_sum_of_its_heads_and_film_scales_and_shifts_each_unit():
     th.manual_seed(1)
     mixture = ConditionedMlp(3 + K, [8], th.nn.Tanh, K, "mixture")
     x = th.rand(2, 3)
     weights = th.tensor([0.1, 0.2, 0.3, 0.4])
-    expected = sum(w * head(x) for w, head in zip(weights, mixture.heads))
-    th.testing.assert_close(mixture(th.cat([x, weights.expand(2, K)], dim=1)), expected)
+    heads = th.nn.Linear(8 * K, 3)  # as SB3's action head over the mixture's output: K heads, one per component
+    expected = sum(w * (h @ mixture.trunk(x).T).T for w, h in zip(weights, heads.weight.view(3, K, 8).unbind(1)))
+    th.testing.assert_close(heads(mixture(th.cat([x, weights.expand(2, K)], dim=1))), expected + heads.bias)
     film = ConditionedMlp(3 + K, [8, 5], th.nn.ReLU, K, "film")
     with th.no_grad():
         for layer in film.films:
@@ -118,9 +119,47 @@ def test_oracle_ppo_reads_the_told_mode_through_the_conditioning(tmp_path):
     venv = make_vec_env(2, seed=0, env_kwargs=SMALL)
     model = OraclePPO("MlpPolicy", venv, n_steps=16, batch_size=32, seed=0,
                       policy_kwargs=dict(belief_conditioning="mixture"))
-    assert model.policy.context_dim == N_MODES and len(model.policy.mlp_extractor.policy_net.heads) == N_MODES
+    assert model.policy.context_dim == N_MODES
+    assert model.policy.action_net.in_features == N_MODES * model.policy.mlp_extractor.policy_net.trunk[-2].out_features
     model.learn(32)
     model.save(tmp_path / "oracle.zip")
     assert OraclePPO.load(tmp_path / "oracle.zip", env=venv).policy.belief_conditioning == "mixture"
     with pytest.raises(ValueError, match="needs SB3's FlattenExtractor and belief_conditioning 'concat'"):
         OraclePPO("MlpPolicy", venv, mode_input="policy", policy_kwargs=dict(belief_conditioning="film"))
+
+
+@pytest.mark.parametrize("conditioning", ["mixture", "film"])
+def test_em_ddpg_s_actor_and_critics_read_the_belief_through_the_conditioning(tmp_path, conditioning):
+    from sb3_emmarl import EMDDPG
+    from sb3_emmarl.common.appended.conditioning import ConditionedCritic, ConditionedHead
+
+    env = sb3_make_vec_env("Pendulum-v1", n_envs=1, seed=0)
+    model = EMDDPG("MlpPolicy", env, seed=0, learning_starts=32, policy_kwargs=dict(belief_conditioning=conditioning))
+    assert isinstance(model.actor.mu[0], ConditionedHead) and isinstance(model.critic, ConditionedCritic)
+    obs = th.as_tensor(model.env.reset()).repeat(K, 1)
+    obs[:, -K:] = th.eye(K)  # every component's one-hot: the networks start as one function of all
+    actions = th.zeros(K, 1)
+    with th.no_grad():
+        assert th.allclose(model.actor(obs), model.actor(obs[:1]).expand(K, -1))
+        assert th.allclose(model.critic(obs, actions)[0], model.critic(obs[:1], actions[:1])[0].expand(K, -1))
+    model.learn(64)
+    model.save(tmp_path / "ddpg.zip")
+    loaded = EMDDPG.load(tmp_path / "ddpg.zip")
+    assert loaded.policy.belief_conditioning == conditioning
+    with th.no_grad():
+        th.testing.assert_close(loaded.actor(obs), model.actor(obs))
+        th.testing.assert_close(loaded.critic.q1_forward(obs, actions), model.critic.q1_forward(obs, actions))
+
+
+def test_em_callback_gives_a_conditioned_actor_critic_policy():
+    from stable_baselines3 import A2C
+
+    from sb3_emmarl.common.latent.callback import EMCallback
+
+    callback = EMCallback(seed=0)
+    venv = callback.wrap_env(cue_env())
+    policy, kwargs = callback.conditioned_policy("film")
+    model = A2C(policy, venv, seed=0, policy_kwargs=kwargs)
+    assert model.policy.context_dim == K and isinstance(model.policy.mlp_extractor, ConditionedMlpExtractor)
+    model.learn(64, callback=callback)
+    assert callback.e_step is not None

@@ -193,6 +193,7 @@ def test_the_report_counts_modes_solved_and_measures_a_candidate_in_em_ppo_s_pla
     # em_ppo's final returns 0.8 and 0.77 over the corridor's blind ceiling 0.925
     assert "final return over the blind ceiling 0.925 per seed: 0.86 0.83 (>= 0.95: 0 of 2)" in text
     assert "seeds where em_ppo misses a mode told PPO solves: [0]" in text  # seed 1: told misses mode 3 too
+    assert "policy and value parameters" not in text  # (runs saved without their sizes)
     text = bench.report(bench.load_runs(tmp_path), "em_ppo_sb3")
     assert "measured in em_ppo's place: em_ppo_sb3" in text
     assert "em_ppo 4 4; told_ppo 4 3" in text and "misses a mode told PPO solves: none" in text

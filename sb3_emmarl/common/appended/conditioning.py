@@ -1,16 +1,20 @@
 """How a policy's networks read a context appended to their features (the told mode, the belief): ``belief_conditioning``.
 
 - ``"concat"``: SB3's ``MlpExtractor`` over the features, the context among them (what every algorithm did before).
-- ``"mixture"``: one network per component of the context over the rest of the features, their outputs mixed by the
-  context's weights (a told one-hot picks one network, a belief weights them): a head per mode, routed by the mode.
+- ``"mixture"``: one output head per component of the context (the policy's action head and its value head), on
+  hidden layers shared by all and reading the rest of the features, the heads' outputs mixed by the context's weights
+  (a told one-hot picks one head, a belief weights them). The hidden layers output the context's outer product with
+  their last layer, ``(K * width)`` values, so that SB3's linear heads over them are ``K`` heads mixed:
+  ``W [c_1 h, ..., c_K h] = sum_k c_k W_k h``. It costs the hidden layers of one network and ``K`` heads.
 - ``"film"``: SB3's layers over the rest of the features, every hidden layer's units scaled and shifted by linear
   functions of the context (FiLM, Perez et al. 2018): the context changes what each unit computes, and cannot be left
   unread as a concatenated input can while the rest of the observation explains the return.
 
-Both start as a network that does not read the context: the mixture's networks as copies of one, FiLM's scales and
-shifts at zero (:meth:`ConditionedMlpExtractor.start_blind`, after SB3's initialisation), as the zero start of a
-concatenated context does (:mod:`sb3_emmarl.common.appended.initialization`). Written here because SB3 builds its
-networks' hidden layers in one class, ``MlpExtractor``, that reads all its features alike.
+Both start as a network that does not read the context: the mixture's heads as copies of one
+(:meth:`ConditionedPolicyMixin._build`), FiLM's scales and shifts at zero
+(:meth:`ConditionedMlpExtractor.start_blind`), after SB3's initialisation, as the zero start of a concatenated context
+does (:mod:`sb3_emmarl.common.appended.initialization`). Written here because SB3 builds its networks' hidden layers
+in one class, ``MlpExtractor``, that reads all its features alike.
 """
 
 from __future__ import annotations
@@ -19,10 +23,12 @@ from itertools import pairwise
 from typing import TYPE_CHECKING, Any
 
 import torch as th
-from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import create_mlp
+from stable_baselines3.common.policies import ActorCriticPolicy, ContinuousCritic
+from stable_baselines3.common.preprocessing import get_action_dim
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.common.utils import get_device
+from stable_baselines3.td3.policies import Actor
 from torch import nn
 
 from sb3_emmarl.common.trust.validation import CONDITIONINGS, RULES
@@ -49,11 +55,12 @@ class ConditionedMlp(nn.Module):
                              "(net_arch), got none")
         if not 0 < n_context < in_dim:
             raise ValueError(f"n_context must be in [1, {in_dim - 1}], got {n_context}")
-        self.n_context, self.conditioning, self.out_dim = n_context, conditioning, layers[-1]
+        self.n_context, self.conditioning = n_context, conditioning
+        #: the output's size (``"mixture"``: the context's outer product with the last hidden layer)
+        self.out_dim = layers[-1] * (n_context if conditioning == "mixture" else 1)
         rest = in_dim - n_context
         if conditioning == "mixture":
-            self.heads = nn.ModuleList(nn.Sequential(*create_mlp(rest, -1, layers, activation_fn))
-                                       for _ in range(n_context))
+            self.trunk = nn.Sequential(*create_mlp(rest, -1, layers, activation_fn))
         else:
             sizes = [rest, *layers]
             self.layers = nn.ModuleList(nn.Linear(i, o) for i, o in pairwise(sizes))
@@ -63,8 +70,7 @@ class ConditionedMlp(nn.Module):
     def forward(self, features: th.Tensor) -> th.Tensor:
         x, context = features[..., :-self.n_context], features[..., -self.n_context:]
         if self.conditioning == "mixture":
-            outputs = th.stack([head(x) for head in self.heads], dim=-2)
-            return (context.unsqueeze(-1) * outputs).sum(dim=-2)
+            return (context.unsqueeze(-1) * self.trunk(x).unsqueeze(-2)).flatten(-2)
         for layer, film in zip(self.layers, self.films):
             scale, shift = film(context).chunk(2, dim=-1)
             x = self.activation(layer(x)) * (1.0 + scale) + shift
@@ -72,12 +78,9 @@ class ConditionedMlp(nn.Module):
 
     @th.no_grad()
     def start_blind(self) -> None:
-        """Make the network start as one that does not read the context (see the module's docstring)."""
-        if self.conditioning == "mixture":
-            first = self.heads[0].state_dict()
-            for head in self.heads[1:]:
-                head.load_state_dict(first)
-        else:
+        """Make FiLM start as a network that does not read the context (the mixture's hidden layers do not read it; its
+        heads are the policy's, see :meth:`ConditionedPolicyMixin._build`)."""
+        if self.conditioning == "film":
             for film in self.films:
                 assert isinstance(film, nn.Linear)  # (the ModuleList's items are typed as modules)
                 film.weight.zero_()
@@ -120,15 +123,87 @@ class ConditionedMlpExtractor(nn.Module):
         self.value_net.start_blind()
 
 
-if TYPE_CHECKING:  # the type checker sees the SB3 policy the mixin is placed before; at run time it is a plain class
-    from stable_baselines3.common.policies import ActorCriticPolicy as _PolicyBase
+def start_heads_alike(head: nn.Linear, n_context: int) -> None:
+    """Give every component's block of a linear head over a mixture's output (``K * width`` inputs, component-major)
+    the first component's weights: the head then starts as one that does not read the context."""
+    with th.no_grad():
+        blocks = head.weight.view(head.out_features, n_context, -1)
+        blocks.copy_(blocks[:, :1].expand_as(blocks))
+
+
+class ConditionedHead(nn.Module):
+    """A network with its output layer (TD3's actor and critics): :class:`ConditionedMlp`, then a linear layer (and
+    ``tanh`` with ``squash_output``), starting as a network that does not read the context.
+
+    :param in_dim: the input's size, the context (its last ``n_context`` values) included
+    :param out_dim: the output's size
+    :param layers: hidden layer sizes (at least one)
+    :param activation_fn: the hidden layers' activation
+    :param n_context: the context's size
+    :param conditioning: ``"mixture"`` or ``"film"``
+    :param squash_output: end with ``tanh`` (the actor's actions)
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, layers: list[int], activation_fn: type[nn.Module], n_context: int,
+                 conditioning: str, squash_output: bool = False) -> None:
+        super().__init__()
+        self.hidden = ConditionedMlp(in_dim, layers, activation_fn, n_context, conditioning)
+        self.out = nn.Linear(self.hidden.out_dim, out_dim)
+        self.squash_output = squash_output
+        self.hidden.start_blind()
+        if conditioning == "mixture":
+            start_heads_alike(self.out, n_context)
+
+    def forward(self, inputs: th.Tensor) -> th.Tensor:
+        outputs = self.out(self.hidden(inputs))
+        return th.tanh(outputs) if self.squash_output else outputs
+
+
+class ConditionedCritic(ContinuousCritic):
+    """SB3's ``ContinuousCritic`` whose Q-networks read the context at the end of the features as ``conditioning`` says
+    (the actions go in before the context: ``[rest of the features, actions, context]``).
+
+    Takes ``ContinuousCritic``'s arguments (by keyword, as ``TD3Policy.make_critic`` gives them) plus ``n_context`` and
+    ``conditioning``.
+    """
+
+    def __init__(self, *, n_context: int, conditioning: str, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.n_context = n_context
+        in_dim = int(kwargs["features_dim"]) + get_action_dim(self.action_space)
+        for index in range(self.n_critics):
+            q_net = ConditionedHead(in_dim, 1, list(kwargs["net_arch"]), kwargs.get("activation_fn", nn.ReLU), n_context,
+                                    conditioning)
+            self.add_module(f"qf{index}", q_net)  # (in place of SB3's network of that name)
+            self.q_networks[index] = q_net
+
+    def _q_input(self, features: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        n = self.n_context
+        return th.cat([features[:, :-n], actions, features[:, -n:]], dim=1)
+
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        with th.set_grad_enabled(not self.share_features_extractor):  # (as SB3's)
+            features = self.extract_features(obs, self.features_extractor)
+        q_input = self._q_input(features, actions)
+        return tuple(q_net(q_input) for q_net in self.q_networks)
+
+    def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        with th.no_grad():
+            features = self.extract_features(obs, self.features_extractor)
+        return self.q_networks[0](self._q_input(features, actions))
+
+
+if TYPE_CHECKING:  # the type checker sees the SB3 policies the mixins are placed before; at run time plain classes
+    from stable_baselines3.common.policies import ActorCriticPolicy as _ActorCriticBase
+    from stable_baselines3.common.policies import BasePolicy as _PolicyBase
+    from stable_baselines3.td3.policies import TD3Policy as _TD3Base
 else:
-    _PolicyBase = object
+    _ActorCriticBase = _PolicyBase = _TD3Base = object
 
 
-class ConditionedPolicyMixin(_PolicyBase):
-    """An SB3 actor-critic policy whose networks read the context at the end of its features (:meth:`context_width`
-    values) as ``belief_conditioning`` says (:data:`CONDITIONINGS`; ``"concat"`` builds SB3's networks unchanged).
+class Conditioning(_PolicyBase):
+    """What the conditioned policies share: ``belief_conditioning`` (checked, saved with the policy) and the context's
+    width (:meth:`context_width`, the policy's own).
 
     :param belief_conditioning: ``"concat"``, ``"mixture"`` or ``"film"``
     """
@@ -144,9 +219,24 @@ class ConditionedPolicyMixin(_PolicyBase):
         """The context's size, at the end of the features (0: no context, SB3's networks)."""
         raise NotImplementedError
 
+    def _conditioned_width(self) -> int:
+        """The context's size where the networks read it apart (0 where they are SB3's: ``"concat"`` or no context)."""
+        return 0 if self.belief_conditioning == "concat" else self.context_width()
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "belief_conditioning": self.belief_conditioning}
+
+
+class ConditionedPolicyMixin(Conditioning, _ActorCriticBase):
+    """An SB3 actor-critic policy whose networks read the context at the end of its features (:meth:`context_width`
+    values) as ``belief_conditioning`` says (:data:`CONDITIONINGS`; ``"concat"`` builds SB3's networks unchanged).
+
+    :param belief_conditioning: ``"concat"``, ``"mixture"`` or ``"film"``
+    """
+
     def _build_mlp_extractor(self) -> None:
-        n_context = self.context_width()
-        if self.belief_conditioning == "concat" or n_context == 0:
+        n_context = self._conditioned_width()
+        if not n_context:
             super()._build_mlp_extractor()
             return
         self.mlp_extractor = ConditionedMlpExtractor(  # type: ignore[assignment]  # SB3 types it as its own class
@@ -154,11 +244,38 @@ class ConditionedPolicyMixin(_PolicyBase):
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
-        if isinstance(self.mlp_extractor, ConditionedMlpExtractor):
-            self.mlp_extractor.start_blind()  # (after SB3's orthogonal initialisation)
+        if not isinstance(self.mlp_extractor, ConditionedMlpExtractor):
+            return
+        # (after SB3's orthogonal initialisation)
+        self.mlp_extractor.start_blind()
+        if self.belief_conditioning == "mixture":  # every component's head starts as the first one's
+            for head in (self.action_net, self.value_net):
+                assert isinstance(head, nn.Linear)  # (SB3's heads of every action distribution)
+                start_heads_alike(head, self.context_width())
 
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "belief_conditioning": self.belief_conditioning}
+
+class ConditionedTD3Mixin(Conditioning, _TD3Base):
+    """SB3's ``TD3Policy`` whose actor and critics (and their targets) read the context at the end of the features as
+    ``belief_conditioning`` says (:class:`ConditionedHead`, :class:`ConditionedCritic`; ``"concat"``: SB3's).
+
+    :param belief_conditioning: ``"concat"``, ``"mixture"`` or ``"film"``
+    """
+
+    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> Actor:
+        actor = super().make_actor(features_extractor)
+        n_context = self._conditioned_width()
+        if n_context:
+            actor.mu = nn.Sequential(ConditionedHead(  # (a Sequential, as SB3 types the actor's network)
+                actor.features_dim, get_action_dim(self.action_space), list(actor.net_arch), actor.activation_fn,
+                n_context, self.belief_conditioning, squash_output=True)).to(self.device)
+        return actor
+
+    def make_critic(self, features_extractor: BaseFeaturesExtractor | None = None) -> ContinuousCritic:
+        n_context = self._conditioned_width()
+        if not n_context:
+            return super().make_critic(features_extractor)
+        critic_kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
+        return ConditionedCritic(**critic_kwargs, n_context=n_context, conditioning=self.belief_conditioning).to(self.device)
 
 
 class ContextActorCriticPolicy(ConditionedPolicyMixin, ActorCriticPolicy):

@@ -22,11 +22,13 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_emmarl.common.appended.conditioning import ContextActorCriticPolicy
 from sb3_emmarl.common.appended.wrapping import find_wrapper
 from sb3_emmarl.common.latent.algorithm import (
     augmented_features,
@@ -143,6 +145,19 @@ class EMCallback(BaseCallback):
         names (:class:`~sb3_emmarl.common.latent.policies.BeliefFeaturesExtractor`), for any SB3 policy."""
         return {"features_extractor_class": BeliefFeaturesExtractor,
                 "features_extractor_kwargs": {"head_dim": self.layout.obs_dim, "belief_input": self.config.belief_input}}
+
+    def conditioned_policy(self, belief_conditioning: str) -> tuple[type[ContextActorCriticPolicy], dict[str, Any]]:
+        """The policy class and ``policy_kwargs`` of an actor-critic algorithm (PPO, A2C) whose networks read the belief
+        as ``belief_conditioning`` says (:mod:`sb3_emmarl.common.appended.conditioning`):
+        ``policy, kwargs = callback.conditioned_policy("film"); PPO(policy, venv, policy_kwargs=kwargs)``.
+
+        :param belief_conditioning: ``"concat"``, ``"mixture"`` or ``"film"``
+        """
+        kwargs = self.policy_kwargs
+        layout = self.layout
+        space = spaces.Box(-np.inf, np.inf, (layout.total_dim,), np.float32)
+        width = BeliefFeaturesExtractor(space, **kwargs["features_extractor_kwargs"]).belief_width
+        return ContextActorCriticPolicy, {**kwargs, "context_dim": width, "belief_conditioning": belief_conditioning}
 
     def _build(self, wrapper: BeliefWrapper) -> None:
         """The latent model and the E-step, sized by ``wrapper``'s environment (with a loaded callback's state)."""

@@ -17,7 +17,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.td3.policies import TD3Policy
 
-from sb3_emmarl.common.appended.conditioning import ConditionedPolicyMixin
+from sb3_emmarl.common.appended.conditioning import ConditionedPolicyMixin, ConditionedTD3Mixin
 from sb3_emmarl.common.appended.extractor import SplitFeaturesExtractor
 from sb3_emmarl.common.latent.layout import LatentLayout
 from sb3_emmarl.common.latent.model import LatentModel
@@ -129,9 +129,15 @@ class LatentActorCriticPolicy(LatentPolicyMixin, ConditionedPolicyMixin, ActorCr
         return self.features_extractor.belief_width if self._latent_config[1] else 0
 
 
-class LatentTD3Policy(LatentPolicyMixin, TD3Policy):
-    """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the belief (EM-DDPG).
+class LatentTD3Policy(LatentPolicyMixin, ConditionedTD3Mixin, TD3Policy):
+    """SB3's ``TD3Policy`` whose actor and critics (and their targets) see the belief (EM-DDPG), read as
+    ``belief_conditioning`` says (:mod:`sb3_emmarl.common.appended.conditioning`).
 
-    Takes ``TD3Policy``'s arguments plus ``latent_layout``, ``use_latent`` and ``belief_input`` (see
-    :class:`LatentActorCriticPolicy`).
+    Takes ``TD3Policy``'s arguments plus ``latent_layout``, ``use_latent``, ``belief_input`` and ``belief_conditioning``
+    (see :class:`LatentActorCriticPolicy`).
     """
+
+    def context_width(self) -> int:
+        """The belief's features (none without a latent model), as the actor's and the critics' extractors give them
+        (TD3's policy keeps no extractor of its own)."""
+        return self.make_features_extractor().belief_width if self._latent_config[1] else 0
