@@ -163,3 +163,11 @@ def test_em_callback_gives_a_conditioned_actor_critic_policy():
     assert model.policy.context_dim == K and isinstance(model.policy.mlp_extractor, ConditionedMlpExtractor)
     model.learn(64, callback=callback)
     assert callback.e_step is not None
+
+
+def test_a_zoo_yaml_s_policy_kwargs_take_it_and_a_bad_value_is_refused_naming_it():
+    from sb3_emmarl.common.trust.validation import parse_policy_kwargs
+
+    assert parse_policy_kwargs("dict(belief_conditioning='film', net_arch=[64])")["belief_conditioning"] == "film"
+    with pytest.raises(ValueError, match=r"policy_kwargs belief_conditioning must be one of \['concat', 'mixture', 'film'\]"):
+        parse_policy_kwargs("dict(belief_conditioning='attention')")
