@@ -58,7 +58,11 @@ EM_CANDIDATES = {"em_ppo_sb3": {"ppo": "sb3", "latent_kwargs": {"e_step_every": 
                  "em_ppo_wide": {"policy_kwargs": {"net_arch": [71, 71]}},
                  # the E-step re-seeds a component whose prior falls below 0.5 / K (default 0.1 / K): on the corridor
                  # a component at 0.09 stayed beside two modes merged in one (docs/lab/2026-12-07/issue_67_stage_1.md)
-                 "em_ppo_revive": {"latent_kwargs": {"e_step_kwargs": {"starved_share": 0.5}}}}
+                 "em_ppo_revive": {"latent_kwargs": {"e_step_kwargs": {"starved_share": 0.5}}},
+                 # both: what stage 1's seeds 0-6 point to (the goal task's gap is the PPO settings', the corridor's the
+                 # E-step's)
+                 "em_ppo_sb3_revive": {"ppo": "sb3", "latent_kwargs": {"e_step_every": 1024,
+                                                                       "e_step_kwargs": {"starved_share": 0.5}}}}
 ALL_VARIANTS = (*VARIANTS, TOLD_SB3, *EM_CANDIDATES)
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.

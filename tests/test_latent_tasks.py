@@ -107,6 +107,31 @@ def test_the_corridor_moves_by_the_mode_s_action_and_ends_on_success():
         ModeCorridorEnv(step_cost=0.5)
 
 
+def test_the_corridor_s_best_blind_player_earns_its_stated_ceiling():
+    """The player not told the mode that the docstring (and ``latent_tasks.BLIND_CEILINGS``) describes: press action 0;
+    if it moved forward keep it, if it moved back the mode is 2 (press 2); if it stayed, press 1, which moves forward
+    in mode 1 and back in mode 3."""
+    env = ModeCorridorEnv()
+    returns = []
+    for seed in range(400):
+        obs, _ = env.reset(seed=seed)
+        total, action, last, done = 0.0, 0, obs[0], False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(action)
+            total, done = total + reward, terminated or truncated
+            moved = np.sign(obs[0] - last)
+            if action == 0 and moved < 0:
+                action = 2
+            elif action == 0 and moved == 0:
+                action = 1
+            elif action == 1 and moved < 0:
+                action = 3
+            last = obs[0]
+        returns.append(total)
+    assert np.mean(returns) == pytest.approx(0.925, abs=0.004)
+    assert load_benchmark("latent_tasks").BLIND_CEILINGS["corridor"] == 0.925
+
+
 def test_solved_modes_counts_successes_per_mode():
     solved = ModeCorridorEnv.solved_modes([0, 0, 1, 1, 1, 2], [True, True, True, False, True, False], share=0.6)
     assert solved.tolist() == [True, True, False, False]  # mode 3 has no episode
@@ -194,6 +219,11 @@ def test_the_report_counts_modes_solved_and_measures_a_candidate_in_em_ppo_s_pla
     assert "final return over the blind ceiling 0.925 per seed: 0.86 0.83 (>= 0.95: 0 of 2)" in text
     assert "seeds where em_ppo misses a mode told PPO solves: [0]" in text  # seed 1: told misses mode 3 too
     assert "policy and value parameters" not in text  # (runs saved without their sizes)
+    for path in tmp_path.glob("corridor_*.json"):
+        run = json.loads(path.read_text())
+        path.write_text(json.dumps({**run, "parameters": {"em_ppo": 9413, "ppo": 9285}.get(run["variant"], 9541)}))
+    assert ("policy and value parameters: em_ppo 9,413, told_ppo 9,541, ppo 9,285"
+            in bench.report(bench.load_runs(tmp_path)))
     text = bench.report(bench.load_runs(tmp_path), "em_ppo_sb3")
     assert "measured in em_ppo's place: em_ppo_sb3" in text
     assert "em_ppo 4 4; told_ppo 4 3" in text and "misses a mode told PPO solves: none" in text
