@@ -30,7 +30,7 @@ class EStepDuringRollout(BaseCallback):
     model: EMPPO
 
     def _on_rollout_start(self) -> None:
-        self.model._e_step_row = self.model._handed_rows = 0
+        self.model._e_step_row = 0
 
     def _on_step(self) -> bool:
         self.model._e_step_during_rollout()
@@ -79,9 +79,8 @@ class EMPPO(LatentAlgorithmMixin, PPO):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
     policy: MlpPolicy
     steps_e_step: ClassVar[bool] = True
-    #: the rollout's first row not yet handed to the E-step, and the rows handed over during the rollout
+    #: the rollout's first row not yet handed to the E-step (0 without ``e_step_every``)
     _e_step_row: int = 0
-    _handed_rows: int = 0
 
     def __init__(
         self,
@@ -122,13 +121,15 @@ class EMPPO(LatentAlgorithmMixin, PPO):
             zero_tail_weights(self.policy, self.policy.features_extractor.belief_width)
 
     def _rollout_transitions(self, stop: int | None = None) -> tuple[Transitions, EpisodeCounts | None]:
-        """The E-step's data from the rollout's rows not yet handed over, up to ``stop`` (default: the rollout's end):
-        every step whose successor is in the same episode (the one after the last row is the algorithm's next
-        observation, during the rollout as after it)."""
+        """The E-step's data from the rollout's rows not yet handed over, up to ``stop`` (during the rollout: the rows
+        handed over so far then end there) or to the rollout's end: every step whose successor is in the same episode
+        (the one after the last row is the algorithm's next observation, during the rollout as after it)."""
         last_obs = self._last_obs
         starts = self._last_episode_starts
         assert isinstance(last_obs, np.ndarray) and starts is not None  # (set by the rollout; flat Box observations)
-        start, self._e_step_row = self._e_step_row, 0 if stop is None else stop
+        start = self._e_step_row
+        if stop is not None:
+            self._e_step_row = stop
         return rollout_transitions(self.rollout_buffer, last_obs, starts, self._features, self._transitions,
                                    start=start, stop=stop)
 
@@ -136,22 +137,20 @@ class EMPPO(LatentAlgorithmMixin, PPO):
         return self._rollout_transitions()
 
     def _run_e_step(self, data: tuple[Transitions, EpisodeCounts | None], agent_steps: int = 0) -> bool:
-        # (at the rollout's end: the rows not handed over during it)
-        rows = self.rollout_buffer.buffer_size - self._handed_rows
-        self._handed_rows = 0
-        return super()._run_e_step(data, agent_steps or rows * self.n_envs)
+        """As the mixin's, from ``train()``: ``data`` holds the rollout's rows from :attr:`_e_step_row` on (those not
+        handed over during it), whose agent-steps count here."""
+        return super()._run_e_step(data, (self.rollout_buffer.buffer_size - self._e_step_row) * self.n_envs)
 
     def _e_step_during_rollout(self) -> None:
         """With ``e_step_every``: at each step of a rollout, once that many agent-steps were collected since the last
         E-step, hand the rows not yet handed over to the E-step and run it (:class:`EStepDuringRollout` calls this)."""
         every = self.latent_config.e_step_every
-        buffer = self.rollout_buffer
-        if self.e_step is None or every is None or self._e_step_steps + (buffer.pos - self._e_step_row) * self.n_envs < every:
+        assert every is not None  # (the callback is there only with e_step_every)
+        start, stop = self._e_step_row, self.rollout_buffer.pos
+        if self._e_step_steps + (stop - start) * self.n_envs < every:
             return
-        start, stop = self._e_step_row, buffer.pos
-        self._handed_rows += stop - start
         if super()._run_e_step(self._rollout_transitions(stop), (stop - start) * self.n_envs):
-            self._log_belief_use(buffer.observations[start:stop])
+            self._log_belief_use(self.rollout_buffer.observations[start:stop])
 
     def _init_callback(self, callback: Any, progress_bar: bool = False) -> BaseCallback:
         """SB3's, with :class:`EStepDuringRollout` after the user's callbacks when E-steps run every ``e_step_every``

@@ -49,8 +49,9 @@ class OraclePPO(WrapsObservations, PPO):
         model, so that ``load`` and :meth:`wrap_env` give it random labels again
 
     How the networks read the one-hot is ``policy_kwargs["belief_conditioning"]`` (``"concat"``, SB3's networks, the
-    default; ``"mixture"``, a network per mode; ``"film"``: see :mod:`sb3_emmarl.common.appended.conditioning`), with
-    ``"MlpPolicy"``, which is :class:`~sb3_emmarl.common.appended.conditioning.ContextActorCriticPolicy` here.
+    default; ``"mixture"``, an action head and a value head per mode; ``"film"``: see
+    :mod:`sb3_emmarl.common.appended.conditioning`), with ``"MlpPolicy"``, which is
+    :class:`~sb3_emmarl.common.appended.conditioning.ContextActorCriticPolicy` here.
 
     Every other argument is PPO's (see :class:`stable_baselines3.PPO`).
     """

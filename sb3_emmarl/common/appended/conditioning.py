@@ -118,7 +118,7 @@ class ConditionedMlpExtractor(nn.Module):
         return self.value_net(features)
 
     def start_blind(self) -> None:
-        """Both networks start as ones that do not read the context."""
+        """Both networks' FiLM starts at zero (:meth:`ConditionedMlp.start_blind`)."""
         self.policy_net.start_blind()
         self.value_net.start_blind()
 

@@ -87,7 +87,7 @@ class LatentPolicyMixin(_PolicyBase):
                  use_latent: bool = True, belief_input: str = "probabilities", **kwargs) -> None:
         layout = LatentLayout.from_dict(latent_layout)
         if kwargs.get("belief_conditioning") == "mixture" and belief_input == "both":
-            raise ValueError("belief_conditioning='mixture' weighs one network per component by the belief: it needs "
+            raise ValueError("belief_conditioning='mixture' weighs one head per component by the belief: it needs "
                              "belief_input 'probabilities' or 'map', got 'both'")
         # Plain attributes: nn.Module.__init__ has not run yet, and the networks built by super().__init__ read them.
         object.__setattr__(self, "latent_layout", layout)
