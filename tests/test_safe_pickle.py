@@ -231,7 +231,7 @@ def test_training_states_read_as_the_environments_data(tmp_path):
             twin.set_state(pickle.dumps(obj))
         with pytest.raises(ValueError, match=message):
             loads(pickle.dumps(obj), "state", class_modules=ENV_STATE_MODULES)
-    with pytest.raises(ValueError, match="holds dict copies, this environment _SteppedCopies"):
+    with pytest.raises(ValueError, match="holds dict copies, this environment SteppedCopies"):
         twin.set_state(pickle.dumps({"venv": {}, "copy_seeds": [], "never_reset": [], "reset_infos": []}))
     assert not marker.exists()
 

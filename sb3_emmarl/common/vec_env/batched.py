@@ -10,7 +10,7 @@ from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
 from sb3_emmarl.common.vec_env.shared_policy import SharedPolicyVecEnv
-from sb3_emmarl.common.vec_env.workers import _SplitCopies, _SteppedCopies
+from sb3_emmarl.common.vec_env.workers import SplitCopies, SteppedCopies
 
 
 class ReserveVecEnv(SharedPolicyVecEnv):
@@ -46,18 +46,18 @@ class ReserveVecEnv(SharedPolicyVecEnv):
 
     def _local_copies(self, env_fn: Callable[[], ParallelEnv], observation_space: Any, action_space: Any) -> Any:
         self._check_batchable()
-        return _SteppedCopies([env_fn() for _ in range(self.n_copies)], action_space, self.with_state)
+        return SteppedCopies([env_fn() for _ in range(self.n_copies)], action_space, self.with_state)
 
     def _worker_copies(self, env_fn: Callable[[], ParallelEnv], num_cpus: int, observation_space: Any,
                        action_space: Any) -> Any:
         self._check_batchable()
-        return _SplitCopies(env_fn, self.n_copies, num_cpus, action_space, self.with_state, self.poll_seconds)
+        return SplitCopies(env_fn, self.n_copies, num_cpus, action_space, self.with_state, self.poll_seconds)
 
     def _par_envs(self) -> list[ParallelEnv]:
         return list(self.venv.envs)
 
     def _on_copies(self, indices: VecEnvIndices, kind: str, name: str, payload: tuple = ()) -> list[Any]:
-        if isinstance(self.venv, _SplitCopies):  # the workers answer for their copies
+        if isinstance(self.venv, SplitCopies):  # the workers answer for their copies
             return self.venv.apply([i // self.agents_per_copy for i in self._get_indices(indices)], kind, name,
                                    payload)
         return super()._on_copies(indices, kind, name, payload)
@@ -71,13 +71,13 @@ class ReserveVecEnv(SharedPolicyVecEnv):
         return True
 
     def _copies_type(self) -> type:
-        return _SteppedCopies
+        return SteppedCopies
 
     def _portable_copies(self) -> Any:
         return self.venv.portable()
 
     def _adopt_copies(self, copies: Any) -> None:
-        if isinstance(self.venv, _SplitCopies):
+        if isinstance(self.venv, SplitCopies):
             self.venv.adopt(copies)
         else:
             self.venv.close()

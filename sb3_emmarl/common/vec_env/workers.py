@@ -1,5 +1,5 @@
-"""The batched path's copies: stepped in turn in this process (:class:`_SteppedCopies`), or split over worker
-processes that share their arrays and a doorbell in shared memory (:class:`_SplitCopies`)."""
+"""The batched path's copies: stepped in turn in this process (:class:`SteppedCopies`), or split over worker
+processes that share their arrays and a doorbell in shared memory (:class:`SplitCopies`)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from sb3_emmarl.common.vec_env.shared_policy import (
 if TYPE_CHECKING:
     from multiprocessing.context import ForkServerContext, SpawnContext
 
-#: Seconds a waiting side of the split batched path (:class:`_SplitCopies`) polls its doorbell in shared memory before
+#: Seconds a waiting side of the split batched path (:class:`SplitCopies`) polls its doorbell in shared memory before
 #: it blocks on its pipe: on this project's 2-core virtual machine a blocking pipe round trip took 263 us (each side
 #: wakes a halted virtual CPU), a polled one 34 us. Long enough for a worker to wait through the policy's forward pass
 #: between two steps; during a gradient update it then sleeps. No polling when the processes outnumber the CPUs.
@@ -36,7 +36,7 @@ POLL_SECONDS = 0.02
 
 
 
-class _SteppedCopies:
+class SteppedCopies:
     """The reserve copies stepped in turn through :meth:`ReserveParallelEnv.step_arrays`, giving what SuperSuit's
     ``ConcatVecEnv`` of :class:`_ReserveCopy` gives (observations, rewards, terminations, truncations, infos,
     automatic resets), without its per-agent dictionaries and copies. Hand-written because SuperSuit's vector
@@ -123,8 +123,8 @@ class _SteppedCopies:
         for env in self.envs:
             env.close()
 
-    def portable(self) -> _SteppedCopies:
-        """Itself: the copies, picklable (see :meth:`_SplitCopies.portable`)."""
+    def portable(self) -> SteppedCopies:
+        """Itself: the copies, picklable (see :meth:`SplitCopies.portable`)."""
         return self
 
 
@@ -144,10 +144,10 @@ def _receive_polled(pipe: Any, bell: np.ndarray, side: int, received: int, secon
 
 def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, with_state: bool, *, buffers: tuple,
                    shape: tuple[int, int], start: int, bells: Any, index: int, poll_seconds: float) -> None:
-    """A worker process of :class:`_SplitCopies`: ``n_copies`` reserves stepped through :class:`_SteppedCopies`,
+    """A worker process of :class:`SplitCopies`: ``n_copies`` reserves stepped through :class:`SteppedCopies`,
     their observations, rewards and dones written to the shared ``buffers`` from entry ``start`` on, their infos
     (or the error that stopped them) sent back through ``pipe``. Its doorbells are row ``index`` of ``bells``
-    (see :class:`_SplitCopies`): it polls column 0 for commands, for up to ``poll_seconds``, and rings column 1."""
+    (see :class:`SplitCopies`): it polls column 0 for commands, for up to ``poll_seconds``, and rings column 1."""
     bell = _bells(bells)[index]
 
     def send(message: tuple) -> None:
@@ -155,7 +155,7 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
         bell[1] += 1
 
     try:
-        copies = _SteppedCopies([env_fn() for _ in range(n_copies)], action_space, with_state)
+        copies = SteppedCopies([env_fn() for _ in range(n_copies)], action_space, with_state)
         entries = slice(start, start + n_copies * copies.n)
         out = tuple(view[entries] for view in _shared_views(buffers, shape))
         send(("ok", None))
@@ -201,23 +201,23 @@ def _copies_worker(pipe: Any, env_fn: Any, n_copies: int, action_space: Any, wit
 
 
 def _bells(buffer: Any) -> np.ndarray:
-    """The doorbells of :class:`_SplitCopies` in the shared ``buffer``: ``(workers, 2)`` int64 counts of the messages
+    """The doorbells of :class:`SplitCopies` in the shared ``buffer``: ``(workers, 2)`` int64 counts of the messages
     sent to each worker (column 0) and by it (column 1)."""
     return np.frombuffer(buffer, dtype=np.int64).reshape(-1, 2)
 
 
 def _shared_views(buffers: tuple, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """Numpy views of :class:`_SplitCopies`' shared buffers: observations ``shape``, rewards, terminations and
+    """Numpy views of :class:`SplitCopies`' shared buffers: observations ``shape``, rewards, terminations and
     truncations (one per vector entry)."""
     observations, rewards, terminations, truncations = buffers
     return (np.frombuffer(observations, dtype=np.float32).reshape(shape), np.frombuffer(rewards, dtype=np.float32),
             np.frombuffer(terminations, dtype=bool), np.frombuffer(truncations, dtype=bool))
 
 
-class _SplitCopies:
+class SplitCopies:
     """The reserve copies in ``n_groups`` groups stepped at the same time: the first in this process, each other by a
-    worker process (a :class:`_SteppedCopies` there) that writes its observations, rewards and dones into shared
-    memory and sends its infos through a pipe. The data are those of one :class:`_SteppedCopies` over every copy
+    worker process (a :class:`SteppedCopies` there) that writes its observations, rewards and dones into shared
+    memory and sends its infos through a pipe. The data are those of one :class:`SteppedCopies` over every copy
     (each copy draws from its own generators). Hand-written because SuperSuit's ``ProcConcatVec`` writes the
     observations entry by entry and deep-copies every info dict (together more than the stepping itself at 10
     UAVs) and cannot hand its copies to a checkpoint.
@@ -240,7 +240,7 @@ class _SplitCopies:
                  with_state: bool, poll_seconds: float | None = None) -> None:
         sizes = [len(group) for group in np.array_split(np.arange(n_copies), n_groups)]
         self.bounds = np.cumsum([0, *sizes]).tolist()  # copies [bounds[g], bounds[g + 1]) form group g
-        self.local = _SteppedCopies([env_fn() for _ in range(sizes[0])], action_space, with_state)
+        self.local = SteppedCopies([env_fn() for _ in range(sizes[0])], action_space, with_state)
         self.n, self.obs_dim, self.action_dtype = self.local.n, self.local.obs_dim, self.local.action_dtype
         self.action_space = action_space
         total = n_copies * self.n
@@ -401,11 +401,11 @@ class _SplitCopies:
         """Every copy, those of the workers as pickled copies."""
         return self.local.envs + [env for reply in self._broadcast("get_envs") for env in pickle.loads(reply)]
 
-    def portable(self) -> _SteppedCopies:
-        """Every copy in one :class:`_SteppedCopies` (a checkpoint then restores into any number of processes)."""
-        return _SteppedCopies(self.all_envs(), self.action_space, self.with_state)
+    def portable(self) -> SteppedCopies:
+        """Every copy in one :class:`SteppedCopies` (a checkpoint then restores into any number of processes)."""
+        return SteppedCopies(self.all_envs(), self.action_space, self.with_state)
 
-    def adopt(self, copies: _SteppedCopies) -> None:
+    def adopt(self, copies: SteppedCopies) -> None:
         """Carry on with ``copies`` (every copy, e.g. from a checkpoint), spread over the groups as before."""
         envs = copies.envs
         if len(envs) != self.bounds[-1]:
