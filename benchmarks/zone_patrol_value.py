@@ -43,19 +43,26 @@ import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats
 
-#: Each variant's zoo algorithm (its settings: the zoo YAML's ``ZonePatrol-v0`` section) and its arguments beyond them.
-ALGOS = {"told": ("oracle_ppo", {}), "ppo": ("ppo", {}), "control": ("oracle_ppo", {"random_label": True}),
+#: Each variant's zoo algorithm (its settings: the zoo YAML's section of the task) and its arguments beyond them (a
+#: ``policy_kwargs`` dict is laid over the YAML's policy arguments, :func:`variant_overrides`; the rest replace the YAML's).
+ALGOS: dict[str, tuple[str, dict[str, Any]]] = {
+         "told": ("oracle_ppo", {}), "ppo": ("ppo", {}), "control": ("oracle_ppo", {"random_label": True}),
+         "told_film": ("oracle_ppo", {"policy_kwargs": {"belief_conditioning": "film"}}),
+         "told_mixture": ("oracle_ppo", {"policy_kwargs": {"belief_conditioning": "mixture"}}),
          "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"latent_kwargs": {"fusion": False}}),
          "em_ppo_team": ("em_ppo", {"latent_kwargs": {"fusion": "team"}}), "exact_belief": ("ppo", {}),
          "ppo_lstm": ("ppo_lstm", {}),
          "mappo": ("mappo", {})}
 VARIANTS = tuple(ALGOS)
+#: The variants told the mode (scored told a wrong zone and the wrong weather too): concatenated, FiLM, a head per mode.
+TOLD_VARIANTS = tuple(v for v in VARIANTS if v.startswith("told"))
 #: The variants ``run`` trains unless ``--variants`` says otherwise (the protocol's four; the rest are reported beside).
 DEFAULT_VARIANTS = ("told", "ppo", "control", "em_ppo")
 EVAL_SEED = 50_000
@@ -111,11 +118,25 @@ def make_env(seed: int, n_copies: int | None = None, env_kwargs: dict | None = N
                         env_kwargs=spec.kwargs(env_kwargs), vec_env_type="batched")
 
 
+def variant_overrides(variant: str, task: str = "zone_patrol") -> tuple[str, dict]:
+    """The variant's zoo algorithm and its arguments beyond the YAML (:data:`ALGOS`), a ``policy_kwargs`` dict laid over
+    the YAML's policy arguments (so that ``told_film`` keeps the YAML's ``net_arch``)."""
+    from sb3_emmarl.common.trust.validation import parse_policy_kwargs
+    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+
+    algo, overrides = ALGOS[variant]
+    if isinstance(overrides.get("policy_kwargs"), dict):
+        base = zoo_hyperparams(algo, TASKS[task].env_id).get("policy_kwargs") or {}
+        base = parse_policy_kwargs(base) if isinstance(base, str) else dict(base)
+        overrides = {**overrides, "policy_kwargs": {**base, **overrides["policy_kwargs"]}}
+    return algo, overrides
+
+
 def build(variant: str, seed: int, env_kwargs: dict | None = None, task: str = "zone_patrol"):
     """The variant's model with its zoo YAML's settings on the task (with ``env_kwargs``)."""
     from sb3_emmarl.zoo.exp_manager import zoo_model
 
-    algo, overrides = ALGOS[variant]
+    algo, overrides = variant_overrides(variant, task)
     env = make_env(seed, env_kwargs=env_kwargs, task=task)
     if variant != "exact_belief":
         return zoo_model(algo, env, seed, TASKS[task].env_id, **overrides)
@@ -275,9 +296,9 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
         evidence, modes = np.stack([e for e, _ in exact]), np.array([m for _, m in exact])
         record["exact_team_accuracy"] = float(np.mean(evidence.argmax(1) == modes))
         record["exact_team_zone_accuracy"] = float(np.mean(evidence.argmax(1) // 2 == modes // 2))
-    if variant in ("told", "control") or latent:
+    if variant in (*TOLD_VARIANTS, "control") or latent:
         record["swap_kl"] = belief_use(model.policy, visited, 8)
-    if variant == "told":
+    if variant in TOLD_VARIANTS:
         for name, relabel in WRONG.items():
             record[name] = play(model, wrong(relabel, env_kwargs, task)(), episodes, EVAL_SEED)[0]
         if zone_patrol:  # acting on the exact posterior of the readings that reached each UAV, in place of the mode
@@ -369,8 +390,7 @@ def recovered(by: dict[str, dict[int, dict]], variant: str, key: str = "team_rew
         return []
     name = name or variant
 
-    def means(run: str, what: str = "team_reward") -> np.ndarray:
-        return np.array([np.mean(by[run][s][what]) for s in seeds])
+    means = partial(seed_means, by, seeds=seeds)
 
     em, told, ppo = means(variant, key), means("told"), means("ppo")
     if (told - ppo).mean() == 0:
@@ -406,7 +426,7 @@ def settings(variant: str, task: str = "zone_patrol") -> str:
     from sb3_emmarl.zoo.algos import merge_hyperparams
     from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
 
-    algo, overrides = ALGOS[variant]
+    algo, overrides = variant_overrides(variant, task)
     section = merge_hyperparams(zoo_hyperparams(algo, TASKS[task].env_id), overrides)
     section = {**section, **section.pop("latent_kwargs", {})}  # (EM's settings named one by one)
     if variant == "exact_belief":
@@ -434,42 +454,59 @@ def heading(runs: list[dict]) -> str:
             f"over each run's evaluation episodes")
 
 
+def seed_means(by: dict[str, dict[int, dict]], variant: str, key: str = "team_reward",
+               seeds: list[int] | None = None) -> np.ndarray:
+    """Per seed of ``seeds`` (default: every run of the variant), the variant's mean of ``key`` over the episodes."""
+    return np.array([np.mean(by[variant][s][key]) for s in (sorted(by[variant]) if seeds is None else seeds)])
+
+
+def told_lines(by: dict[str, dict[int, dict]]) -> list[str]:
+    """Each told variant's report on its label: told right against told a wrong zone and the wrong weather, and the
+    label's cost against half the told gain over PPO."""
+    lines: list[str] = []
+    means = partial(seed_means, by)
+    for told in TOLD_VARIANTS:
+        told_seeds = sorted(by[told])
+        if len(told_seeds) < 2:
+            continue
+        right, label = means(told, seeds=told_seeds), "" if told == "told" else f"{told}: "
+        zones = np.mean([means(told, f"wrong_zone_{shift}", told_seeds) for shift in (1, 2, 3)], axis=0)
+        for name, wrong_means in (("told a wrong zone (mean of the three)", zones),
+                                  ("told the wrong weather", means(told, "wrong_weather", told_seeds))):
+            lines.append(paired(f"{label}told right", right, name, wrong_means))
+        seeds = sorted(set(told_seeds) & set(by["ppo"]))
+        if len(seeds) >= 2:
+            loss = means(told, seeds=seeds) - np.mean(
+                [means(told, f"wrong_zone_{shift}", seeds) for shift in (1, 2, 3)], axis=0)
+            gain = means(told, seeds=seeds) - means("ppo", seeds=seeds)
+            lines.append(exceeds(f"{label}told right - told a wrong zone", loss, f"({told} - ppo) / 2", gain / 2))
+    return lines
+
+
 def report(runs: list[dict], random_team: float | None = None) -> str:
     by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
     lines = [heading(runs)]
     task = runs[0].get("task", "zone_patrol")
     lines += ["settings: " + settings(v, task) for v in VARIANTS if by[v]]
 
-    def means(variant: str, key: str = "team_reward", seeds: list[int] | None = None) -> np.ndarray:
-        return np.array([np.mean(by[variant][s][key]) for s in seeds])
+    means = partial(seed_means, by)
 
     for a, b in (("told", "ppo"), ("told", "control"), ("control", "ppo"), ("em_ppo", "ppo"), ("told", "em_ppo"),
                  ("em_ppo", "em_ppo_nofusion"), ("em_ppo_team", "ppo"), ("em_ppo_team", "em_ppo"), ("exact_belief", "ppo"),
                  ("exact_belief", "em_ppo"), ("ppo_lstm", "ppo"),
-                 ("em_ppo", "ppo_lstm"), ("mappo", "ppo")):
+                 ("em_ppo", "ppo_lstm"), ("mappo", "ppo"), ("told_film", "ppo"), ("told_film", "told"),
+                 ("told_mixture", "ppo"), ("told_mixture", "told")):
         seeds = sorted(set(by[a]) & set(by[b]))
         if len(seeds) >= 2:
             ma, mb = means(a, seeds=seeds), means(b, seeds=seeds)
             verdict = "passes" if passes_bar(ma, mb) else "does not pass"
             lines.append(paired(a, ma, b, mb) + f" (seeds {seeds}); {verdict} the protocol's bar for {a} above {b}")
-    told_seeds = sorted(by["told"])
-    if len(told_seeds) >= 2:
-        right = means("told", seeds=told_seeds)
-        zones = np.mean([means("told", f"wrong_zone_{shift}", told_seeds) for shift in (1, 2, 3)], axis=0)
-        for name, wrong_means in (("told a wrong zone (mean of the three)", zones),
-                                  ("told the wrong weather", means("told", "wrong_weather", told_seeds))):
-            lines.append(paired("told right", right, name, wrong_means))
-        seeds = sorted(set(told_seeds) & set(by["ppo"]))
-        if len(seeds) >= 2:
-            loss = means("told", seeds=seeds) - np.mean(
-                [means("told", f"wrong_zone_{shift}", seeds) for shift in (1, 2, 3)], axis=0)
-            gain = means("told", seeds=seeds) - means("ppo", seeds=seeds)
-            lines.append(exceeds("told right - told a wrong zone", loss, "(told - ppo) / 2", gain / 2))
+    lines += told_lines(by)
     for variant in EM_VARIANTS:
         lines += recovered(by, variant)
     lines += recovered(by, "exact_belief")
     lines += recovered(by, "told", "belief_executed", "told, acting on the exact belief along the links")
-    for variant in ("told", "control", *EM_VARIANTS):
+    for variant in (*TOLD_VARIANTS, "control", *EM_VARIANTS):
         if by[variant]:
             kl = np.array([by[variant][s]["swap_kl"] for s in sorted(by[variant])])
             lines.append(f"{variant}: swap KL {kl.mean():.4f} +- {kl.std():.4f}")

@@ -1,5 +1,5 @@
-"""``belief_conditioning``: how the networks read the told mode or the belief (concatenated, a network per mode mixed
-by it, or FiLM), for OraclePPO and EM-PPO."""
+"""``belief_conditioning``: how the networks read the told mode or the belief (concatenated, a head per mode mixed
+by it, or FiLM), for OraclePPO, EM-PPO, EM-DDPG and EMCallback."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,12 @@ from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 from stable_baselines3.common.torch_layers import MlpExtractor
 
 from sb3_emmarl import EMPPO, OraclePPO
-from sb3_emmarl.common.appended.conditioning import ConditionedMlp, ConditionedMlpExtractor, ContextActorCriticPolicy
+from sb3_emmarl.common.appended.conditioning import (
+    ConditionedMlp,
+    ConditionedMlpExtractor,
+    ContextActorCriticPolicy,
+    MixedHeads,
+)
 from sb3_emmarl.common.appended.initialization import tail_weight_norms, zero_tail_weights
 from sb3_emmarl.common.mode_tasks import ModeCueEnv
 from sb3_emmarl.common.vec_env import make_vec_env
@@ -59,9 +64,15 @@ def test_the_mixture_is_the_context_weighted_sum_of_its_heads_and_film_scales_an
     mixture = ConditionedMlp(3 + K, [8], th.nn.Tanh, K, "mixture")
     x = th.rand(2, 3)
     weights = th.tensor([0.1, 0.2, 0.3, 0.4])
-    heads = th.nn.Linear(8 * K, 3)  # as SB3's action head over the mixture's output: K heads, one per component
-    expected = sum(w * (h @ mixture.trunk(x).T).T for w, h in zip(weights, heads.weight.view(3, K, 8).unbind(1)))
-    th.testing.assert_close(heads(mixture(th.cat([x, weights.expand(2, K)], dim=1))), expected + heads.bias)
+    heads = MixedHeads(8, 3, K)  # in the place of SB3's action head: K heads, one per component
+    own = [th.nn.Linear(8, 3) for _ in range(K)]
+    with th.no_grad():
+        heads.heads.weight.copy_(th.cat([h.weight for h in own]))
+        heads.heads.bias.copy_(th.cat([h.bias for h in own]))
+        expected = sum(w * h(mixture.trunk(x)) for w, h in zip(weights, own))
+        th.testing.assert_close(heads(mixture(th.cat([x, weights.expand(2, K)], dim=1))), expected)
+        alike = MixedHeads.alike(own[0], K)
+        th.testing.assert_close(alike(mixture(th.cat([x, th.eye(K)[2].expand(2, K)], dim=1))), own[0](mixture.trunk(x)))
     film = ConditionedMlp(3 + K, [8, 5], th.nn.ReLU, K, "film")
     with th.no_grad():
         for layer in film.films:
@@ -120,7 +131,10 @@ def test_oracle_ppo_reads_the_told_mode_through_the_conditioning(tmp_path):
     model = OraclePPO("MlpPolicy", venv, n_steps=16, batch_size=32, seed=0,
                       policy_kwargs=dict(belief_conditioning="mixture"))
     assert model.policy.context_dim == N_MODES
-    assert model.policy.action_net.in_features == N_MODES * model.policy.mlp_extractor.policy_net.trunk[-2].out_features
+    heads = model.policy.action_net
+    assert isinstance(heads, MixedHeads) and heads.n_context == N_MODES
+    assert heads.in_features == model.policy.mlp_extractor.policy_net.trunk[-2].out_features
+    assert {id(p) for p in model.policy.optimizer.param_groups[0]["params"]} == {id(p) for p in model.policy.parameters()}
     model.learn(32)
     model.save(tmp_path / "oracle.zip")
     assert OraclePPO.load(tmp_path / "oracle.zip", env=venv).policy.belief_conditioning == "mixture"

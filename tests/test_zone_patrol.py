@@ -276,6 +276,16 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert "zone_cue must be" in capsys.readouterr().err and not (tmp_path / "bad").exists()
 
 
+def test_the_told_conditionings_keep_the_yaml_s_policy_arguments_and_are_scored_as_told():
+    bench = load_benchmark("zone_patrol_value")
+    algo, overrides = bench.variant_overrides("told_film")
+    assert algo == "oracle_ppo" and overrides["policy_kwargs"] == {"net_arch": [128, 128], "belief_conditioning": "film"}
+    assert "'belief_conditioning': 'film'" in bench.settings("told_film") and "told_mixture" in bench.TOLD_VARIANTS
+    model = bench.build("told_mixture", 0, {"max_cycles": 4})
+    assert model.policy.belief_conditioning == "mixture" and model.policy.mlp_extractor.policy_net.head_inputs == 128
+    model.env.close()
+
+
 def test_the_protocols_bar_and_its_null_calibration():
     bench = load_benchmark("zone_patrol_value")
     rng = np.random.default_rng(0)
