@@ -69,25 +69,33 @@ def main(argv: list[str] | None = None) -> int:
     arms = [(algo, conditioning) for algo in args.algos
             for conditioning in (dict.fromkeys(["concat", *args.belief_conditioning]) if algo in CONDITIONED else ["concat"])]
     seconds: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
+    cpu: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
     for round_ in range(args.rounds):
         for algo, conditioning in arms:
             model = build(algo, seed=round_, belief_conditioning=conditioning)
-            start = time.perf_counter()
+            start, start_cpu = time.perf_counter(), time.process_time()
             model.learn(args.n_timesteps)
-            seconds[arm_name(algo, conditioning)].append(time.perf_counter() - start)
-            print(f"round {round_} {arm_name(algo, conditioning)}: {seconds[arm_name(algo, conditioning)][-1]:.1f} s",
-                  flush=True)
-    print(f"\n{args.n_timesteps:,} agent-steps per turn, {args.rounds} turns each, one process, one torch thread")
-    print(f"{'algo':<20}{'median s':>10}{'agent-steps/s':>15}")
+            name = arm_name(algo, conditioning)
+            seconds[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
+            print(f"round {round_} {name}: {seconds[name][-1]:.1f} s ({cpu[name][-1]:.1f} s of CPU)", flush=True)
+    print(f"\n{args.n_timesteps:,} agent-steps per turn, {args.rounds} turns each, one process, one torch thread "
+          "(CPU: this process's CPU seconds, which other processes on the machine do not stretch)")
+    print(f"{'algo':<20}{'median s':>10}{'agent-steps/s':>15}{'median CPU s':>14}")
     for name, values in seconds.items():
-        print(f"{name:<20}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}")
+        print(f"{name:<20}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}"
+              f"{np.median(cpu[name]):>14.1f}")
+
+    def ratio(a: str, b: str) -> str:
+        return (f"{a} / {b}: {np.median(seconds[a]) / np.median(seconds[b]):.2f} "
+                f"(CPU {np.median(cpu[a]) / np.median(cpu[b]):.2f})")
+
     if "em_ppo" in seconds:
         for other in (a for a in seconds if "+" not in a and a != "em_ppo"):
-            print(f"em_ppo / {other}: {np.median(seconds['em_ppo']) / np.median(seconds[other]):.2f}")
+            print(ratio("em_ppo", other))
     for algo, conditioning in arms:
         if conditioning != "concat":
-            ratio = np.median(seconds[arm_name(algo, conditioning)]) / np.median(seconds[algo])
-            print(f"{arm_name(algo, conditioning)} / {algo}: {ratio:.2f}")
+            print(ratio(arm_name(algo, conditioning), algo))
     return 0
 
 
