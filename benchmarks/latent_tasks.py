@@ -166,6 +166,7 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     from stable_baselines3.common.evaluation import evaluate_policy
 
     from sb3_emmarl import EMPPO
+    from sb3_emmarl.common.phases import PhaseTimes, machine_load
 
     th.set_num_threads(1)
     told = variant in ("told_ppo", TOLD_SB3)
@@ -183,10 +184,11 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     record = {"task": task, "variant": variant, "seed": seed, "budget": budget, "eval_episodes": eval_episodes,
               "parameters": policy_parameters(model), "curve": []}
     seconds, done = 0.0, 0
+    times, record["load"] = PhaseTimes(), {"start": machine_load()}
     for fraction in CHECKPOINTS:
         steps = round(fraction * budget) - done
         start = time.perf_counter()
-        model.learn(steps, reset_num_timesteps=done == 0)
+        model.learn(steps, reset_num_timesteps=done == 0, callback=times)
         seconds += time.perf_counter() - start
         done += steps
         eval_env = make_task(task, told=told, n_envs=5, seed=100_000 + seed)
@@ -203,6 +205,7 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
             point["permuted_return"] = float(evaluate_policy(model, permuted, n_eval_episodes=eval_episodes)[0])
             point.update(belief_diagnostics(model, task, 200_000 + seed))
         record["curve"].append(point)
+    record["phase_seconds"], record["load"]["end"] = times.seconds, machine_load()
     return record
 
 
@@ -285,14 +288,19 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     if path.exists():
         return f"{path.name}: kept"
     record = run(task, variant, seed, budget, eval_episodes)
+    from sb3_emmarl.common.phases import phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))
     last = record["curve"][-1]
+    load = record["load"]
     return (f"{path.name}: return {last['return']:.3f}" + (f", permuted {last['permuted_return']:.3f}, accuracy "
                                                            f"{last['latent_accuracy']:.3f}" if "permuted_return" in last
-                                                           else ""))
+                                                           else "")
+            + "\n" + phase_table(record["phase_seconds"], last["seconds"], f"where its training's time went (load "
+                                  f"average {load['start']['load_1min']:.1f} at its start, {load['end']['load_1min']:.1f} "
+                                  f"at its end, {load['end']['cores']:.0f} cores)"))
 
 
 def load_runs(folder: Path) -> list[dict]:

@@ -269,14 +269,17 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
     import torch as th
 
     from sb3_emmarl.common.latent.diagnostics import belief_use, permute_beliefs
+    from sb3_emmarl.common.phases import PhaseTimes, machine_load
 
     th.set_num_threads(1)
     env_kwargs = dict(env_kwargs or {})
     model = build(variant, seed, env_kwargs, task)
+    times, load = PhaseTimes(), machine_load()
     start = time.perf_counter()
-    model.learn(budget)
+    model.learn(budget, callback=times)
     record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task,
-              "seconds": time.perf_counter() - start}
+              "seconds": time.perf_counter() - start, "phase_seconds": times.seconds,
+              "load": {"start": load, "end": machine_load()}}
     wrap = getattr(model, "wrap_env", ExactBelief if variant == "exact_belief" else lambda v: v)
     beliefs: list = []
     exact: list = []
@@ -325,11 +328,15 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
     if path.exists():
         return f"{path.name}: kept"
     record = run(variant, seed, budget, episodes, env_kwargs, task)
+    from sb3_emmarl.common.phases import phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))
-    return f"{path.name}: team reward {np.mean(record['team_reward']):.3f} ({record['seconds']:.0f} s)"
+    return (f"{path.name}: team reward {np.mean(record['team_reward']):.3f} ({record['seconds']:.0f} s)\n"
+            + phase_table(record["phase_seconds"], record["seconds"], f"where its training's time went (load average "
+                          f"{record['load']['start']['load_1min']:.1f} at its start, {record['load']['end']['load_1min']:.1f}"
+                          f" at its end, {record['load']['end']['cores']:.0f} cores)"))
 
 
 def paired(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:

@@ -263,3 +263,14 @@ def test_the_trace_reads_the_latent_metrics_every_em_ppo_run_logs():
     assert 0.0 <= last["latent/assignment_kept"] <= last["latent/assignment_matched"] <= 1.0
     text = bench.trace_table("cue", kept)
     assert text.splitlines()[0].split()[:3] == ["cue:", "agent-steps", "accuracy"] and "3,072" in text
+
+
+def test_a_run_keeps_where_its_training_s_time_went_and_the_machine_s_load(tmp_path):
+    bench = load_benchmark("latent_tasks")
+    message = bench.run_and_save(str(tmp_path), "cue", "ppo", 0, 1280, 2)
+    record = json.loads(next(tmp_path.glob("cue_ppo_0.json")).read_text())
+    phases = record["phase_seconds"]
+    assert phases["gradient epochs"] > 0 and phases["environment"] > 0
+    assert 0 < sum(phases.values()) <= record["curve"][-1]["seconds"]  # (the rest: SB3's set-up of each learn call)
+    assert set(record["load"]) == {"start", "end"} and record["load"]["end"]["cores"] >= 1
+    assert "where its training's time went (load average" in message and "wall / floor" in message

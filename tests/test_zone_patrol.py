@@ -253,6 +253,7 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert 0.0 <= em["belief_accuracy"] <= 1.0 and len(em["permuted"]) == 8 and em["swap_kl"] >= 0.0
     assert 0.0 <= em["belief_zone_accuracy"] <= 1.0 and 0.0 <= em["exact_team_zone_accuracy"] <= 1.0
     assert len(told["belief_executed"]) == 8
+    assert 0 < sum(told["phase_seconds"].values()) <= told["seconds"] and told["load"]["start"]["cores"] >= 1
     # mode 5 = zone 2, fog: the wrong zones 3, 0, 1 in fog, the wrong weather zone 2 clear
     assert [bench.WRONG[f"wrong_zone_{k}"][5] for k in (1, 2, 3)] == [7, 1, 3] and bench.WRONG["wrong_weather"][5] == 4
     assert bench.main(["report", "--folder", str(tmp_path)]) == 0

@@ -9,6 +9,7 @@ from PIL import Image
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_emmarl.common.metrics import TEAM_METRICS
+from sb3_emmarl.common.phases import PHASES
 from sb3_emmarl.zoo import exp_manager
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
 from sb3_emmarl.zoo.cli import enjoy_main, parse_key_values, train_main
@@ -205,9 +206,10 @@ def test_optimize_runs_optuna_trials_into_a_sqlite_study(tmp_path):
     assert len(study.trials) == 2 and all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
 
 
-def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path, monkeypatch):
+def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path, monkeypatch, capsys):
     """The training and the evaluation reserves' kernels are compiled before the clock of
-    ``run_stats.json`` starts, not inside the training (on a fresh machine that took tens of seconds of it)."""
+    ``run_stats.json`` starts, not inside the training (on a fresh machine that took tens of seconds of it); the
+    training's time by phase is printed and saved, the phases within the training's wall time."""
     from sb3_emmarl.zoo import cli
 
     events = []
@@ -221,6 +223,10 @@ def test_train_compiles_the_reserves_kernels_before_its_timed_training(tmp_path,
     train_kwargs = {"n_uavs": 2, "grid_size": 20, "max_cycles": 40}
     assert [event[0] for event in events] == ["compile", "compile", "learn"]
     assert train_kwargs.items() <= events[0][1].items() and events[1][1] == {**events[0][1], "adversarial": True}
+    stats = json.loads(next(tmp_path.rglob("run_stats.json")).read_text())
+    assert set(stats["phase_seconds"]) == set(PHASES) and stats["phase_seconds"]["gradient epochs"] > 0
+    assert 0 < sum(stats["phase_seconds"].values()) <= stats["train_seconds"]
+    assert "where the training's" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("random_label", [True, False])

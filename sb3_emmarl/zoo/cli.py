@@ -39,6 +39,7 @@ from sb3_emmarl.common.env_ids import ENV_ID, ENV_MODULES, current_env_id, folde
 from sb3_emmarl.common.evaluation import evaluate_team
 from sb3_emmarl.common.metrics import format_summary, summarize
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm, network_shapes
+from sb3_emmarl.common.phases import phase_table
 from sb3_emmarl.common.trust.arguments import KeyValues, OneLineParser
 from sb3_emmarl.common.trust.arguments import parse_key_values as parse_key_values
 from sb3_emmarl.common.trust.atomic_files import write_text
@@ -447,6 +448,12 @@ def _finish_run(args: argparse.Namespace, manager: Any, model: Any, train_second
         return 1
     stats = {"train_seconds": train_seconds, "cpu_seconds": cpu_seconds, "n_timesteps": int(model.num_timesteps),
              "peak_rss_mib": peak_rss_mib()}
+    phases = getattr(manager, "phase_times", None)
+    if phases is not None and phases.wall > 0:
+        stats["phase_seconds"] = phases.seconds
+        print(phase_table(phases.seconds, train_seconds, f"where the training's {train_seconds:.1f} s went (the "
+                                                         f"phases sum to {sum(phases.seconds.values()):.1f} s; the rest "
+                                                         "is SB3's set-up of the run)"))
     write_text(Path(manager.save_path) / "run_stats.json", json.dumps(stats, indent=1))
     if args.team_eval_episodes:
         records = evaluate_team(model, n_episodes=args.team_eval_episodes, seed=args.seed + TEAM_EVAL_SEED_OFFSET,

@@ -15,7 +15,9 @@ its folder layout and tunes with optuna; all of that is reused. What changes:
   ``--eval-freq`` / ``--save-freq`` / optuna arithmetic, which divides by ``n_envs``, stays right;
 - the environment's arguments are validated before any folder is written;
 - :class:`~sb3_emmarl.common.callbacks.TeamMetricsCallback` is added to the training callbacks (and
-  :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms);
+  :class:`~sb3_emmarl.common.callbacks.LatentMetricsCallback` for the EM algorithms), and every callback runs inside
+  :class:`~sb3_emmarl.common.phases.PhaseTimes`, which times the run by phase (``time/`` in tensorboard, a table at
+  the end);
 - the hyperparameters are checked by :func:`~sb3_emmarl.common.trust.validation.check_hyperparams` before anything
   is built, and the YAML file must be a mapping holding the environment's entry; then, still before the run folder
   exists, what SB3 would only find in the first rollout or update (the constructors' annotations, the optimizer, the
@@ -70,6 +72,7 @@ from sb3_emmarl.common.env_ids import ENV_ID, check_env_id, parallel_env_fn
 from sb3_emmarl.common.latent.config import lift_flat_settings
 from sb3_emmarl.common.mode_aware import wrap_with_mode
 from sb3_emmarl.common.model_files import check_model_file, check_saved_algorithm
+from sb3_emmarl.common.phases import PhaseTimes
 from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
 from sb3_emmarl.common.trust.atomic_files import save_model, save_pickle, write_text
 from sb3_emmarl.common.trust.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
@@ -488,6 +491,9 @@ class ReserveExperimentManager(ExperimentManager):
         self.callbacks.append(TeamMetricsCallback())
         if self.algo in LATENT_ALGOS:
             self.callbacks.append(LatentMetricsCallback())
+        #: the run's time by phase, around every other callback (printed by ``emmarl train`` at the run's end)
+        self.phase_times = PhaseTimes(self.callbacks)
+        self.callbacks = [self.phase_times]
 
     def objective(self, trial: Any) -> float:
         """rl_zoo3's optuna objective, its trial's evaluations counting team episodes (rl_zoo3 builds its
