@@ -6,7 +6,9 @@ times (fresh models, seeds 0, 1, ...), with one torch thread, so that the machin
 of them alike. The table gives the median seconds and agent-steps per second of each, and the ratios of
 EM-PPO's median to the others'. ``--belief-conditioning film mixture`` adds turns of EM-PPO and told PPO
 (``oracle_ppo``) whose networks read the belief or the told mode so (``policy_kwargs["belief_conditioning"]``), and the
-ratio of each to the same algorithm's concatenation (issue 67's wall-time bar).
+ratio of each to the same algorithm's concatenation (issue 67's wall-time bar). Each turn is timed by phase too
+(:class:`~sb3_emmarl.common.phases.PhaseTimes`): the median seconds of each phase per algorithm, and its wall time over
+its floor (its policy's forward passes and its gradient epochs).
 
 Example: ``python benchmarks/em_speed.py`` (or ``make benchmark-em-speed``; about 15 minutes); ``python
 benchmarks/em_speed.py --algos em_ppo --belief-conditioning concat film mixture``
@@ -22,6 +24,7 @@ import numpy as np
 import torch as th
 
 from sb3_emmarl.common.centralized import ENV_ID
+from sb3_emmarl.common.phases import FLOOR, PHASES, PhaseTimes
 from sb3_emmarl.common.trust.validation import CONDITIONINGS, parse_policy_kwargs
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import ZOO_ALGOS
@@ -36,6 +39,9 @@ def zoo_settings(algo: str) -> dict:
     return settings
 
 
+#: The phases' names in the table's columns.
+SHORT = {"environment": "env", "policy forward": "forward", "gradient epochs": "gradients", "evaluation": "eval",
+         "checkpoints": "ckpt"}
 #: The algorithms whose policies take ``belief_conditioning``.
 CONDITIONED = ("em_ppo", "oracle_ppo")
 
@@ -70,14 +76,17 @@ def main(argv: list[str] | None = None) -> int:
             for conditioning in (dict.fromkeys(["concat", *args.belief_conditioning]) if algo in CONDITIONED else ["concat"])]
     seconds: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
     cpu: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
+    phases: dict[str, list[dict[str, float]]] = {arm_name(*arm): [] for arm in arms}
     for round_ in range(args.rounds):
         for algo, conditioning in arms:
             model = build(algo, seed=round_, belief_conditioning=conditioning)
+            times = PhaseTimes()
             start, start_cpu = time.perf_counter(), time.process_time()
-            model.learn(args.n_timesteps)
+            model.learn(args.n_timesteps, callback=times)
             name = arm_name(algo, conditioning)
             seconds[name].append(time.perf_counter() - start)
             cpu[name].append(time.process_time() - start_cpu)
+            phases[name].append(times.seconds)
             print(f"round {round_} {name}: {seconds[name][-1]:.1f} s ({cpu[name][-1]:.1f} s of CPU)", flush=True)
     print(f"\n{args.n_timesteps:,} agent-steps per turn, {args.rounds} turns each, one process, one torch thread "
           "(CPU: this process's CPU seconds, which other processes on the machine do not stretch)")
@@ -85,6 +94,15 @@ def main(argv: list[str] | None = None) -> int:
     for name, values in seconds.items():
         print(f"{name:<20}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}"
               f"{np.median(cpu[name]):>14.1f}")
+
+    print("\nmedian seconds per turn by phase (sb3_emmarl.common.phases; the floor: policy forward + gradient epochs)")
+    shown = [phase for phase in PHASES if any(p[phase] > 0 for runs in phases.values() for p in runs)]
+    print(f"{'algo':<20}" + "".join(f"{SHORT.get(phase, phase):>11}" for phase in shown) + f"{'wall/floor':>12}")
+    for name, runs in phases.items():
+        medians = {phase: float(np.median([p[phase] for p in runs])) for phase in shown}
+        floor = float(np.median([sum(p[f] for f in FLOOR) for p in runs]))
+        print(f"{name:<20}" + "".join(f"{medians[phase]:>11.2f}" for phase in shown)
+              + f"{np.median(seconds[name]) / floor:>12.2f}")
 
     def ratio(a: str, b: str) -> str:
         return (f"{a} / {b}: {np.median(seconds[a]) / np.median(seconds[b]):.2f} "
