@@ -64,9 +64,11 @@ EM_CANDIDATES = {"em_ppo_sb3": {"ppo": "sb3", "latent_kwargs": {"e_step_every": 
                  "em_ppo_sb3_revive": {"ppo": "sb3", "latent_kwargs": {"e_step_every": 1024,
                                                                        "e_step_kwargs": {"starved_share": 0.5}}}}
 # and with a head per component (the cheap mixture): the goal task's area is lost where the policy reads its right
-# belief later than told PPO reads the mode (seeds 0-6 of em_ppo_sb3)
+# belief later than told PPO reads the mode (seeds 0-6 of em_ppo_sb3); without the re-seeding, which on the goal task's
+# seed 0 re-seeded a component late and broke the belief the policy had learned (both revive candidates)
 EM_CANDIDATES["em_ppo_sb3_revive_mixture"] = {**EM_CANDIDATES["em_ppo_sb3_revive"],
                                               "policy_kwargs": {"belief_conditioning": "mixture"}}
+EM_CANDIDATES["em_ppo_sb3_mixture"] = {**EM_CANDIDATES["em_ppo_sb3"], "policy_kwargs": {"belief_conditioning": "mixture"}}
 ALL_VARIANTS = (*VARIANTS, TOLD_SB3, *EM_CANDIDATES)
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.
