@@ -242,6 +242,28 @@ def test_the_e_step_alone_tells_the_mode_from_dynamics_and_its_likelihood_rises(
     assert (mapping[posterior.argmax(1)] == modes).mean() >= 0.9
 
 
+def test_a_component_is_re_seeded_once_its_prior_stays_starved_for_the_patience_asked():
+    model = LatentModel(LatentLayout(obs_dim=2, feature_dim=2, action_dim=4, n_components=4))
+    e_step = EStep(model, starved_share=0.5, starved_patience=3)  # starved below 0.5 / 4 = 0.125
+    dips = [[0.1, 0.3, 0.3, 0.3], [0.2, 0.3, 0.25, 0.25], [0.1, 0.3, 0.3, 0.3], [0.1, 0.3, 0.3, 0.3]]
+    for prior in dips:  # component 0 below it, back above, then below twice: never three E-steps in a row
+        model.set_prior(th.tensor([prior]))
+        assert e_step._revive_starved_components() == 0
+    assert e_step.starved_steps.tolist() == [2, 0, 0, 0]
+    state = e_step.state_dict()
+    model.set_prior(th.tensor([[0.1, 0.5, 0.2, 0.2]]))
+    assert e_step._revive_starved_components() == 1  # the third in a row: split off the busiest, component 1
+    assert model.prior()[0] == pytest.approx(model.prior()[1]) and e_step.starved_steps.tolist() == [0, 0, 0, 0]
+    e_step.load_state_dict(state)  # the count survives save and load
+    assert e_step.starved_steps.tolist() == [2, 0, 0, 0]
+    impatient = EStep(LatentModel(LatentLayout(obs_dim=2, feature_dim=2, action_dim=4, n_components=4)),
+                      starved_share=0.5)  # the default: at the first E-step below it, as before
+    impatient.model.set_prior(th.tensor([dips[0]]))
+    assert impatient._revive_starved_components() == 1
+    with pytest.raises(ValueError, match="starved_patience must be an int >= 1, got 0"):
+        EStep(model, starved_patience=0)
+
+
 def test_episode_ids_continue_across_rollouts_and_pool_teams():
     counters = np.zeros(4, dtype=np.int64)
     starts = np.array([[1, 1, 1, 1], [0, 0, 0, 0], [1, 1, 0, 0]], dtype=bool)
@@ -388,6 +410,7 @@ def test_the_m_step_sees_the_beliefs_the_actions_were_drawn_with(monkeypatch):
         ({"decoder_hidden": "64"}, "decoder_hidden must be a list of layer sizes"),
         ({"decoder_hidden": [64, -1]}, r"decoder_hidden\[1\] must be an int in \[1, 4096\], got -1"),
         ({"e_step_interval": 0}, r"e_step_interval must be an int in \[1, 10000\], got 0"),
+        ({"e_step_kwargs": {"starved_patience": 0}}, r"e_step_kwargs\['starved_patience'\] must be an int in \[1, "),
         ({"zero_belief_weights": 1}, "zero_belief_weights must be true or false, got 1"),
     ],
 )

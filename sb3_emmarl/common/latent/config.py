@@ -23,7 +23,7 @@ from sb3_emmarl.common.trust.validation import LATENT_RULES
 #: override (``estimator``, ``likelihood_temperature`` and ``seed`` come from the algorithm).
 E_STEP_DEFAULTS: dict[str, Any] = {"learning_rate": 1e-3, "n_epochs": 5, "batch_size": 256, "window": 2,
                                    "max_transitions": 16384, "temperature": 1.0, "min_temperature": 0.1,
-                                   "anneal_rate": 0.05, "starved_share": 0.1}
+                                   "anneal_rate": 0.05, "starved_share": 0.1, "starved_patience": 1}
 
 
 @dataclass(frozen=True)

@@ -208,6 +208,9 @@ class EStep:
     :param anneal_rate: the temperature is ``max(min_temperature, temperature * exp(-anneal_rate * n_updates))``
     :param likelihood_temperature: ``beta`` on the log-likelihoods in the responsibilities (as in the beliefs)
     :param starved_share: a component whose prior falls below ``starved_share / K`` is re-seeded (0: never)
+    :param starved_patience: ... once its prior has been below it at this many E-steps in a row (1: at the first; a
+        prior that dips below it for fewer E-steps, as one fitted to few episodes of equally likely modes does, is
+        left alone)
     :param seed: seed of the minibatch order and of the re-seeding noise
     :param count_factors: ``(F1, F2)`` with ``F1 * F2 = K``: the count model's rates factor as where x how far
         (:func:`~sb3_emmarl.common.latent.counts.factored_rates`); None: every component's every bin its own
@@ -218,12 +221,13 @@ class EStep:
     def __init__(self, latent_model: LatentModel, *, learning_rate: float = 1e-3, n_epochs: int = 5,
                  batch_size: int = 256, window: int = 2, max_transitions: int = 16384, estimator: str = "enumerate",
                  temperature: float = 1.0, min_temperature: float = 0.1, anneal_rate: float = 0.05,
-                 likelihood_temperature: float = 1.0, starved_share: float = 0.1, seed: int = 0,
+                 likelihood_temperature: float = 1.0, starved_share: float = 0.1, starved_patience: int = 1,
+                 seed: int = 0,
                  count_factors: tuple[int, int] | None = None, count_rings: int = 1, count_weight: float = 1.0) -> None:
         if estimator not in ("enumerate", "gumbel"):
             raise ValueError(f"estimator must be 'enumerate' or 'gumbel', got {estimator!r}")
         for name, value in (("n_epochs", n_epochs), ("batch_size", batch_size), ("window", window),
-                            ("max_transitions", max_transitions)):
+                            ("max_transitions", max_transitions), ("starved_patience", starved_patience)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")
         if not temperature > 0 or not 0 < min_temperature <= temperature:
@@ -251,7 +255,9 @@ class EStep:
         self.estimator = estimator
         self.initial_temperature, self.min_temperature, self.anneal_rate = temperature, min_temperature, anneal_rate
         self.likelihood_temperature = float(likelihood_temperature)
-        self.starved_share = starved_share
+        self.starved_share, self.starved_patience = starved_share, int(starved_patience)
+        #: E-steps in a row at which each component's prior was below ``starved_share / K``
+        self.starved_steps = th.zeros(latent_model.n_components, dtype=th.long)
         self.n_updates = 0
         self.generator = th.Generator().manual_seed(seed)
 
@@ -264,7 +270,8 @@ class EStep:
                 "memory": [{name: _copy(getattr(part, name)) for name in FIELDS} for part in self.memory],
                 "count_memory": [None if part is None else [_copy(part.episodes), _copy(part.counts),
                                                             _copy(part.exposure)] for part in self.count_memory],
-                "fresh": self.fresh, "count_table": {name: value.cpu() for name, value in self.count_table.items()}}
+                "fresh": self.fresh, "count_table": {name: value.cpu() for name, value in self.count_table.items()},
+                "starved_steps": self.starved_steps.clone()}
 
     def load_state_dict(self, state: dict[str, Any], strict: bool = True) -> None:
         """Restore a :meth:`state_dict` (the E-step then continues as if it had not stopped).
@@ -283,6 +290,8 @@ class EStep:
         for part in state.get("count_memory", [None] * len(self.memory)):
             self.count_memory.append(None if part is None else EpisodeCounts(*(x.to(device) for x in part)))
         self.fresh = int(state.get("fresh", 0))
+        # (a state saved before 0.22 has no count of starved E-steps: every component starts at 0)
+        self.starved_steps = state.get("starved_steps", th.zeros(self.model.n_components, dtype=th.long)).clone()
         # (a state saved before 0.14.0 holds running sums, "count_sums", instead: the table then starts empty)
         self.count_table = {name: value.to(device) for name, value in state.get("count_table", {}).items()}
 
@@ -489,9 +498,13 @@ class EStep:
         }
 
     def _revive_starved_components(self) -> int:
-        """Split the busiest component into every component whose prior fell below ``starved_share / K``."""
+        """Split the busiest component into every component whose prior has been below ``starved_share / K`` at
+        ``starved_patience`` E-steps in a row."""
         prior = self.model.prior()
-        starved = th.nonzero(prior < self.starved_share / self.model.n_components).flatten().tolist()
+        below = (prior < self.starved_share / self.model.n_components).cpu()
+        self.starved_steps = th.where(below, self.starved_steps + 1, th.zeros_like(self.starved_steps))
+        starved = th.nonzero(self.starved_steps >= self.starved_patience).flatten().tolist()
         for dead in starved:
             self.model.split_component(dead, int(self.model.prior().argmax()), generator=self.generator)
+            self.starved_steps[dead] = 0
         return len(starved)

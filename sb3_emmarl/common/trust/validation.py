@@ -235,6 +235,7 @@ E_STEP_RULES: dict[str, Rule] = {
     "min_temperature": number(0.0, 100.0, low_open=True),
     "anneal_rate": number(0.0, 10.0),
     "starved_share": number(0.0, 0.999),
+    "starved_patience": integer(1, 1_000_000),
 }
 
 
