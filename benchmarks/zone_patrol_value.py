@@ -57,6 +57,7 @@ ALGOS: dict[str, tuple[str, dict[str, Any]]] = {
          "told_film": ("oracle_ppo", {"policy_kwargs": {"belief_conditioning": "film"}}),
          "told_mixture": ("oracle_ppo", {"policy_kwargs": {"belief_conditioning": "mixture"}}),
          "em_ppo": ("em_ppo", {}), "em_ppo_nofusion": ("em_ppo", {"latent_kwargs": {"fusion": False}}),
+         "em_ppo_mixture": ("em_ppo", {"policy_kwargs": {"belief_conditioning": "mixture"}}),
          "em_ppo_team": ("em_ppo", {"latent_kwargs": {"fusion": "team"}}), "exact_belief": ("ppo", {}),
          "ppo_lstm": ("ppo_lstm", {}),
          "mappo": ("mappo", {})}
@@ -502,7 +503,8 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
                  ("em_ppo", "em_ppo_nofusion"), ("em_ppo_team", "ppo"), ("em_ppo_team", "em_ppo"), ("exact_belief", "ppo"),
                  ("exact_belief", "em_ppo"), ("ppo_lstm", "ppo"),
                  ("em_ppo", "ppo_lstm"), ("mappo", "ppo"), ("told_film", "ppo"), ("told_film", "told"),
-                 ("told_mixture", "ppo"), ("told_mixture", "told")):
+                 ("told_mixture", "ppo"), ("told_mixture", "told"), ("em_ppo_mixture", "ppo"),
+                 ("em_ppo_mixture", "em_ppo"), ("told_mixture", "em_ppo_mixture")):
         seeds = sorted(set(by[a]) & set(by[b]))
         if len(seeds) >= 2:
             ma, mb = means(a, seeds=seeds), means(b, seeds=seeds)
