@@ -294,7 +294,7 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     if path.exists():
         return f"{path.name}: kept"
     record = run(task, variant, seed, budget, eval_episodes)
-    from sb3_emmarl.common.phases import phase_table
+    from sb3_emmarl.common.phases import load_title, phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
@@ -304,9 +304,7 @@ def run_and_save(folder: str, task: str, variant: str, seed: int, budget: int, e
     return (f"{path.name}: return {last['return']:.3f}" + (f", permuted {last['permuted_return']:.3f}, accuracy "
                                                            f"{last['latent_accuracy']:.3f}" if "permuted_return" in last
                                                            else "")
-            + "\n" + phase_table(record["phase_seconds"], last["seconds"], f"where its training's time went (load "
-                                  f"average {load['start']['load_1min']:.1f} at its start, {load['end']['load_1min']:.1f} "
-                                  f"at its end, {load['end']['cores']:.0f} cores)"))
+            + "\n" + phase_table(record["phase_seconds"], last["seconds"], load_title(load["start"], load["end"])))
 
 
 def load_runs(folder: Path) -> list[dict]:

@@ -329,15 +329,14 @@ def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: in
     if path.exists():
         return f"{path.name}: kept"
     record = run(variant, seed, budget, episodes, env_kwargs, task)
-    from sb3_emmarl.common.phases import phase_table
+    from sb3_emmarl.common.phases import load_title, phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))
     return (f"{path.name}: team reward {np.mean(record['team_reward']):.3f} ({record['seconds']:.0f} s)\n"
-            + phase_table(record["phase_seconds"], record["seconds"], f"where its training's time went (load average "
-                          f"{record['load']['start']['load_1min']:.1f} at its start, {record['load']['end']['load_1min']:.1f}"
-                          f" at its end, {record['load']['end']['cores']:.0f} cores)"))
+            + phase_table(record["phase_seconds"], record["seconds"],
+                          load_title(record["load"]["start"], record["load"]["end"])))
 
 
 def paired(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:

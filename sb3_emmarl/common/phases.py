@@ -150,6 +150,12 @@ def machine_load() -> dict[str, float]:
     return {"load_1min": one, "load_5min": five, "cores": float(os.cpu_count() or 1)}
 
 
+def load_title(start: dict[str, float], end: dict[str, float]) -> str:
+    """A phase table's title for a run between two :func:`machine_load` readings."""
+    return (f"where its training's time went (load average {start['load_1min']:.1f} at its start, "
+            f"{end['load_1min']:.1f} at its end, {end['cores']:.0f} cores)")
+
+
 def _callback_phase(callback: BaseCallback) -> str:
     if isinstance(callback, EvalCallback):
         return "evaluation"
