@@ -174,8 +174,11 @@ def run(algo: str, arm: str, seed: int, budget: int, eval_episodes: int) -> dict
         env = callback.wrap_env(env)
         kwargs["policy_kwargs"] = callback.policy_kwargs
     model = algo_class("MlpPolicy", env, seed=seed, **kwargs)
+    from sb3_emmarl.common.phases import PhaseTimes, machine_load
+
+    times, load = PhaseTimes([] if callback is None else [callback]), machine_load()
     start = time.perf_counter()
-    model.learn(budget, callback=callback)
+    model.learn(budget, callback=times)
     seconds = time.perf_counter() - start
 
     def scored(deterministic: bool, permuted: bool = False) -> float:
@@ -195,7 +198,8 @@ def run(algo: str, arm: str, seed: int, budget: int, eval_episodes: int) -> dict
         return float(evaluate_policy(policy, venv, n_eval_episodes=eval_episodes, deterministic=deterministic)[0])
 
     record = {"algo": algo, "arm": arm, "seed": seed, "budget": budget, "eval_episodes": eval_episodes,
-              "seconds": seconds, "return": scored(True), "return_sampled": scored(False)}
+              "seconds": seconds, "phase_seconds": times.seconds, "load": {"start": load, "end": machine_load()},
+              "return": scored(True), "return_sampled": scored(False)}
     if callback is not None:
         record["return_permuted"] = scored(True, permuted=True)
         record["belief_accuracy_mid"] = belief_accuracy(
@@ -326,6 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     budget = BUDGETS[args.algo] if args.budget is None else args.budget
     if budget < 1 or args.eval_episodes < 1:
         parser.error("--budget and --eval-episodes must be >= 1")
+    from sb3_emmarl.common.phases import load_title, phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
@@ -341,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{path.name}: return {record['return']:.2f} (sampled {record['return_sampled']:.2f})"
                   + (f", permuted {record['return_permuted']:.2f}, belief {record['belief_accuracy_mid']:.3f}"
                      if arm == "em" else "") + f", {record['seconds']:.0f} s", flush=True)
+            print(phase_table(record["phase_seconds"], record["seconds"],
+                              load_title(record["load"]["start"], record["load"]["end"])), flush=True)
     return 0
 
 

@@ -243,6 +243,7 @@ def trace(task: str, seed: int, budget: int, rows: int = 12, **em_kwargs) -> lis
 
     from sb3_emmarl import EMPPO
     from sb3_emmarl.common.callbacks import LatentMetricsCallback
+    from sb3_emmarl.common.phases import PhaseTimes
 
     th.set_num_threads(1)
     model = EMPPO("MlpPolicy", make_task(task, seed=seed), seed=seed, **em_kwargs)
@@ -259,7 +260,7 @@ def trace(task: str, seed: int, budget: int, rows: int = 12, **em_kwargs) -> lis
                 values = self.logger.name_to_value
                 kept.append({"steps": self.num_timesteps, **{key: values.get(key) for key in TRACE_KEYS}})
 
-    model.learn(budget, callback=[LatentMetricsCallback(), Keep()])
+    model.learn(budget, callback=PhaseTimes([LatentMetricsCallback(), Keep()], verbose=1))  # (its phase table printed)
     return kept
 
 

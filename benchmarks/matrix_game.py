@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from matrix_game import TwoStepGame, greedy_return
 
+from sb3_emmarl.common.phases import PhaseTimes, PhaseTotals
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.qmix import QMIX
 from sb3_emmarl.vdn import VDN
@@ -58,14 +59,19 @@ def settings(final_eps: float = 1.0) -> dict[str, Any]:
     )
 
 
-def run(algo: str, seed: int, n_timesteps: int = BUDGET, final_eps: float = 1.0) -> float:
-    """Train ``algo`` (``"qmix"`` or ``"vdn"``) on one copy of the game; the greedy joint policy's return."""
+def run(algo: str, seed: int, n_timesteps: int = BUDGET, final_eps: float = 1.0, totals: PhaseTotals | None = None
+        ) -> float:
+    """Train ``algo`` (``"qmix"`` or ``"vdn"``) on one copy of the game; the greedy joint policy's return. The
+    training's phases are added to ``totals``."""
     env = make_vec_env(1, seed=seed, env_fn=TwoStepGame)
     if algo == "qmix":
         model = QMIX("MlpPolicy", env, mixing_embed_dim=8, hypernet_layers=1, seed=seed, **settings(final_eps))
     else:
         model = VDN("MlpPolicy", env, seed=seed, **settings(final_eps))
-    model.learn(n_timesteps)
+    times = PhaseTimes()
+    model.learn(n_timesteps, callback=times)
+    if totals is not None:
+        totals.add(times)
     env.close()
     return greedy_return(model)
 
@@ -77,16 +83,18 @@ def main(argv: list[str] | None = None) -> dict[str, list[float]]:
     parser.add_argument("--eps", type=float, default=1.0, help="final epsilon (1: full exploration, the paper's)")
     args = parser.parse_args(argv)
     results: dict[str, list[float]] = {}
+    totals = PhaseTotals()
     print(f"two-step game, {args.n_timesteps} agent-steps per run, final epsilon {args.eps}")
     for algo, target in (("qmix", 8.0), ("vdn", 7.0)):
         results[algo] = []
         for seed in args.seeds:
             start = time.time()
-            value = run(algo, seed, args.n_timesteps, args.eps)
+            value = run(algo, seed, args.n_timesteps, args.eps, totals)
             results[algo].append(value)
             print(f"{algo:4s} seed {seed}: greedy return {value:g}  ({time.time() - start:.0f} s)", flush=True)
         hits = sum(value == target for value in results[algo])
         print(f"{algo:4s}: {hits}/{len(args.seeds)} seeds reach {target:g}", flush=True)
+    print(totals.table())
     return results
 
 

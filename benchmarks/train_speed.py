@@ -44,6 +44,7 @@ from em_speed import build, zoo_settings
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
+from sb3_emmarl.common.phases import PhaseTimes, median_phase_table
 from sb3_emmarl.common.vec_env import ReserveVecEnv, compile_reserve, make_vec_env
 from wildlife_reserve import reserve_v1
 
@@ -114,6 +115,7 @@ PATHS = {"batched": ("batched", 0), "subproc": ("batched", 2), "supersuit": ("su
 def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None) -> None:
     paths = [*PATHS, "zero-cost"]
     seconds = {(algo, path): [] for algo in algos for path in paths}
+    phases: dict[str, list[dict[str, float]]] = {f"{algo} {path}": [] for algo in algos for path in paths}
     for round_ in range(rounds):
         for algo in algos:
             for path in paths:
@@ -121,9 +123,11 @@ def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None)
                 vec_env_type, num_cpus = PATHS.get(path, (None, 0))
                 model = build(algo, seed=round_, env=env, vec_env_type=vec_env_type, num_cpus=num_cpus,
                               n_copies=n_copies)
+                times = PhaseTimes()
                 start = time.perf_counter()
-                model.learn(n)
+                model.learn(n, callback=times)
                 seconds[algo, path].append(time.perf_counter() - start)
+                phases[f"{algo} {path}"].append(times.seconds)
                 model.get_env().close()
                 print(f"  round {round_} {algo:<7} {path:<10} {seconds[algo, path][-1]:6.1f} s", flush=True)
     copies = f", {n_copies} copies" if n_copies else ""
@@ -138,6 +142,7 @@ def training(algos: list[str], n: int, rounds: int, n_copies: int | None = None)
             t = np.median(seconds[algo, path])
             share = "" if path == "zero-cost" else f"{1 - zero / t:.0%}"
             print(f"{algo:<8}{path:<11}{t:>9.1f}{n / t:>15,.0f}{share:>18}")
+    print("\n" + median_phase_table(phases, {f"{algo} {path}": seconds[algo, path] for algo, path in seconds}))
 
 
 def _step_rate(vec_env_type: str, n_copies: int, env_kwargs: dict, steps: int, trace: bool = False,

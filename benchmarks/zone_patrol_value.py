@@ -122,14 +122,11 @@ def make_env(seed: int, n_copies: int | None = None, env_kwargs: dict | None = N
 def variant_overrides(variant: str, task: str = "zone_patrol") -> tuple[str, dict]:
     """The variant's zoo algorithm and its arguments beyond the YAML (:data:`ALGOS`), a ``policy_kwargs`` dict laid over
     the YAML's policy arguments (so that ``told_film`` keeps the YAML's ``net_arch``)."""
-    from sb3_emmarl.common.trust.validation import parse_policy_kwargs
-    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+    from sb3_emmarl.zoo.exp_manager import zoo_policy_kwargs
 
     algo, overrides = ALGOS[variant]
     if isinstance(overrides.get("policy_kwargs"), dict):
-        base = zoo_hyperparams(algo, TASKS[task].env_id).get("policy_kwargs") or {}
-        base = parse_policy_kwargs(base) if isinstance(base, str) else dict(base)
-        overrides = {**overrides, "policy_kwargs": {**base, **overrides["policy_kwargs"]}}
+        overrides = {**overrides, "policy_kwargs": zoo_policy_kwargs(algo, TASKS[task].env_id, **overrides["policy_kwargs"])}
     return algo, overrides
 
 

@@ -10,7 +10,7 @@ from stable_baselines3.common.logger import configure
 from sb3_emmarl import EMPPO
 from sb3_emmarl.common.callbacks import EvalCallback
 from sb3_emmarl.common.mode_tasks import ModeCueEnv
-from sb3_emmarl.common.phases import FLOOR, PHASES, PhaseClock, PhaseTimes, phase_table
+from sb3_emmarl.common.phases import FLOOR, PHASES, PhaseClock, PhaseTimes, PhaseTotals, median_phase_table, phase_table
 
 
 class FakeClock:
@@ -62,6 +62,28 @@ def test_bad_phases_and_a_clock_used_out_of_order_are_refused():
         clock.start()
 
 
+def test_runs_add_up_and_arms_taking_turns_give_their_medians():
+    totals = PhaseTotals()
+    totals.add({"environment": 1.0, "gradient epochs": 2.0, "other": 1.0}, 4.0)
+    totals.add({"environment": 3.0, "policy forward": 1.0, "gradient epochs": 2.0}, 6.0)
+    assert totals.runs == 2 and totals.wall == 10.0
+    assert totals.seconds == {**dict.fromkeys(PHASES, 0.0), "environment": 4.0, "gradient epochs": 4.0,
+                              "policy forward": 1.0, "other": 1.0}
+    table = totals.table()
+    assert table.startswith("where the training time of 2 runs went") and "wall / floor 2.00" in table
+    with pytest.raises(ValueError, match="phases must be among .* got \\['training'\\]"):
+        totals.add({"training": 1.0}, 1.0)
+    with pytest.raises(ValueError, match="wall time is needed"):
+        totals.add({"environment": 1.0})
+    turns = {"ppo": [{"environment": 1.0, "gradient epochs": 1.0}, {"environment": 3.0, "gradient epochs": 2.0},
+                     {"environment": 2.0, "gradient epochs": 3.0}],
+             "em_ppo": [{"environment": 1.0, "E-step": 0.5, "gradient epochs": 4.0}]}
+    lines = median_phase_table(turns, {"ppo": [2.0, 5.0, 6.0], "em_ppo": [8.0]}).splitlines()
+    assert lines[1].split() == ["arm", "env", "gradients", "E-step", "wall/floor"]
+    assert lines[2].split() == ["ppo", "2.00", "2.00", "0.00", "2.50"]  # medians 2 and 2; wall 5 over floor 2
+    assert lines[3].split() == ["em_ppo", "1.00", "4.00", "0.50", "2.00"]
+
+
 class Counting(BaseCallback):
     def __init__(self) -> None:
         super().__init__()
@@ -100,6 +122,9 @@ def test_a_ppo_run_s_phases_sum_to_its_wall_time_and_its_callbacks_still_run(tmp
     PPO.load(tmp_path / "after.zip")  # nothing the timing wrapped is saved
     model.learn(64, callback=times, reset_num_timesteps=False)  # a second learn adds to the same figures
     assert times.wall > sum(seconds.values()) and sum(times.seconds.values()) == pytest.approx(times.wall, rel=1e-9)
+    totals = PhaseTotals()
+    totals.add(times)
+    assert totals.seconds == times.seconds and totals.wall == times.wall and totals.runs == 1
 
 
 def test_em_ppo_s_belief_and_e_step_have_phases_of_their_own():
@@ -111,3 +136,19 @@ def test_em_ppo_s_belief_and_e_step_have_phases_of_their_own():
     assert seconds["belief"] > 0.0 and seconds["E-step"] > 0.0 and seconds["environment"] > 0.0
     assert sum(seconds.values()) == pytest.approx(times.wall, rel=1e-9)
     assert "add" not in vars(model.e_step) and "step_wait" not in vars(model.env)
+
+
+def test_em_speed_times_ppo_and_mappo_on_zone_patrol_by_phase(capsys):
+    from scripts import load_benchmark
+
+    assert load_benchmark("em_speed").main(["--env", "ZonePatrol-v1", "--algos", "ppo", "mappo", "-n", "512",
+                                            "--rounds", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("ZonePatrol-v1: 512 agent-steps per turn") for line in lines)
+    table = lines[next(i for i, line in enumerate(lines) if line.startswith("median seconds per turn by phase")) + 1:]
+    columns = table[0].split()
+    assert columns[0] == "arm" and "gradients" in columns and "belief" not in columns  # (neither has a belief)
+    rows = {row.split()[0]: [float(v) for v in row.split()[1:]] for row in table[1:3]}
+    assert set(rows) == {"ppo", "mappo"} and all(row[-1] >= 1.0 for row in rows.values())  # wall over floor
+    with pytest.raises(SystemExit):
+        load_benchmark("em_speed").main(["--env", "ZonePatrol-v9"])

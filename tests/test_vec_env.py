@@ -430,6 +430,7 @@ def test_the_train_speed_benchmark_runs_end_to_end_on_a_tiny_budget(capsys):
                              "--floor-threads", "1", "--floor-turns", "1"]) == 0
     out = capsys.readouterr().out
     assert "outside networks" in out and "zero-cost" in out and "batched" in out and "subproc" in out
+    assert "median seconds per turn by phase" in out and any(line.startswith("ppo zero-cost") for line in out.splitlines())
     rows = [line.split() for line in out.splitlines()]
     assert [row[:2] for row in rows if row[:2] in (["1", "10"], ["3", "10"], ["1", "20"])] == \
         [["1", "10"], ["3", "10"], ["1", "20"]]

@@ -17,6 +17,7 @@ E-step) for the run's length and restores them at its end, so that nothing it ad
 from __future__ import annotations
 
 import os
+import statistics
 import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
@@ -140,6 +141,30 @@ def phase_table(seconds: dict[str, float], wall: float, title: str = "where the 
     lines.append(f"  {'sum':<18}{total:>10.2f}{(total / wall if wall > 0 else 0.0):>8.1%}")
     lines.append(f"  wall {wall:.2f} s; floor ({' + '.join(FLOOR)}) {floor:.2f} s; wall / floor "
                  + (f"{wall / floor:.2f}" if floor > 0 else "undefined"))
+    return "\n".join(lines)
+
+
+#: The phases' names in :func:`median_phase_table`'s columns.
+SHORT = {"environment": "env", "policy forward": "forward", "gradient epochs": "gradients", "evaluation": "eval",
+         "checkpoints": "ckpt"}
+
+
+def median_phase_table(phases: dict[str, list[dict[str, float]]], walls: dict[str, list[float]]) -> str:
+    """One row per arm of a benchmark whose arms take turns: the median seconds of each phase over the arm's turns,
+    and its median wall time over its median floor.
+
+    :param phases: each arm's seconds per phase, one dict per turn
+    :param walls: each arm's wall times, one per turn
+    """
+    shown = [phase for phase in PHASES if any(p.get(phase, 0.0) > 0 for runs in phases.values() for p in runs)]
+    width = max([20, *(len(name) + 2 for name in phases)])
+    lines = ["median seconds per turn by phase (the floor: " + " + ".join(FLOOR) + ")",
+             f"{'arm':<{width}}" + "".join(f"{SHORT.get(phase, phase):>11}" for phase in shown) + f"{'wall/floor':>12}"]
+    for name, runs in phases.items():
+        floor = statistics.median(sum(p.get(f, 0.0) for f in FLOOR) for p in runs)
+        ratio = statistics.median(walls[name]) / floor if floor > 0 else float("nan")
+        lines.append(f"{name:<{width}}" + "".join(f"{statistics.median(p.get(phase, 0.0) for p in runs):>11.2f}"
+                                                  for phase in shown) + f"{ratio:>12.2f}")
     return "\n".join(lines)
 
 
@@ -276,3 +301,31 @@ class PhaseTimes(CallbackList):
         self.clock.stop()
         if self.verbose >= 1:
             print(self.table())
+
+
+class PhaseTotals:
+    """The phases of several runs summed (a benchmark script's many runs): :meth:`add` each run's
+    :class:`PhaseTimes` (or its recorded seconds and wall time), then :meth:`table` for one table of them all."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = dict.fromkeys(PHASES, 0.0)
+        self.wall = 0.0
+        self.runs = 0
+
+    def add(self, run: dict[str, float] | PhaseTimes, wall: float | None = None) -> None:
+        """Count one run: its :class:`PhaseTimes` after its training, or its seconds per phase and its wall time."""
+        seconds = run.seconds if isinstance(run, PhaseTimes) else run
+        wall = run.wall if isinstance(run, PhaseTimes) else wall
+        if wall is None:
+            raise ValueError("add(seconds, wall): the run's wall time is needed beside its seconds per phase")
+        unknown = sorted(set(seconds) - set(PHASES))
+        if unknown:
+            raise ValueError(f"phases must be among {list(PHASES)}, got {unknown}")
+        for name, value in seconds.items():
+            self.seconds[name] += value
+        self.wall += wall
+        self.runs += 1
+
+    def table(self, title: str | None = None) -> str:
+        """:func:`phase_table` of the runs together."""
+        return phase_table(self.seconds, self.wall, title or f"where the training time of {self.runs} runs went")

@@ -78,7 +78,7 @@ from sb3_emmarl.common.trust.atomic_files import save_model, save_pickle, write_
 from sb3_emmarl.common.trust.safe_config import IMPORT_KEYS, check_imports, is_plain, load_yaml, to_source
 from sb3_emmarl.common.trust.safe_pickle import load_data_pickle, load_vec_normalize
 from sb3_emmarl.common.trust.safe_zip import safe_data_objects
-from sb3_emmarl.common.trust.validation import check_hyperparams
+from sb3_emmarl.common.trust.validation import check_hyperparams, parse_policy_kwargs
 from sb3_emmarl.common.vec_env import ZOO_VEC_ENVS, FiniteCheck, make_vec_env
 from sb3_emmarl.message_ppo import MessagePPO
 from sb3_emmarl.message_ppo.message_ppo import wrap_with_messages
@@ -161,6 +161,15 @@ def zoo_hyperparams(algo: str, env_id: str = ENV_ID) -> dict[str, Any]:
     ``base`` resolved (:func:`yaml_section`)."""
     path = zoo_file(algo)
     return yaml_section(read_yaml(path, "a hyperparameter file"), env_id, path)
+
+
+def zoo_policy_kwargs(algo: str, env_id: str = ENV_ID, **changes: Any) -> dict[str, Any]:
+    """The zoo YAML's ``policy_kwargs`` of ``algo`` for ``env_id`` as a dict (the YAML writes it as rl-zoo's
+    ``"dict(...)"`` string), with ``changes`` laid over it key by key: for ``zoo_model(...,
+    policy_kwargs=zoo_policy_kwargs(algo, env_id, belief_conditioning="film"))``, which keeps the YAML's ``net_arch``
+    (an override's ``policy_kwargs`` otherwise replaces the YAML's whole, as in rl-zoo)."""
+    base = zoo_hyperparams(algo, env_id).get("policy_kwargs") or {}
+    return {**(parse_policy_kwargs(base) if isinstance(base, str) else dict(base)), **changes}
 
 
 #: Settings of the zoo's YAML files that are not the algorithm's arguments.
