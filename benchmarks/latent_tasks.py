@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -453,7 +454,10 @@ def main(argv: list[str] | None = None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [(str(folder), t, v, s, BUDGETS[t], args.eval_episodes) for s in args.seeds for t in args.tasks
             for v in args.variants]
-    with ProcessPoolExecutor(max_workers=args.n_jobs) as pool:
+    from sb3_emmarl.experiments.runner import die_with_parent
+
+    # (a worker ends with this process: a killed protocol leaves no run going on beside the next one)
+    with ProcessPoolExecutor(max_workers=args.n_jobs, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
         for line in pool.map(run_and_save, *zip(*jobs)):
             print(line, flush=True)
     return 0

@@ -26,11 +26,14 @@ how far their actions move when the one-hot or the belief is permuted over the v
 (:func:`~sb3_emmarl.common.latent.diagnostics.belief_use`: the swap KL). A run is *collapsed* when its mean team reward
 is below the random team's on the same episodes (rule fixed before any run).
 
-``run`` writes one JSON file per run into ``--folder`` (atomically; an existing run is kept, so a killed sweep
-resumes); ``report`` prints each arm's settings and the paired tables (told against PPO, told against the control,
-the control against PPO, told right against told wrong, EM-PPO against PPO, the arms beside), with paired t and
-Wilcoxon p-values, seeds higher, medians, the share of the told gain each arm recovers with a 90% bootstrap interval
-over seeds, and the collapsed runs.
+``run`` first prints the time still to go (each run's variant's seconds per agent-step in the folder's finished
+runs), then writes one JSON file per run into ``--folder`` (atomically; an existing run is kept, so a killed sweep
+resumes; a run saves a checkpoint every ``--checkpoint-every`` agent-steps in ``<variant>_<seed>.partial/``, and a
+run killed mid-way continues from its newest one with the same result as if it had not stopped); ``report`` prints
+each arm's settings and the paired tables (told against PPO, told against the control, the control against PPO, told
+right against told wrong, EM-PPO against PPO, the arms beside), with paired t and Wilcoxon p-values, seeds higher,
+medians, the share of the told gain each arm recovers with a 90% bootstrap interval over seeds, and the collapsed
+runs.
 
 Example: ``python benchmarks/zone_patrol_value.py run --seeds 0 1 2 3 4 5 6 7 8 9 --folder logs/zone_patrol_value``,
 then ``python benchmarks/zone_patrol_value.py report --folder logs/zone_patrol_value``.
@@ -40,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -219,6 +223,12 @@ class ExactBelief:
             def _augment(self, obs):
                 return np.concatenate([obs, self.tracker.beliefs()], axis=1).astype(np.float32)
 
+            def get_state(self):  # (a checkpoint resumes mid-episode)
+                return self.tracker.get_state()
+
+            def set_state(self, state):
+                self.tracker.set_state(state)
+
             def reset(self):
                 obs = self.venv.reset()
                 self.tracker.start(np.arange(self.num_envs), np.zeros((self.num_envs, 1)))
@@ -262,22 +272,100 @@ WRONG = {**{f"wrong_zone_{shift}": [(2 * ((m // 2 + shift) % 4)) + m % 2 for m i
          "wrong_weather": [2 * (m // 2) + 1 - m % 2 for m in range(8)]}
 
 
+#: Agent-steps between a run's checkpoints unless ``--checkpoint-every`` says otherwise.
+CHECKPOINT_EVERY = 100_000
+#: The checkpoints' file prefix (SB3's names: ``<prefix>_<steps>_steps.zip``, its companions beside it).
+PREFIX = "run"
+
+
+def partial_folder(folder: str | Path, variant: str, seed: int) -> Path:
+    """Where a run keeps its checkpoints until its record is written."""
+    return Path(folder) / f"{variant}_{seed}.partial"
+
+
+def checkpoint_files(partial: Path, steps: int) -> list[Path]:
+    """A checkpoint's files: its zip, its training state and its seconds so far."""
+    from sb3_emmarl.common.checkpoints import TRAINING_STATE, checkpoint_path
+
+    return [checkpoint_path(partial, PREFIX, steps), checkpoint_path(partial, PREFIX, steps, TRAINING_STATE),
+            partial / f"{PREFIX}_progress_{steps}_steps.json"]
+
+
+def train(variant: str, seed: int, budget: int, env_kwargs: dict, task: str, partial: Path | None = None,
+          every: int = CHECKPOINT_EVERY) -> tuple[Any, dict]:
+    """The variant's model trained for ``budget`` agent-steps, and the training's record (its seconds, by phase, and
+    the machine's load). With ``partial``, a checkpoint is saved there every ``every`` agent-steps (at the start of a
+    rollout, with the environments mid-episode and the random generators: see
+    :class:`~sb3_emmarl.common.checkpoints.ResumableCheckpointCallback`) and at the end, and a run killed mid-way
+    continues from its newest one as if it had not stopped (its seconds are those of the training that made the
+    model: each segment's, up to its last checkpoint)."""
+    from sb3_emmarl.common.checkpoints import ResumableCheckpointCallback, check_checkpoint, list_checkpoints
+    from sb3_emmarl.common.phases import PHASES, PhaseTimes, machine_load
+    from sb3_emmarl.common.trust.atomic_files import write_text
+
+    so_far = {"seconds": 0.0, "phase_seconds": dict.fromkeys(PHASES, 0.0), "load": {"start": machine_load()},
+              "resumed_at": []}
+    found = list_checkpoints(partial, PREFIX) if partial is not None else []
+    model = build(variant, seed, env_kwargs, task) if not found else None
+    if found:
+        from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
+        from sb3_emmarl.common.trust.safe_zip import safe_data_objects
+        from sb3_emmarl.zoo.algos import ZOO_ALGOS
+
+        steps, path = found[-1]
+        check_checkpoint(path)
+        algo, _ = variant_overrides(variant, task)
+        env = make_env(seed, env_kwargs=env_kwargs, task=task)
+        model = ZOO_ALGOS[algo].load(path, env=ExactBelief(env) if variant == "exact_belief" else env, seed=seed,
+                                     device="cpu", force_reset=False, custom_objects=safe_data_objects(path))
+        _, state_file, progress_file = checkpoint_files(partial, steps)
+        state = load_training_state(state_file)
+        restore_environment_state(model, state)
+        so_far = json.loads(progress_file.read_text())
+        so_far["resumed_at"].append(steps)
+        restore_random_generators(state)  # (last: loading draws from them)
+
+    class Checkpoints(ResumableCheckpointCallback):
+        """The run's checkpoints: its seconds so far written first, the zip last; older ones removed."""
+
+        def save_checkpoint(self) -> Path:
+            steps = self.model.num_timesteps
+            seconds = {name: so_far["phase_seconds"][name] + value for name, value in times.seconds.items()}
+            write_text(checkpoint_files(partial, steps)[2], json.dumps(
+                {**so_far, "seconds": so_far["seconds"] + time.perf_counter() - start, "phase_seconds": seconds}))
+            path = super().save_checkpoint()
+            for older, _ in list_checkpoints(partial, PREFIX)[:-1]:
+                for file in checkpoint_files(partial, older):
+                    file.unlink(missing_ok=True)
+            return path
+
+    callbacks = []
+    if partial is not None:
+        partial.mkdir(parents=True, exist_ok=True)
+        checkpoints = Checkpoints(max(1, every // model.n_envs), str(partial), PREFIX, save_training_state=True)
+        callbacks.append(checkpoints)
+    times = PhaseTimes(callbacks)
+    start = time.perf_counter()
+    if budget > model.num_timesteps:
+        model.learn(budget - model.num_timesteps, callback=times, reset_num_timesteps=not found)
+    if partial is not None and not (found and found[-1][0] >= budget):
+        checkpoints.save_checkpoint()  # (the trained model: a kill during the evaluations does not train it again)
+    seconds = {name: so_far["phase_seconds"][name] + value for name, value in times.seconds.items()}
+    return model, {"seconds": so_far["seconds"] + times.wall, "phase_seconds": seconds,
+                   "load": {"start": so_far["load"]["start"], "end": machine_load()}, "resumed_at": so_far["resumed_at"]}
+
+
 def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None,
-        task: str = "zone_patrol") -> dict:
+        task: str = "zone_patrol", partial: Path | None = None, every: int = CHECKPOINT_EVERY) -> dict:
     import torch as th
 
     from sb3_emmarl.common.latent.diagnostics import belief_use, permute_beliefs
-    from sb3_emmarl.common.phases import PhaseTimes, machine_load
 
     th.set_num_threads(1)
     env_kwargs = dict(env_kwargs or {})
-    model = build(variant, seed, env_kwargs, task)
-    times, load = PhaseTimes(), machine_load()
-    start = time.perf_counter()
-    model.learn(budget, callback=times)
-    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task,
-              "seconds": time.perf_counter() - start, "phase_seconds": times.seconds,
-              "load": {"start": load, "end": machine_load()}}
+    model, training = train(variant, seed, budget, env_kwargs, task, partial, every)
+    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task, **training}
+    evaluating = time.perf_counter()
     wrap = getattr(model, "wrap_env", ExactBelief if variant == "exact_belief" else lambda v: v)
     beliefs: list = []
     exact: list = []
@@ -317,23 +405,58 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
 
         record["permuted"] = play(model, Permuted(wrap(make_env(EVAL_SEED, env_kwargs=env_kwargs, task=task))),
                                   episodes, EVAL_SEED)[0]
+    record["evaluation_seconds"] = time.perf_counter() - evaluating
     return record
 
 
 def run_and_save(folder: str, variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None,
-                 task: str = "zone_patrol") -> str:
+                 task: str = "zone_patrol", every: int = CHECKPOINT_EVERY) -> str:
+    import shutil
+
     path = Path(folder) / f"{variant}_{seed}.json"
     if path.exists():
         return f"{path.name}: kept"
-    record = run(variant, seed, budget, episodes, env_kwargs, task)
+    partial = partial_folder(folder, variant, seed)
+    record = run(variant, seed, budget, episodes, env_kwargs, task, partial, every)
     from sb3_emmarl.common.phases import load_title, phase_table
     from sb3_emmarl.common.trust.atomic_files import write_text
     from sb3_emmarl.version import __version__
 
     write_text(path, json.dumps({**record, "version": __version__}))
+    shutil.rmtree(partial, ignore_errors=True)
     return (f"{path.name}: team reward {np.mean(record['team_reward']):.3f} ({record['seconds']:.0f} s)\n"
             + phase_table(record["phase_seconds"], record["seconds"],
                           load_title(record["load"]["start"], record["load"]["end"])))
+
+
+def estimate(folder: Path, jobs: list[tuple], n_jobs: int) -> str:
+    """The protocol's time still to go, before it starts: each run still to do (its checkpointed agent-steps taken
+    off) at its variant's median seconds per agent-step (training and evaluations) over the folder's finished runs
+    (any variant's, for a variant with none), ``n_jobs`` at a time."""
+    from sb3_emmarl.common.checkpoints import list_checkpoints
+
+    rates: dict[str, list[float]] = {}
+    for path in folder.glob("*.json"):
+        record = json.loads(path.read_text())
+        total = record["seconds"] + record.get("evaluation_seconds", 0.0)
+        rates.setdefault(record["variant"], []).append(total / record["budget"])
+    todo = [(variant, seed, budget) for _, variant, seed, budget, *_ in jobs
+            if not (folder / f"{variant}_{seed}.json").exists()]
+    head = f"{len(todo)} of {len(jobs)} runs to do ({len(jobs) - len(todo)} kept in {folder})"
+    if not todo:
+        return head
+    if not rates:
+        return f"{head}; no finished run in the folder yet to estimate their time from"
+    every_rate = [rate for values in rates.values() for rate in values]
+    seconds = 0.0
+    for variant, seed, budget in todo:
+        done = [steps for steps, _ in list_checkpoints(partial_folder(folder, variant, seed), PREFIX)]
+        seconds += float(np.median(rates.get(variant, every_rate))) * max(budget - max(done, default=0), 0)
+    per_run = ", ".join(f"{variant} {np.median(values) * 1e6:.0f}" for variant, values in sorted(rates.items()))
+    hours, minutes = divmod(round(seconds / n_jobs / 60), 60)
+    return (f"{head}: about {hours} h {minutes:02d} min at {n_jobs} at a time (microseconds per agent-step, "
+            f"training and evaluations, medians of the folder's finished runs, on the machine as loaded then: "
+            f"{per_run})")
 
 
 def paired(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:
@@ -553,6 +676,8 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("-n", type=int, default=BUDGET, help="agent-steps per run")
     run_parser.add_argument("--eval-episodes", type=int, default=200)
     run_parser.add_argument("--n-jobs", type=int, default=2, help="runs at once, each in its own process (1: here)")
+    run_parser.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY,
+                            help="agent-steps between a run's checkpoints (a run killed mid-way continues from its newest)")
     run_parser.add_argument("--folder", required=True)
     run_parser.add_argument("--task", choices=sorted(TASKS), default="zone_patrol",
                             help="ZonePatrol or the reserve with scenario='zone_raids'")
@@ -577,8 +702,10 @@ def main(argv: list[str] | None = None) -> int:
         print(report(runs, random_team))
         return 0
     folder = Path(args.folder)
-    if args.n < 1 or args.eval_episodes < 2 or args.n_jobs < 1 or len(set(args.seeds)) != len(args.seeds):
-        parser.error("-n and --n-jobs must be >= 1, --eval-episodes >= 2 and --seeds distinct")
+    if args.n < 1 or args.eval_episodes < 2 or args.n_jobs < 1 or args.checkpoint_every < 1 \
+            or len(set(args.seeds)) != len(args.seeds):
+        parser.error(f"-n, --n-jobs and --checkpoint-every must be >= 1 (got {args.n}, {args.n_jobs}, "
+                     f"{args.checkpoint_every}), --eval-episodes >= 2 (got {args.eval_episodes}) and --seeds distinct")
     try:
         env_kwargs = json.loads(args.env_kwargs)
         if not isinstance(env_kwargs, dict):
@@ -587,13 +714,17 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:  # (json's JSONDecodeError is one)
         parser.error(f"--env-kwargs: {error}")
     folder.mkdir(parents=True, exist_ok=True)
-    jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs, args.task) for s in args.seeds
-            for v in args.variants]
+    jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs, args.task, args.checkpoint_every)
+            for s in args.seeds for v in args.variants]
+    print(estimate(folder, jobs, args.n_jobs), flush=True)
     if args.n_jobs == 1:  # in this process (each run sets torch to one thread, as the workers do)
         for job in jobs:
             print(run_and_save(*job), flush=True)
         return 0
-    with ProcessPoolExecutor(max_workers=args.n_jobs) as pool:
+    from sb3_emmarl.experiments.runner import die_with_parent
+
+    # (a worker ends with this process: a killed protocol leaves no run going on beside the next one)
+    with ProcessPoolExecutor(max_workers=args.n_jobs, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
         for line in pool.map(run_and_save, *zip(*jobs)):
             print(line, flush=True)
     return 0

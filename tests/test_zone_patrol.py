@@ -2,6 +2,7 @@
 the scripted teams' gate."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -254,6 +255,7 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     assert 0.0 <= em["belief_zone_accuracy"] <= 1.0 and 0.0 <= em["exact_team_zone_accuracy"] <= 1.0
     assert len(told["belief_executed"]) == 8
     assert 0 < sum(told["phase_seconds"].values()) <= told["seconds"] and told["load"]["start"]["cores"] >= 1
+    assert not list(tmp_path.glob("*.partial")) and told["resumed_at"] == [] and told["evaluation_seconds"] > 0
     # mode 5 = zone 2, fog: the wrong zones 3, 0, 1 in fog, the wrong weather zone 2 clear
     assert [bench.WRONG[f"wrong_zone_{k}"][5] for k in (1, 2, 3)] == [7, 1, 3] and bench.WRONG["wrong_weather"][5] == 4
     assert bench.main(["report", "--folder", str(tmp_path)]) == 0
@@ -275,6 +277,44 @@ def test_the_value_benchmark_trains_evaluates_and_reports_every_variant(tmp_path
     with pytest.raises(SystemExit):  # argparse: the argument named, before anything runs
         bench.main(["run", "--folder", str(tmp_path / "bad"), "--env-kwargs", '{"zone_cue": -1}'])
     assert "zone_cue must be" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+
+
+def test_a_protocol_killed_mid_run_continues_where_it_was_with_the_same_digits(tmp_path, capsys):
+    """SIGKILL at a random moment after a checkpoint: the run goes on from its newest checkpoint (the reserves
+    mid-episode, EM-PPO's belief and E-step, the random generators) and its record is the uninterrupted run's."""
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    bench = load_benchmark("zone_patrol_value")
+    flags = ["--variants", "em_ppo", "--seeds", "0", "-n", "12288", "--checkpoint-every", "4096", "--eval-episodes",
+             "2", "--n-jobs", "1"]
+    assert bench.main(["run", *flags, "--folder", str(tmp_path / "whole")]) == 0
+    killed = tmp_path / "killed"
+    process = subprocess.Popen([sys.executable, str(Path(bench.__file__)), "run", *flags, "--folder", str(killed)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while not list(killed.glob("*.partial/run_*_steps.zip")) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(random.Random(0).uniform(0.0, 1.0))
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not (killed / "em_ppo_0.json").exists(), "the run ended before it was killed: kill it sooner"
+    steps = sorted(int(p.name.split("_")[1]) for p in killed.glob("em_ppo_0.partial/run_*_steps.zip"))
+    assert steps and steps[-1] < 12288
+    capsys.readouterr()
+    assert bench.main(["run", *flags, "--folder", str(killed)]) == 0
+    assert "1 of 1 runs to do" in capsys.readouterr().out
+    whole, resumed = (json.loads((tmp_path / name / "em_ppo_0.json").read_text()) for name in ("whole", "killed"))
+    assert resumed["resumed_at"] == steps[-1:] and whole["resumed_at"] == []
+    timing = ("seconds", "phase_seconds", "load", "evaluation_seconds", "resumed_at")
+    assert {k: v for k, v in resumed.items() if k not in timing} == {k: v for k, v in whole.items() if k not in timing}
+    assert not list(killed.glob("*.partial"))
+    with pytest.raises(SystemExit):
+        bench.main(["run", "--folder", str(tmp_path / "bad"), "--checkpoint-every", "0"])
+    assert "--checkpoint-every must be >= 1 (got 1000000, 2, 0)" in capsys.readouterr().err
 
 
 def test_the_told_conditionings_keep_the_yaml_s_policy_arguments_and_are_scored_as_told():

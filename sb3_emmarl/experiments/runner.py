@@ -544,7 +544,7 @@ def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool
             ray.shutdown()
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def die_with_parent(parent_pid: int) -> None:
     """End this process when ``parent_pid`` (the runner that started it) dies: Linux's parent-death signal (SIGKILL),
     else a thread that polls the parent every second; and at once if the parent is already gone."""
     if sys.platform.startswith("linux"):
@@ -576,7 +576,7 @@ def _cell_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spec-stdin", action="store_true", help="read the specification's YAML from stdin")
     args = parser.parse_args(argv)
     if args.parent_pid is not None:
-        _die_with_parent(args.parent_pid)
+        die_with_parent(args.parent_pid)
     spec = spec_from(args.spec, sys.stdin.read() if args.spec_stdin else None)
     from sb3_emmarl.common.trust.atomic_files import write_text
 
