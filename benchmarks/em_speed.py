@@ -19,6 +19,7 @@ benchmarks/em_speed.py --algos em_ppo --belief-conditioning concat film mixture`
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -47,14 +48,16 @@ CONDITIONED = ("em_ppo", "oracle_ppo")
 
 
 def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_cpus: int = 0,
-          n_copies: int | None = None, belief_conditioning: str = "concat", env_id: str = ENV_ID):
+          n_copies: int | None = None, belief_conditioning: str = "concat", env_id: str = ENV_ID,
+          env_kwargs: dict | None = None):
     """The algorithm with its zoo YAML's settings on ``n_envs`` (or ``n_copies``) copies of ``env_id`` (through
-    ``vec_env_type``, in ``num_cpus`` processes; the global state in the infos for MAPPO and QMIX), or on ``env``; its
-    networks reading the belief or the told mode as ``belief_conditioning`` says."""
+    ``vec_env_type``, in ``num_cpus`` processes; the global state in the infos for MAPPO and QMIX; ``env_kwargs`` laid
+    over the YAML's), or on ``env``; its networks reading the belief or the told mode as ``belief_conditioning`` says."""
     settings = zoo_settings(algo, env_id)
     if env is None:
         env = make_vec_env(n_copies=int(n_copies or settings["n_envs"]), seed=seed,
-                           env_kwargs=settings.get("env_kwargs") or {}, vec_env_type=vec_env_type or "batched",
+                           env_kwargs={**(settings.get("env_kwargs") or {}), **(env_kwargs or {})},
+                           vec_env_type=vec_env_type or "batched",
                            num_cpus=num_cpus, env_fn=parallel_env_fn(env_id), with_state=algo in STATE_ALGOS)
     if belief_conditioning == "concat":
         return zoo_model(algo, env, seed, env_id)
@@ -62,11 +65,25 @@ def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_c
                      policy_kwargs=zoo_policy_kwargs(algo, env_id, belief_conditioning=belief_conditioning))
 
 
+def json_object(text: str) -> dict:
+    """``--env-kwargs``: a JSON object."""
+    try:
+        value = json.loads(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text!r}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text!r}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("-n", "--n-timesteps", type=int, default=100_000, help="agent-steps per turn")
     parser.add_argument("--rounds", type=int, default=3, help="turns of each algorithm")
     parser.add_argument("--env", default=ENV_ID, choices=sorted(ENV_MODULES), help="the task every turn trains on")
+    parser.add_argument("--env-kwargs", type=json_object, default={},
+                        help="the task's arguments over the YAML's, as a JSON object, e.g. "
+                             "'{\"scenario\": \"zone_raids\", \"shaping\": 0.5}'")
     parser.add_argument("--algos", nargs="+", default=["em_ppo", "ppo", "ppo_lstm"], choices=sorted(ZOO_ALGOS))
     parser.add_argument("--belief-conditioning", nargs="+", default=["concat"], choices=list(CONDITIONINGS),
                         help=f"how {' and '.join(CONDITIONED)} read the belief or the told mode (one turn each)")
@@ -81,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     phases: dict[str, list[dict[str, float]]] = {arm_name(*arm): [] for arm in arms}
     for round_ in range(args.rounds):
         for algo, conditioning in arms:
-            model = build(algo, seed=round_, belief_conditioning=conditioning, env_id=args.env)
+            model = build(algo, seed=round_, belief_conditioning=conditioning, env_id=args.env, env_kwargs=args.env_kwargs)
             times = PhaseTimes()
             start, start_cpu = time.perf_counter(), time.process_time()
             model.learn(args.n_timesteps, callback=times)
@@ -90,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
             cpu[name].append(time.process_time() - start_cpu)
             phases[name].append(times.seconds)
             print(f"round {round_} {name}: {seconds[name][-1]:.1f} s ({cpu[name][-1]:.1f} s of CPU)", flush=True)
-    print(f"\n{args.env}: {args.n_timesteps:,} agent-steps per turn, {args.rounds} turns each, one process, one torch thread "
+    print(f"\n{args.env} {json.dumps(args.env_kwargs)}: {args.n_timesteps:,} agent-steps per turn, {args.rounds} turns "
+          "each, one process, one torch thread "
           "(CPU: this process's CPU seconds, which other processes on the machine do not stretch)")
     print(f"{'algo':<20}{'median s':>10}{'agent-steps/s':>15}{'median CPU s':>14}")
     for name, values in seconds.items():

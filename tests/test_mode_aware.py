@@ -55,6 +55,30 @@ def test_relabel_tells_another_mode_and_bad_relabels_are_rejected():
             ModeObservationWrapper(make_vec_env(1, seed=0, env_kwargs=SMALL), relabel=bad)
 
 
+def test_a_subclass_appends_another_form_of_the_told_mode_at_resets_steps_and_episode_ends():
+    class ToldAsRow(ModeObservationWrapper):  # the told mode as one float, beside the observation's first value
+        def _bounds(self, dtype):
+            return np.array([-np.inf, 0.0], dtype), np.array([np.inf, N_MODES], dtype)
+
+        def _append(self, observations, told):
+            return np.stack([observations[:, 0], told], axis=1).astype(np.float32)
+
+    wrong = [next_strategy(mode) for mode in range(N_MODES)]
+    venv = ToldAsRow(make_vec_env(3, seed=0, env_kwargs=SMALL), relabel=wrong)
+    assert venv.observation_space.shape == (venv.venv.observation_space.shape[0] + 2,)
+    obs = venv.reset()
+    ends = 0
+    for step in range(12):  # crosses episode ends
+        np.testing.assert_array_equal(obs[:, -1], np.array(wrong)[true_modes(venv)])
+        np.testing.assert_array_equal(obs[:, -2], obs[:, 0])  # read from the observation it is appended to
+        obs, _, dones, infos = venv.step(np.random.default_rng(step).integers(0, 15, venv.num_envs))
+        for i in np.flatnonzero(dones):
+            terminal = infos[i]["terminal_observation"]
+            assert terminal[-1] == wrong[infos[i]["metrics"]["mode"]] and terminal[-2] == terminal[0]
+            ends += 1
+    assert ends
+
+
 def test_next_strategy_keeps_the_weather_and_changes_the_strategy_and_encode_inverts_decode():
     for mode in range(N_MODES):
         strategy, weather = decode_mode(mode)

@@ -55,7 +55,7 @@ class ModeObservationWrapper(AppendingVecEnvWrapper):
         if self.random_labels and relabel is not None:
             raise ValueError("give relabel or random_labels, not both: a random label replaces every mode")
         dtype = getattr(space, "dtype", np.float32)
-        super().__init__(venv, np.zeros(self.n_modes, dtype=dtype), np.ones(self.n_modes, dtype=dtype), dtype)
+        super().__init__(venv, *self._bounds(dtype), dtype)
         self.modes = np.zeros(venv.num_envs, dtype=np.int64)
         self.per_copy = max(1, int(getattr(venv, "agents_per_copy", 1)))
         self.labels = np.zeros(venv.num_envs, dtype=np.int64)  # with random_labels: each entry's label this episode
@@ -81,14 +81,26 @@ class ModeObservationWrapper(AppendingVecEnvWrapper):
                              f"true mode), got {relabel!r}")
         return np.asarray(values, dtype=np.int64)
 
-    def _one_hot(self, modes: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+    def _bounds(self, dtype: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds of what :meth:`_append` appends: the one-hot's (a subclass that appends another form of the told
+        mode gives its own)."""
+        return np.zeros(self.n_modes, dtype=dtype), np.ones(self.n_modes, dtype=dtype)
+
+    def _append(self, observations: np.ndarray, told: np.ndarray) -> np.ndarray:
+        """What is appended to each row of ``observations`` told the mode ``told``: its one-hot. A subclass may append
+        another form of the told mode (for example a direction read from the observations); which mode is told (the
+        true one, ``relabel``'s, a random label) and when (resets, steps, terminal observations) stays this class's."""
+        return np.eye(self.n_modes, dtype=self.observation_space.dtype)[told]
+
+    def _told(self, observations: np.ndarray, modes: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`_append` of the mode told for each row whose true mode is ``modes``."""
         if modes.min() < 0 or modes.max() >= self.n_modes:
             raise ValueError(f"modes must be in [0, {self.n_modes - 1}], got {modes}")
         if self.random_labels:
             told = self.labels if labels is None else labels
         else:
             told = modes if self.relabel is None else self.relabel[modes]
-        return np.eye(self.n_modes, dtype=self.observation_space.dtype)[told]
+        return self._append(observations, told)
 
     def _read_modes(self, infos: list[dict[str, Any]]) -> np.ndarray:
         try:
@@ -100,17 +112,18 @@ class ModeObservationWrapper(AppendingVecEnvWrapper):
         self.modes = self._read_modes(self.venv.unwrapped.reset_infos)
         if self.random_labels:
             self._draw_labels(np.arange(self.num_envs))
-        return self._one_hot(self.modes)
+        return self._told(observations, self.modes)
 
     def _step_extra(self, observations: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
                     ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         done = np.flatnonzero(dones)
-        terminal = {int(i): self._one_hot(np.array([infos[i]["metrics"]["mode"]]), self.labels[i:i + 1])[0]
+        terminal = {int(i): self._told(np.asarray(infos[i][TERMINAL_OBSERVATION])[None],
+                                       np.array([infos[i]["metrics"]["mode"]]), self.labels[i:i + 1])[0]
                     for i in done if TERMINAL_OBSERVATION in infos[i]}  # (the finished episode's mode)
         if self.random_labels and len(done):
             self._draw_labels(done)
         self.modes = self._read_modes(infos)
-        return self._one_hot(self.modes), terminal
+        return self._told(observations, self.modes), terminal
 
 
 def wrap_with_mode(env: Any, verbose: int = 0, random_labels: bool = False) -> VecEnv:

@@ -16,41 +16,28 @@ import time
 from pathlib import Path
 
 import numpy as np
-from gymnasium import spaces
-from stable_baselines3.common.vec_env import VecEnvWrapper
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
 import zone_patrol_value as bench
 
+from sb3_emmarl.common.mode_aware import ModeObservationWrapper
 from wildlife_reserve import reserve_v1
+from wildlife_reserve.reserve.modes import N_MODES
 
 
-class ToldZoneOffset(VecEnvWrapper):
-    """Appends each UAV's offset to the zone of its episode's strategy (``shift`` zones on: a wrong one)."""
+class ToldZoneOffset(ModeObservationWrapper):
+    """Appends each UAV's offset to the zone of its episode's strategy (``shift`` zones on: a wrong one): the told
+    wrapper's modes, relabelled by the shift, in another form (:meth:`ModeObservationWrapper._append`)."""
 
     def __init__(self, venv, shift: int = 0) -> None:
         self.zones = reserve_v1.parallel_env(scenario="zone_raids").observation_layout["zones"][0]
-        self.shift = shift
-        space = venv.observation_space
-        low, high = np.r_[space.low, -np.ones(2, space.dtype)], np.r_[space.high, np.ones(2, space.dtype)]
-        super().__init__(venv, observation_space=spaces.Box(low, high, dtype=space.dtype))
+        super().__init__(venv, relabel=[2 * ((m // 2 + shift) % 4) + m % 2 for m in range(N_MODES)])
 
-    def _told(self, obs: np.ndarray, modes: np.ndarray) -> np.ndarray:
-        zone = (modes // 2 + self.shift) % 4
-        offsets = obs[:, self.zones].reshape(len(obs), 4, 2)[np.arange(len(obs)), zone]
-        return np.concatenate([obs, offsets], axis=1)
+    def _bounds(self, dtype):
+        return -np.ones(2, dtype), np.ones(2, dtype)
 
-    def reset(self):
-        obs = self.venv.reset()
-        return self._told(obs, np.array([info["mode"] for info in self.venv.unwrapped.reset_infos]))
-
-    def step_wait(self):
-        obs, rewards, dones, infos = self.venv.step_wait()
-        for i in np.flatnonzero(dones):
-            if "terminal_observation" in infos[i]:
-                last = infos[i]["terminal_observation"][None]
-                infos[i]["terminal_observation"] = self._told(last, np.array([infos[i]["metrics"]["mode"]]))[0]
-        return self._told(obs, np.array([info["mode"] for info in infos])), rewards, dones, infos
+    def _append(self, observations: np.ndarray, told: np.ndarray) -> np.ndarray:
+        return observations[:, self.zones].reshape(len(observations), 4, 2)[np.arange(len(observations)), told // 2]
 
 
 def main() -> None:
