@@ -28,7 +28,7 @@ import torch as th
 
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.env_ids import ENV_MODULES, parallel_env_fn
-from sb3_emmarl.common.phases import PhaseTimes, median_phase_table
+from sb3_emmarl.common.phases import PhaseTimes, machine_load, median_phase_table
 from sb3_emmarl.common.trust.validation import CONDITIONINGS
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import STATE_ALGOS, ZOO_ALGOS
@@ -91,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.n_timesteps < 1 or args.rounds < 1:
         parser.error(f"-n and --rounds must be >= 1, got {args.n_timesteps} and {args.rounds}")
     th.set_num_threads(1)
+    load = machine_load()
     arms = [(algo, conditioning) for algo in args.algos
             for conditioning in (dict.fromkeys(["concat", *args.belief_conditioning]) if algo in CONDITIONED else ["concat"])]
     seconds: dict[str, list[float]] = {arm_name(*arm): [] for arm in arms}
@@ -110,6 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{args.env} {json.dumps(args.env_kwargs)}: {args.n_timesteps:,} agent-steps per turn, {args.rounds} turns "
           "each, one process, one torch thread "
           "(CPU: this process's CPU seconds, which other processes on the machine do not stretch)")
+    end = machine_load()
+    print(f"the machine's load average: {load['load_1min']:.1f} at the start, {end['load_1min']:.1f} at the end "
+          f"({end['cores']:.0f} cores)")
     print(f"{'algo':<20}{'median s':>10}{'agent-steps/s':>15}{'median CPU s':>14}")
     for name, values in seconds.items():
         print(f"{name:<20}{np.median(values):>10.1f}{args.n_timesteps / np.median(values):>15,.0f}"

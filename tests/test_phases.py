@@ -144,7 +144,8 @@ def test_em_speed_times_ppo_and_mappo_on_zone_patrol_by_phase(capsys):
     assert load_benchmark("em_speed").main(["--env", "ZonePatrol-v1", "--algos", "ppo", "mappo", "-n", "512",
                                             "--rounds", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert any(line.startswith("ZonePatrol-v1: 512 agent-steps per turn") for line in lines)
+    assert any(line.startswith("ZonePatrol-v1 {}: 512 agent-steps per turn") for line in lines)
+    assert any(line.startswith("the machine's load average: ") for line in lines)
     table = lines[next(i for i, line in enumerate(lines) if line.startswith("median seconds per turn by phase")) + 1:]
     columns = table[0].split()
     assert columns[0] == "arm" and "gradients" in columns and "belief" not in columns  # (neither has a belief)
