@@ -317,3 +317,75 @@ def test_bad_arguments_are_rejected_with_a_message():
     model = MAPPO("MlpPolicy", env, agent_id=True)
     with pytest.raises(ValueError, match="GlobalStateWrapper has agent_id=True, but agent_id=False"):
         MAPPO("MlpPolicy", model.env, agent_id=False)
+
+
+def _plain_first_layer(features, norm, linear):
+    return linear(features if norm is None else norm(features))
+
+
+@pytest.mark.parametrize("layer_norm", [True, False])
+def test_the_critic_s_first_layer_once_per_state_equals_the_plain_layer_and_its_gradients(layer_norm):
+    from sb3_emmarl.mappo.policies import first_layer_once_per_state, state_groups
+
+    gen = th.Generator().manual_seed(0)
+    obs, states, ids = th.randn(12, 5, generator=gen), th.randn(3, 7, generator=gen), th.eye(4).repeat(3, 1)
+    features = th.cat([obs, states.repeat_interleave(4, 0), ids], dim=1)[th.randperm(12, generator=gen)]  # 3 copies x 4
+    norm = th.nn.LayerNorm(16) if layer_norm else None
+    linear = th.nn.Linear(16, 6)
+    if norm is not None:
+        with th.no_grad():  # (not LayerNorm's initial 1 and 0: the rewriting must carry gamma and beta)
+            norm.weight.uniform_(0.5, 1.5, generator=gen)
+            norm.bias.uniform_(-0.5, 0.5, generator=gen)
+    probe = th.randn(7, 2, generator=gen)
+    groups = state_groups(features[:, 5:12], probe)
+    assert groups is not None and len(groups[0]) == 3
+    modules = [m for m in (norm, linear) if m is not None]
+    outputs, grads = [], []
+    for shared in (False, True):
+        for module in modules:
+            module.zero_grad()
+        out = (first_layer_once_per_state(features, 5, 12, norm, linear, *groups) if shared
+               else _plain_first_layer(features, norm, linear))
+        out.sin().sum().backward()
+        outputs.append(out.detach())
+        grads.append([p.grad.clone() for m in modules for p in m.parameters()])
+    th.testing.assert_close(outputs[1], outputs[0], rtol=1e-5, atol=1e-5)
+    for shared_grad, plain_grad in zip(grads[1], grads[0]):
+        th.testing.assert_close(shared_grad, plain_grad, rtol=1e-4, atol=1e-5)
+
+
+def test_states_that_differ_are_never_grouped_and_too_few_copies_are_not_worth_grouping():
+    from sb3_emmarl.mappo.policies import state_groups
+
+    gen = th.Generator().manual_seed(1)
+    states = th.randn(4, 6, generator=gen).repeat_interleave(3, 0)
+    assert state_groups(states, th.randn(6, 2, generator=gen)) is not None
+    blind = th.zeros(6, 2)  # every state projects to the same key: the row-by-row check refuses the merge
+    assert state_groups(states, blind) is None
+    assert state_groups(th.randn(8, 6, generator=gen), th.randn(6, 2, generator=gen)) is None  # all different
+
+
+def test_mappo_s_whole_rollout_epochs_use_the_groups_and_train_as_the_plain_critic_would():
+    """Two MAPPO runs from the same seed, one with the critic's first layer always plain: the same actions while the
+    parameters agree to rounding, and parameters equal to float32 rounding after the updates."""
+    from sb3_emmarl.mappo import policies
+
+    def trained(shared: bool):
+        env = make_vec_env(2, seed=0, env_kwargs={"n_uavs": 3, "grid_size": 20, "max_cycles": 20}, with_state=True)
+        model = MAPPO("MlpPolicy", env, n_steps=64, n_epochs=3, seed=0, policy_kwargs={"net_arch": [32]})
+        if not shared:
+            model.policy.mlp_extractor.state_columns = None
+        calls = []
+        original = policies.first_layer_once_per_state
+        policies.first_layer_once_per_state = lambda *args: calls.append(len(args[0])) or original(*args)
+        try:
+            model.learn(768)
+        finally:
+            policies.first_layer_once_per_state = original
+        return model, calls
+
+    shared, calls = trained(True)
+    plain, none = trained(False)
+    assert calls == [384] * 6 and none == []  # 2 rollouts x 3 epochs over 2 copies x 3 UAVs x 64 steps
+    for (name, a), (_, b) in zip(shared.policy.state_dict().items(), plain.policy.state_dict().items()):
+        th.testing.assert_close(a, b, rtol=1e-4, atol=1e-5, msg=name)

@@ -28,6 +28,7 @@ Where it departs from on-policy (all within SB3's machinery, which it reuses: ro
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from typing import Any, ClassVar, TypeVar, cast
 
 import numpy as np
@@ -280,8 +281,8 @@ class MAPPO(WrapsEnv, PPO):
         """MAPPO's update on the rollout just collected: update the value normaliser with its returns, then
         ``n_epochs`` passes of PPO's clipped surrogate, MAPPO's clipped Huber value loss on normalised targets and the
         entropy bonus, with the actor's and the critic's gradients clipped separately."""
-        # Long because it is SB3's PPO.train in one piece with MAPPO's value loss and separate clipping: the two read side
-        # by side, and a change in SB3's carries over line by line.
+        # With _epochs, SB3's PPO.train with MAPPO's value loss and separate clipping: the two read side by side, and a
+        # change in SB3's carries over line by line.
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         # (schedules since _setup_model, though PPO annotates them as floats or schedules)
@@ -297,14 +298,25 @@ class MAPPO(WrapsEnv, PPO):
             old_stats = (mean.clone(), var.clone())
             value_norm.update(buffer.returns)
         actor_parameters, critic_parameters = self.policy.actor_parameters(), self.policy.critic_parameters()
+        # The whole rollout as one batch (batch_size None): gathered once, its groups of equal global states found once
+        # (MAPPOPolicy.grouped); each epoch's permutation of its rows would change the sums' order only.
+        whole = next(buffer.get(batch_size)) if self.batch_size is None else None
+        grouped = self.policy.grouped(whole.observations) if whole is not None else nullcontext()
+        with grouped:
+            self._epochs(whole, batch_size, clip_range, clip_range_vf, old_stats, actor_parameters, critic_parameters)
 
+    def _epochs(self, whole: Any, batch_size: int, clip_range: float, clip_range_vf: float | None,
+                old_stats: tuple[th.Tensor, th.Tensor] | None, actor_parameters: list, critic_parameters: list) -> None:
+        """:meth:`train`'s ``n_epochs`` passes (over ``whole``, the rollout as one batch, or the buffer's minibatches)
+        and their logs."""
         entropy_losses, pg_losses, value_losses, clip_fractions = [], [], [], []
         approx_kl_divs: list[np.ndarray] = []
         actor_norms, critic_norms = [], []
         continue_training = True
+        buffer = self.rollout_buffer
         for epoch in range(self.n_epochs):
             approx_kl_divs = []
-            for rollout_data in buffer.get(batch_size):
+            for rollout_data in ([whole] if whole is not None else buffer.get(batch_size)):
                 actions = rollout_data.actions
                 if isinstance(self.action_space, spaces.Discrete):
                     actions = rollout_data.actions.long().flatten()

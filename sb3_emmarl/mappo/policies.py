@@ -19,6 +19,8 @@ output, for MAPPO's value loss. The normaliser's statistics are buffers of the p
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from typing import Any, cast
 
 import numpy as np
@@ -110,6 +112,63 @@ class ValueNorm(nn.Module):
         return f"beta={self.beta}, epsilon={self.epsilon}, min_var={self.min_var}"
 
 
+#: Rows from which the critic computes the first layer's product with the global state once per distinct state
+#: (:func:`first_layer_once_per_state`): a training batch; a rollout step's few rows take the plain path.
+SHARED_STATE_MIN_ROWS = 256
+
+
+def state_groups(state: th.Tensor, probe: th.Tensor) -> tuple[th.Tensor, th.Tensor] | None:
+    """Rows of ``state`` ``(N, S)`` grouped by equal value: ``(first, inverse)``, a row of each group and each row's
+    group; None when two different states project alike (never merged) or the rows hold fewer than two copies of each
+    state on average (nothing to share). The groups come from two random projections (``probe``, float32 ``(S, 2)``,
+    their bits one 64-bit key per row) and are checked row by row."""
+    keys = (state @ probe).contiguous().view(th.int64).reshape(-1)
+    _, inverse = th.unique(keys, return_inverse=True)
+    groups = int(inverse.max()) + 1 if len(inverse) else 0
+    if 2 * groups > len(state):
+        return None
+    first = th.empty(groups, dtype=th.long, device=state.device).scatter_(
+        0, inverse, th.arange(len(state), device=state.device))
+    if not th.equal(state.index_select(0, first).index_select(0, inverse), state):
+        return None
+    return first, inverse
+
+
+def first_layer_once_per_state(features: th.Tensor, lo: int, hi: int, norm: nn.LayerNorm | None, linear: nn.Linear,
+                               first: th.Tensor, inverse: th.Tensor) -> th.Tensor:
+    """``linear(norm(features))`` (``norm`` optional) computed with the product of ``linear``'s weights and the columns
+    ``[lo, hi)`` (the global state, the same for every agent of a copy at a step) once per group of rows with the same
+    state (:func:`state_groups`).
+
+    The same function, written out: with ``x = [r, s]`` (the rest and the state), ``W' = W diag(gamma)``, a LayerNorm
+    then a linear layer give ``(W' x - mean(x) W' 1) / sqrt(var(x) + eps) + W beta + b``, whose ``W'_s s`` and the
+    state's sums enter each row through its group; without the norm, ``W x + b``. Equal to the plain path up to
+    floating-point rounding (a different order of sums), with gradients for every parameter. Written here because torch
+    has no layer that shares an input block across rows.
+
+    :param features: ``(N, D)`` the critic's input
+    :param lo: the state's first column
+    :param hi: one past its last
+    :param norm: the input's LayerNorm, or None
+    :param linear: the first linear layer (``D`` inputs)
+    :param first: a row of each group
+    :param inverse: each row's group
+    """
+    states = features[:, lo:hi].index_select(0, first)
+    rest = th.cat([features[:, :lo], features[:, hi:]], dim=1)
+    weight = linear.weight if norm is None else linear.weight * norm.weight
+    bias = linear.bias if norm is None else linear.bias + linear.weight @ norm.bias
+    shared = states @ weight[:, lo:hi].T  # (groups, hidden): the state's part, once per group
+    out = rest @ th.cat([weight[:, :lo], weight[:, hi:]], dim=1).T + shared.index_select(0, inverse)
+    if norm is None:
+        return out + bias
+    width = features.shape[1]
+    mean = (rest.sum(1) + states.sum(1).index_select(0, inverse)) / width
+    var = ((rest * rest).sum(1) + (states * states).sum(1).index_select(0, inverse)) / width - mean * mean
+    scale = th.rsqrt(var.clamp(min=0.0) + norm.eps)
+    return scale[:, None] * (out - mean[:, None] * weight.sum(1)[None, :]) + bias
+
+
 def _mlp(input_dim: int, sizes: list[int], activation_fn: type[nn.Module], layer_norm: bool) -> nn.Sequential:
     """on-policy's ``MLPBase``: [LayerNorm(input)], then ``Linear -> activation -> [LayerNorm]`` per hidden layer."""
     layers: list[nn.Module] = [nn.LayerNorm(input_dim)] if layer_norm else []
@@ -130,10 +189,13 @@ class MAPPOExtractor(nn.Module):
     :param net_arch: hidden sizes, shared by both networks (a list) or ``dict(pi=[...], vf=[...])``
     :param activation_fn: activation
     :param layer_norm: LayerNorm on the input and after each hidden layer
+    :param state_dim: the global state's size, right after the actor's features in the critic's: the critic's first
+        layer then computes its product with the state once per distinct state in a training batch (the agents of a
+        copy share it; :func:`first_layer_once_per_state`); None: always the plain path
     """
 
     def __init__(self, actor_dim: int, critic_dim: int, net_arch: list[int] | dict[str, list[int]],
-                 activation_fn: type[nn.Module], layer_norm: bool) -> None:
+                 activation_fn: type[nn.Module], layer_norm: bool, state_dim: int | None = None) -> None:
         super().__init__()
         if isinstance(net_arch, dict):
             pi_sizes, vf_sizes = list(net_arch.get("pi", [])), list(net_arch.get("vf", []))
@@ -144,6 +206,10 @@ class MAPPOExtractor(nn.Module):
         self.value_net = _mlp(critic_dim, vf_sizes, activation_fn, layer_norm)
         self.latent_dim_pi = pi_sizes[-1] if pi_sizes else actor_dim
         self.latent_dim_vf = vf_sizes[-1] if vf_sizes else critic_dim
+        self.state_columns = None if state_dim is None or not vf_sizes else (actor_dim, actor_dim + state_dim)
+        # (fixed projections, not parameters: a buffer would change the saved policy's keys)
+        self._probe = th.randn(state_dim or 0, 2, generator=th.Generator().manual_seed(0))
+        self._groups: tuple[th.Tensor, th.Tensor] | None = None
 
     def forward(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -153,8 +219,31 @@ class MAPPOExtractor(nn.Module):
         return self.policy_net(features[..., : self.obs_dim])
 
     def forward_critic(self, features: th.Tensor) -> th.Tensor:
-        """The critic's latent from the whole augmented observation."""
-        return self.value_net(features)
+        """The critic's latent from the whole augmented observation (a training batch's first layer once per state)."""
+        if (self.state_columns is None or features.ndim != 2 or len(features) < SHARED_STATE_MIN_ROWS
+                or features.dtype != th.float32):
+            return self.value_net(features)
+        lo, hi = self.state_columns
+        groups = self._groups if self._groups is not None and len(self._groups[1]) == len(features) else None
+        groups = groups or state_groups(features[:, lo:hi], self._probe.to(features.device))
+        if groups is None:
+            return self.value_net(features)
+        norm = self.value_net[0] if isinstance(self.value_net[0], nn.LayerNorm) else None
+        linear = self.value_net[1 if norm is not None else 0]
+        assert isinstance(linear, nn.Linear)  # (_mlp's layout)
+        return self.value_net[2 if norm is not None else 1:](first_layer_once_per_state(features, lo, hi, norm, linear,
+                                                                                        *groups))
+
+    @contextmanager
+    def grouped(self, state: th.Tensor) -> Iterator[None]:
+        """Within the block, the critic's forward passes on ``len(state)`` rows take their groups of equal states from
+        ``state`` (the same rows, in the same order: MAPPO's epochs over one whole rollout) instead of finding them at
+        each pass."""
+        self._groups = state_groups(state, self._probe.to(state.device)) if state.dtype == th.float32 else None
+        try:
+            yield
+        finally:
+            self._groups = None
 
 
 class MAPPOPolicy(ActorCriticPolicy):
@@ -221,13 +310,19 @@ class MAPPOPolicy(ActorCriticPolicy):
         layout = self.state_layout
         actor_dim = self.features_dim - (layout.critic_dim - layout.obs_dim)
         self.mlp_extractor = MAPPOExtractor(  # type: ignore[assignment]  # SB3 types it MlpExtractor; any module with its interface works
-            actor_dim, self.features_dim, self.net_arch, self.activation_fn, self.layer_norm)
+            actor_dim, self.features_dim, self.net_arch, self.activation_fn, self.layer_norm, layout.state_dim)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(state_layout=self.state_layout.to_dict(), layer_norm=self.layer_norm,
                     value_norm=self.value_norm is not None, value_norm_beta=self._value_norm_beta)
         return data
+
+    def grouped(self, observations: th.Tensor) -> AbstractContextManager[None]:
+        """:meth:`MAPPOExtractor.grouped` with the global state of these augmented observations."""
+        layout = self.state_layout
+        extractor = cast(MAPPOExtractor, self.mlp_extractor)  # (_build_mlp_extractor's)
+        return extractor.grouped(observations[:, layout.obs_dim:layout.obs_dim + layout.state_dim])
 
     # ------------------------------------------------------------------ values in the returns' units
     def denormalize(self, values: th.Tensor) -> th.Tensor:
