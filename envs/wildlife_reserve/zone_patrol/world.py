@@ -184,6 +184,11 @@ class ZonePatrolWorld:
                                     float(config.spawn_prob), int(config.track_life))
         self._layout = kernels.Layout(int(config.window_radius), int(config.track_life), bool(config.agent_ids))
         self._subsets: list[tuple[int, ...]] | None = None
+        # Made once (each step reads them): the zones' corners, the link masks' bits, the not-itself mask, the counts.
+        self._origins = config.zone_origins()
+        self._bits = 1 << np.arange(config.n_uavs)
+        self._others = ~np.eye(config.n_uavs, dtype=bool)[None]
+        self._counts = kernels.Counts(*(np.zeros(c, dtype=np.int64) for _ in range(3)))
         # The kernels' records of the arrays above, made once (the arrays are changed in place from here on).
         self._team = kernels.Team(self.positions, self.sensors, self.detections)
         self._intruders = kernels.Intruders(self.intruders, self.ages, self.alive, self.detected_cells, self.tracks)
@@ -249,9 +254,11 @@ class ZonePatrolWorld:
         cfg, c, m = self.config, self.n_copies, self.alive.shape[1]
         draws = kernels.Draws(rng.random((c, cfg.n_uavs, m)), rng.random((c, m)), rng.integers(4, size=(c, m)),
                               rng.random(c), rng.integers(cfg.zone_size, size=(c, 2)))
-        counts = kernels.Counts(*(np.zeros(c, dtype=np.int64) for _ in range(3)))
+        counts = self._counts
+        for count in counts:
+            count[:] = 0
         kernels.advance(np.ascontiguousarray(actions, dtype=np.int64), self._team, self._intruders,
-                        cfg.zone_origins()[self.zones], self.weathers, draws, self._rules, counts)
+                        self._origins[self.zones], self.weathers, draws, self._rules, counts)
         found, escaped, spawned = counts
         self.caught += found
         self.escaped += escaped
@@ -277,7 +284,7 @@ class ZonePatrolWorld:
     def near(self) -> np.ndarray:
         """``(n_copies, n_uavs, n_uavs)``: whether teammate ``j`` is within ``comm_range`` of UAV ``i`` (never itself)."""
         gap = np.abs(self.positions[:, :, None, :] - self.positions[:, None, :, :]).max(-1)
-        return (gap <= self.config.comm_range) & ~np.eye(self.config.n_uavs, dtype=bool)[None]
+        return (gap <= self.config.comm_range) & self._others
 
     def links(self) -> list[list[tuple[int, ...]]]:
         """``[copy][uav]``: the teammates within ``comm_range`` (the UAV's ``heard_from``), each a sorted tuple."""
@@ -287,7 +294,7 @@ class ZonePatrolWorld:
         near = self.near()
         if not self._subsets:
             return [[tuple(np.flatnonzero(row).tolist()) for row in copy] for copy in near]
-        masks = near @ (1 << np.arange(n))
+        masks = near @ self._bits
         subsets = self._subsets
         return [[subsets[m] for m in row] for row in masks.tolist()]
 

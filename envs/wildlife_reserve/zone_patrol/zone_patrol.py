@@ -220,8 +220,7 @@ class ZonePatrolParallelEnv(ParallelEnv):
         self._check_running()
         joint = np.asarray(actions)
         n = self.config.n_uavs
-        if joint.shape != (n,) or not np.issubdtype(joint.dtype, np.integer) or joint.min() < 0 \
-                or joint.max() >= N_MOVES * N_SENSORS:
+        if joint.shape != (n,) or joint.dtype.kind not in "iu" or not 0 <= joint.min() <= joint.max() < N_MOVES * N_SENSORS:
             raise ValueError(f"actions must be {n} ints in [0, {N_MOVES * N_SENSORS - 1}], got {actions!r}")
         if out is not None and (out.shape != (n, self.obs_dim) or out.dtype != np.float32):
             raise ValueError(f"out must be a float32 array of shape {(n, self.obs_dim)}, got {out.dtype} {out.shape}")
