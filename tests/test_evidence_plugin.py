@@ -255,3 +255,17 @@ def test_the_beliefs_copy_of_the_model_follows_every_write_the_package_makes():
         model.decoder_bias.data = th.zeros_like(model.decoder_bias)  # a tensor replaced
     assert model.version() != version
     check()
+
+
+def test_the_package_s_plug_ins_are_asked_first_even_when_another_was_registered_before_them(plugins):
+    from sb3_emmarl.common.latent.evidence import BUILTIN_PLUGINS, LatentEvidence, register_evidence, registered_plugins
+
+    class Mine(LatentEvidence):
+        kind = "mine"
+
+    plugins.clear()  # (as in a fresh process where a user's plug-in is registered before any model is built)
+    register_evidence(Mine)
+    order = list(registered_plugins())
+    assert order[-1] == "mine" and len(order) == len(BUILTIN_PLUGINS) + 1
+    assert [plugins[kind].__name__ for kind in order[:-1]] == [target.split(":")[1] for target in BUILTIN_PLUGINS]
+    assert list(registered_plugins()) == order  # (asked again: the same)

@@ -120,3 +120,21 @@ def test_a_finished_run_says_where_its_curves_are_and_what_to_run_next():
     assert "tensorboard --logdir runs" in text and "emmarl enjoy --algo em_ppo" in text and "-n 5120" in text
     text = next_steps(Namespace(**{**vars(args), "env": "ZonePatrol-v0", "tensorboard_log": ""}), "x", 10)
     assert "tensorboard" not in text and "zone_patrol_value.py" in text
+
+
+def test_the_command_s_help_and_the_package_import_no_torch():
+    """``emmarl --help`` lists the commands without torch or SB3 (the package's names are imported when first used)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import sb3_emmarl; from sb3_emmarl.cli import main; main(['--help']); "
+            "assert not {'torch', 'stable_baselines3'} & set(sys.modules); "
+            "from sb3_emmarl import EMPPO; assert EMPPO.__name__ == 'EMPPO' and 'torch' in sys.modules; "
+            "assert 'EMPPO' in dir(sb3_emmarl)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "train" in done.stdout
+    with pytest.raises(AttributeError, match="no attribute 'EMPP0'"):
+        import sb3_emmarl
+
+        sb3_emmarl.EMPP0  # noqa: B018

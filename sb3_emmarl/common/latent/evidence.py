@@ -21,6 +21,7 @@ when ``sb3_emmarl`` is imported; ``docs/em.md`` ("Your own evidence") shows how 
 
 from __future__ import annotations
 
+import importlib
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar, Protocol, TypeVar
 
@@ -165,10 +166,31 @@ def env_attribute(venv: VecEnv, name: str) -> Any:
         return None
 
 
+#: The package's own plug-ins (``module:class``), asked before any other: registered on first use (their modules
+#: import this one).
+BUILTIN_PLUGINS = ("sb3_emmarl.common.latent.reserve_evidence:ReserveEvidence",
+                   "sb3_emmarl.common.latent.zone_evidence:ZoneEvidence")
+
+
+def registered_plugins() -> dict[str, type[LatentEvidence]]:
+    """:data:`PLUGINS`, the package's own (:data:`BUILTIN_PLUGINS`) first, then the others in the order they were
+    registered."""
+    builtins = []
+    for target in BUILTIN_PLUGINS:
+        module, name = target.split(":")
+        builtins.append(register_evidence(getattr(importlib.import_module(module), name)))
+    ordered = {plugin.kind: plugin for plugin in builtins}
+    ordered.update((kind, plugin) for kind, plugin in PLUGINS.items() if kind not in ordered)
+    if list(ordered) != list(PLUGINS):
+        PLUGINS.clear()
+        PLUGINS.update(ordered)
+    return PLUGINS
+
+
 def evidence_of(venv: VecEnv) -> LatentEvidence:
-    """The evidence of ``venv``'s environment: the first registered plug-in that reads it, else
-    :class:`GenericEvidence`."""
-    for plugin in PLUGINS.values():
+    """The evidence of ``venv``'s environment: the first registered plug-in that reads it (the package's own first),
+    else :class:`GenericEvidence`."""
+    for plugin in registered_plugins().values():
         evidence = plugin.from_env(venv)
         if evidence is not None:
             return evidence
@@ -177,7 +199,7 @@ def evidence_of(venv: VecEnv) -> LatentEvidence:
 
 def evidence_from_spec(spec: dict[str, Any]) -> LatentEvidence:
     """The plug-in a specification (:attr:`LatentEvidence.spec`, a saved model's ``evidence_spec``) was made by."""
-    plugins: dict[str, type[LatentEvidence]] = {**PLUGINS, GenericEvidence.kind: GenericEvidence}
+    plugins: dict[str, type[LatentEvidence]] = {**registered_plugins(), GenericEvidence.kind: GenericEvidence}
     kind = spec.get("kind")
     if kind not in plugins:
         *others, last = [repr(name) for name in plugins]
