@@ -71,7 +71,7 @@ def test_runs_add_up_and_arms_taking_turns_give_their_medians():
                               "policy forward": 1.0, "other": 1.0}
     table = totals.table()
     assert table.startswith("where the training time of 2 runs went") and "wall / floor 2.00" in table
-    with pytest.raises(ValueError, match="phases must be among .* got \\['training'\\]"):
+    with pytest.raises(ValueError, match=r"phases must be among .* got \['training'\]"):
         totals.add({"training": 1.0}, 1.0)
     with pytest.raises(ValueError, match="wall time is needed"):
         totals.add({"environment": 1.0})
