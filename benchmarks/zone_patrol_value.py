@@ -364,7 +364,8 @@ def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | 
     th.set_num_threads(1)
     env_kwargs = dict(env_kwargs or {})
     model, training = train(variant, seed, budget, env_kwargs, task, partial, every)
-    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task, **training}
+    record = {"variant": variant, "seed": seed, "budget": budget, "env_kwargs": env_kwargs, "task": task,
+              "belief_conditioning": getattr(model.policy, "belief_conditioning", "concat"), **training}
     evaluating = time.perf_counter()
     wrap = getattr(model, "wrap_env", ExactBelief if variant == "exact_belief" else lambda v: v)
     beliefs: list = []
@@ -547,13 +548,24 @@ def exceeds(name_a: str, a: np.ndarray, name_b: str, b: np.ndarray) -> str:
 EM_VARIANTS = tuple(v for v in VARIANTS if v.startswith("em_ppo"))
 
 
-def settings(variant: str, task: str = "zone_patrol") -> str:
+def conditioning_of(record: dict) -> str:
+    """How a run's networks read the mode or the belief: its record's ``belief_conditioning``; a record written before
+    it was kept (0.22.0), by its variant's own arguments (the YAMLs then read it by concatenation)."""
+    given = ALGOS[record["variant"]][1].get("policy_kwargs", {})
+    return record.get("belief_conditioning") or given.get("belief_conditioning", "concat")
+
+
+def settings(variant: str, task: str = "zone_patrol", conditioning: str | None = None) -> str:
     """The settings a variant trains with (PROTOCOL item 10: every comparison names them): its zoo YAML section's PPO
-    settings, and its latent settings (EM) or what it appends to the observation."""
+    settings, and its latent settings (EM) or what it appends to the observation; ``conditioning``: its runs'
+    ``belief_conditioning`` (:func:`conditioning_of`), in place of today's YAML's."""
     from sb3_emmarl.zoo.algos import merge_hyperparams
-    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams
+    from sb3_emmarl.zoo.exp_manager import zoo_hyperparams, zoo_policy_kwargs
 
     algo, overrides = variant_overrides(variant, task)
+    if conditioning is not None and algo in ("em_ppo", "oracle_ppo"):
+        kwargs = zoo_policy_kwargs(algo, TASKS[task].env_id, **overrides.get("policy_kwargs", {}))
+        overrides = {**overrides, "policy_kwargs": {**kwargs, "belief_conditioning": conditioning}}
     section = merge_hyperparams(zoo_hyperparams(algo, TASKS[task].env_id), overrides)
     section = {**section, **section.pop("latent_kwargs", {})}  # (EM's settings named one by one)
     if variant == "exact_belief":
@@ -614,7 +626,12 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
     by = {v: {r["seed"]: r for r in runs if r["variant"] == v} for v in VARIANTS}
     lines = [heading(runs)]
     task = runs[0].get("task", "zone_patrol")
-    lines += ["settings: " + settings(v, task) for v in VARIANTS if by[v]]
+    for v in (v for v in VARIANTS if by[v]):
+        conditionings = sorted({conditioning_of(r) for r in by[v].values()})
+        if len(conditionings) > 1:
+            raise SystemExit(f"the {v} runs read the mode or the belief in different ways {conditionings} (the default "
+                             "changed between them): report them apart")
+        lines.append("settings: " + settings(v, task, conditionings[0]))
 
     means = partial(seed_means, by)
 

@@ -327,6 +327,18 @@ def test_the_told_conditionings_keep_the_yaml_s_policy_arguments_and_are_scored_
     model.env.close()
 
 
+def test_runs_say_how_they_read_the_mode_and_runs_that_differ_are_not_pooled():
+    bench = load_benchmark("zone_patrol_value")
+    old = {"variant": "em_ppo", "seed": 0, "budget": 4096, "task": "zone_patrol", "env_kwargs": {}}  # (0.22.0's record)
+    assert bench.conditioning_of(old) == "concat"
+    assert bench.conditioning_of({**old, "variant": "em_ppo_mixture"}) == "mixture"
+    assert bench.conditioning_of({**old, "belief_conditioning": "mixture"}) == "mixture"
+    assert "'belief_conditioning': 'concat'" in bench.settings("em_ppo", conditioning="concat")
+    with pytest.raises(SystemExit, match=r"the em_ppo runs read the mode or the belief in different ways \['concat', "
+                                         r"'mixture'\]"):
+        bench.report([old, {**old, "seed": 1, "belief_conditioning": "mixture"}])
+
+
 def test_the_protocols_bar_and_its_null_calibration():
     bench = load_benchmark("zone_patrol_value")
     rng = np.random.default_rng(0)
