@@ -211,6 +211,10 @@ class ZonePatrolWorld:
         if modes.min() < 0 or modes.max() >= cfg.n_modes:
             raise ValueError(f"mode must be an int in [0, {cfg.n_modes - 1}], got {modes.tolist()}")
         self.modes = modes
+        # What each step reads of the modes, fixed for the episode: its zones' corners, weathers, clear skies, zone signal.
+        self._origins_now, self._weathers_now = self._origins[self.zones], self.weathers
+        self._clear_now = (self._weathers_now == CLEAR).astype(np.float64)[:, None]
+        self._signal_now = cfg.zone_cue * (np.arange(N_ZONES)[None, :] == self.zones[:, None])  # (c, 4)
         centre = cfg.grid_size // 2
         self.positions[:] = centre - 2 + rng.integers(4, size=(c, cfg.n_uavs, 2))  # (in place: the records hold it)
         self.alive[:] = False
@@ -234,15 +238,13 @@ class ZonePatrolWorld:
         self.cues = self._read_cues(rng)
 
     def _read_visibility(self, rng: np.random.Generator) -> np.ndarray:
-        clear = (self.weathers == CLEAR).astype(np.float64)[:, None]
-        return clear + self.config.visibility_noise * rng.standard_normal((self.n_copies, self.config.n_uavs))
+        return self._clear_now + self.config.visibility_noise * rng.standard_normal((self.n_copies, self.config.n_uavs))
 
     def _read_cues(self, rng: np.random.Generator) -> np.ndarray:
         """The zone readings ``(c, n, 4)`` (none without ``zone_cue``: nothing is drawn, the episodes stay as they were)."""
         if not self.config.zone_cue:
             return self.cues
-        signal = self.config.zone_cue * (np.arange(N_ZONES)[None, :] == self.zones[:, None])  # (c, 4)
-        return signal[:, None, :] + rng.standard_normal((self.n_copies, self.config.n_uavs, N_ZONES))
+        return self._signal_now[:, None, :] + rng.standard_normal((self.n_copies, self.config.n_uavs, N_ZONES))
 
     def step(self, actions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One step of every copy; ``actions`` ``(n_copies, n_uavs)`` ints in ``[0, 10)``. Returns the team rewards.
@@ -258,7 +260,7 @@ class ZonePatrolWorld:
         for count in counts:
             count[:] = 0
         kernels.advance(np.ascontiguousarray(actions, dtype=np.int64), self._team, self._intruders,
-                        self._origins[self.zones], self.weathers, draws, self._rules, counts)
+                        self._origins_now, self._weathers_now, draws, self._rules, counts)
         found, escaped, spawned = counts
         self.caught += found
         self.escaped += escaped
