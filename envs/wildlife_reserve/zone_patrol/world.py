@@ -189,6 +189,7 @@ class ZonePatrolWorld:
         self._bits = 1 << np.arange(config.n_uavs)
         self._others = ~np.eye(config.n_uavs, dtype=bool)[None]
         self._counts = kernels.Counts(*(np.zeros(c, dtype=np.int64) for _ in range(3)))
+        self._track_values = (np.arange(config.track_life + 1) / config.track_life).astype(np.float32)  # by life left
         # The kernels' records of the arrays above, made once (the arrays are changed in place from here on).
         self._team = kernels.Team(self.positions, self.sensors, self.detections)
         self._intruders = kernels.Intruders(self.intruders, self.ages, self.alive, self.detected_cells, self.tracks)
@@ -301,15 +302,18 @@ class ZonePatrolWorld:
         return [[subsets[m] for m in row] for row in masks.tolist()]
 
     def states(self) -> np.ndarray:
-        """``(n_copies, state_dim)`` float32 global states (for centralised critics)."""
+        """``(n_copies, state_dim)`` float32 global states (for centralised critics): the UAVs' positions in [-1, 1],
+        the intruders' map, the tracks' map (a track's life over ``track_life``) and the episode's progress. Written into
+        one array (each value as the float64 expression rounded to float32, as when the parts were concatenated)."""
         cfg = self.config
-        c, g = self.n_copies, cfg.grid_size
-        intruders = np.zeros((c, g, g), dtype=np.float32)
+        c, g, head = self.n_copies, cfg.grid_size, 2 * cfg.n_uavs
+        out = np.zeros((c, cfg.state_dim), dtype=np.float32)
+        out[:, :head] = (self.positions / max(g - 1, 1) * 2.0 - 1.0).reshape(c, -1)
         cc, mm = np.nonzero(self.alive)
-        intruders[cc, self.intruders[cc, mm, 0], self.intruders[cc, mm, 1]] = 1.0
-        own = (self.positions / max(g - 1, 1) * 2.0 - 1.0).reshape(c, -1)
-        return np.concatenate([own, intruders.reshape(c, -1), (self.tracks / cfg.track_life).reshape(c, -1),
-                               np.full((c, 1), self.t / cfg.max_cycles)], axis=1).astype(np.float32)
+        out[:, head:head + g * g].reshape(c, g, g)[cc, self.intruders[cc, mm, 0], self.intruders[cc, mm, 1]] = 1.0
+        out[:, head + g * g:head + 2 * g * g] = self._track_values[self.tracks.reshape(c, -1)]
+        out[:, -1] = self.t / cfg.max_cycles
+        return out
 
     def metrics(self) -> list[dict[str, float]]:
         """Each copy's episode metrics so far."""
