@@ -164,6 +164,7 @@ def test_a_killed_runner_resumes_without_redoing_finished_cells_then_reports(tmp
     assert experiment_main([str(spec), "-f", str(runs), "--n-jobs", "2"]) == 0
     out = capsys.readouterr().out
     assert f"4 cells, {len(before)} finished, {4 - len(before)} to run" in out
+    assert f"{4 - len(before)} cells to run: about 0 h " in out  # (estimated from the cells stored before the kill)
     assert docs_state() == docs and page.read_text() == "# Results\n\nHand-written text stays.\n"
     report = (runs / "tiny" / "quick" / "results.md").read_text()
     assert report.startswith("### Table 0: A tiny experiment") and f"Made with sb3-emmarl {__version__}" in report
@@ -227,6 +228,7 @@ def test_conditions_chosen_run_alone_and_the_others_stay_to_run(tmp_path):
     run = {"n_jobs": 1, "log": lines.append, "spec_path": str(path), "conditions": ["small"]}
     assert run_experiment(spec, "quick", store, tmp_path, **run) == 1
     assert lines[0] == "tiny (quick): 1 cells, 0 finished, 1 to run (local)"
+    assert lines[1] == "1 cells to run; no stored cell yet to estimate their time from"
     assert store.finished("tiny", "quick") == {("ppo", "small", 0)}
     assert run_experiment(spec, "quick", store, tmp_path, **run) == 0
 
@@ -272,3 +274,15 @@ def test_a_ray_address_no_cluster_answers_at_is_refused_at_once(tmp_path, capsys
                          str(tmp_path / "runs")])
     assert stop.value.code == 2 and f"--address 127.0.0.1:{port}: no Ray cluster answers there" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_time_to_go_is_each_cell_at_its_algorithm_s_median_seconds_over_the_slots():
+    from sb3_emmarl.experiments.runner import slots_hint, time_to_go
+
+    rows = [{"algorithm": "ppo", "metrics": {"train_seconds": 600.0}},
+            {"algorithm": "ppo", "metrics": {"train_seconds": 1800.0}},
+            {"algorithm": "a2c", "metrics": {"train_seconds": 300.0}}, {"algorithm": "a2c", "metrics": {}}]
+    todo = [("ppo", "clean", 5), ("ppo", "clean", 6), ("em_ppo", "clean", 0)]  # em_ppo: the median of every cell, 600
+    assert time_to_go(rows, todo, 2).startswith("3 cells to run: about 0 h 25 min of training at 2 at a time")
+    assert time_to_go(rows, todo, None).startswith("3 cells to run: about 0 h 50 min of training at 1 at a time")
+    assert slots_hint("local", 3) == 3 and slots_hint("local", None) >= 1 and slots_hint("ray", None) is None

@@ -388,6 +388,8 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
         + (f" by {version[0]}" if rerun_stale else "") + f", {len(cells) - len(done)} to run ({backend})")
     if len(done) == len(cells):
         return 0
+    todo = [cell for cell in cells if cell not in done]
+    log(time_to_go(store.rows(spec.name, budget), todo, slots_hint(backend, n_jobs)))
     name, text = _spec_source(spec, spec_path)
     start = time.perf_counter()
     with _backend(backend, n_jobs, address, gather) as (slots, submit, wait_any, collect):
@@ -403,6 +405,35 @@ def run_experiment(spec: ExperimentSpec, budget: str, store: ResultStore, root: 
             store.release(scheduler.runner)
     log(f"{spec.name} ({budget}): {ran} cells in {time.perf_counter() - start:.0f} s")
     return ran
+
+
+def slots_hint(backend: str, n_jobs: int | None) -> int | None:
+    """The cells that will run at once, when known before the backend starts (local: ``n_jobs`` or the cores)."""
+    if backend != "local":
+        return n_jobs
+    return n_jobs or os.cpu_count() or 1
+
+
+def time_to_go(rows: list[dict[str, Any]], todo: list[tuple[str, str, int]], slots: int | None) -> str:
+    """The cells still to run and their time, before they start: each at the median training seconds of the stored
+    cells of its algorithm (any algorithm's, for one with none), ``slots`` at a time (the evaluations not counted).
+
+    :param rows: the stored cells (:meth:`ResultStore.rows`)
+    :param todo: the cells to run, ``(algorithm, condition, seed)``
+    :param slots: cells at once (None: unknown, the total is given for one at a time)
+    """
+    seconds: dict[str, list[float]] = {}
+    for row in rows:
+        if "train_seconds" in row["metrics"]:
+            seconds.setdefault(row["algorithm"], []).append(float(row["metrics"]["train_seconds"]))
+    if not seconds:
+        return f"{len(todo)} cells to run; no stored cell yet to estimate their time from"
+    every = [value for values in seconds.values() for value in values]
+    total = sum(float(np.median(seconds.get(algorithm, every))) for algorithm, _, _ in todo)
+    hours, minutes = divmod(round(total / (slots or 1) / 60), 60)
+    return (f"{len(todo)} cells to run: about {hours} h {minutes:02d} min of training at {slots or 1} at a time (each "
+            f"at its algorithm's median training seconds over the {len(rows)} stored cells, on the machines and loads "
+            "they ran on)")
 
 
 class _Scheduler:
@@ -489,7 +520,7 @@ def _backend(backend: str, n_jobs: int | None, address: str | None, gather: bool
     collect(handle) -> result)`` of a backend, shut down on exit (running cells killed first): ``submit`` runs
     :func:`run_cell_process` with the positional ``args`` and the driver's package ``version``."""
     if backend == "local":
-        slots = (os.cpu_count() or 1) if n_jobs is None else n_jobs
+        slots = slots_hint("local", n_jobs) or 1
         pool = ThreadPoolExecutor(max_workers=slots)
 
         def submit_local(args: tuple, version: str) -> Future:
