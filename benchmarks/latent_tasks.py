@@ -78,7 +78,10 @@ EM_CANDIDATES["em_ppo_sb3_patient"] = {"ppo": "sb3", "latent_kwargs": {
 # first 4-6 seeds but not the goal task's area (0.56-0.82), where em_ppo_sb3_mixture reached it on 4 of 8 seeds
 EM_CANDIDATES["em_ppo_sb3_patient_mixture"] = {**EM_CANDIDATES["em_ppo_sb3_patient"],
                                                "policy_kwargs": {"belief_conditioning": "mixture"}}
-ALL_VARIANTS = (*VARIANTS, TOLD_SB3, *EM_CANDIDATES)
+#: PPO at SB3's own defaults on the goal task with the exact posterior of its cues appended (``ExactCues``): how fast a
+#: learner acting on a right belief learns, the reference the goal task's area bar would need (issue 67's diagnosis).
+EXACT_SB3 = "exact_cues_ppo_sb3"
+ALL_VARIANTS = (*VARIANTS, TOLD_SB3, *EM_CANDIDATES, EXACT_SB3)
 N_ENVS = 8
 #: Checkpoints of every run, as fractions of its budget.
 CHECKPOINTS = (0.2, 0.4, 0.6, 0.8, 1.0)
@@ -120,11 +123,42 @@ def task_class(task: str):
             "corridor": ModeCorridorEnv}[task]
 
 
-def make_task(task: str, told: bool = False, n_envs: int = N_ENVS, seed: int = 0):
+def exact_cues(env):
+    """The goal task (``ModeGoalEnv``) with the exact posterior of its cues so far appended to each observation: a cue
+    naming corner ``k`` multiplies ``k``'s odds against each other corner's by ``(a + (1 - a) / 4) / ((1 - a) / 4)``
+    (``a`` the cue's accuracy), so the posterior is the softmax of each corner's count of cues times its logarithm.
+    Written here because no library wraps this task's Bayes filter."""
+    import gymnasium as gym
+
+    class ExactCues(gym.ObservationWrapper):
+        def __init__(self, env) -> None:
+            super().__init__(env)
+            base = env.unwrapped
+            self.weight = np.log((base.cue_accuracy + (1 - base.cue_accuracy) / 4) / ((1 - base.cue_accuracy) / 4))
+            self.counts = np.zeros(4)
+            space = env.observation_space
+            self.observation_space = gym.spaces.Box(np.r_[space.low, np.zeros(4)].astype(space.dtype),
+                                                    np.r_[space.high, np.ones(4)].astype(space.dtype), dtype=space.dtype)
+
+        def reset(self, **kwargs):
+            self.counts = np.zeros(4)
+            return super().reset(**kwargs)
+
+        def observation(self, observation):
+            self.counts = self.counts + observation[2:6]  # (the cue's one-hot, after the position)
+            odds = np.exp(self.weight * (self.counts - self.counts.max()))
+            return np.r_[observation, odds / odds.sum()].astype(observation.dtype)
+
+    return ExactCues(env)
+
+
+def make_task(task: str, told: bool = False, n_envs: int = N_ENVS, seed: int = 0, exact: bool = False):
     from stable_baselines3.common.env_util import make_vec_env
 
     env_class = task_class(task)
-    return make_vec_env(lambda: env_class(told=told), n_envs=n_envs, seed=seed)
+    if exact and task != "goal":
+        raise ValueError(f"{EXACT_SB3} is defined on the goal task only, got {task!r}")
+    return make_vec_env(lambda: env_class(told=told), n_envs=n_envs, seed=seed, wrapper_class=exact_cues if exact else None)
 
 
 def permuted_env(venv, n_components: int):
@@ -180,15 +214,15 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
     from sb3_emmarl.common.phases import PhaseTimes, machine_load
 
     th.set_num_threads(1)
-    told = variant in ("told_ppo", TOLD_SB3)
-    env = make_task(task, told=told, seed=seed)
+    told, exact = variant in ("told_ppo", TOLD_SB3), variant == EXACT_SB3
+    env = make_task(task, told=told, seed=seed, exact=exact)
     if variant == "em_ppo":
         model = EMPPO("MlpPolicy", env, seed=seed)
     elif variant in EM_CANDIDATES:
         candidate = dict(EM_CANDIDATES[variant])
         ppo = ppo_settings(PPO) if candidate.pop("ppo", None) == "sb3" else {}
         model = EMPPO("MlpPolicy", env, seed=seed, **ppo, **candidate)
-    elif variant == TOLD_SB3:  # SB3's own PPO defaults
+    elif variant in (TOLD_SB3, EXACT_SB3):  # SB3's own PPO defaults
         model = PPO("MlpPolicy", env, seed=seed)
     else:  # EM-PPO's PPO settings, so that the variants differ only in what they see
         model = PPO("MlpPolicy", env, seed=seed, **ppo_settings())
@@ -202,7 +236,7 @@ def run(task: str, variant: str, seed: int, budget: int, eval_episodes: int) -> 
         model.learn(steps, reset_num_timesteps=done == 0, callback=times)
         seconds += time.perf_counter() - start
         done += steps
-        eval_env = make_task(task, told=told, n_envs=5, seed=100_000 + seed)
+        eval_env = make_task(task, told=told, n_envs=5, seed=100_000 + seed, exact=exact)
         ends: list[tuple[int, bool]] = []
         point = {"steps": done, "seconds": seconds,
                  "return": float(evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes,

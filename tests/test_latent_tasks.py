@@ -274,3 +274,19 @@ def test_a_run_keeps_where_its_training_s_time_went_and_the_machine_s_load(tmp_p
     assert 0 < sum(phases.values()) <= record["curve"][-1]["seconds"]  # (the rest: SB3's set-up of each learn call)
     assert set(record["load"]) == {"start", "end"} and record["load"]["end"]["cores"] >= 1
     assert "where its training's time went (load average" in message and "wall / floor" in message
+
+
+def test_the_goal_task_s_exact_cue_posterior_is_the_bayes_filter_of_its_cues():
+    bench = load_benchmark("latent_tasks")
+    venv = bench.make_task("goal", n_envs=1, seed=3, exact=True)
+    obs = venv.reset()
+    assert venv.observation_space.shape == (10,) and venv.observation_space.dtype == np.float32
+    weight = np.log((0.5 + 0.5 / 4) / (0.5 / 4))  # the default cue accuracy, 0.5: each cue multiplies its odds by 5
+    counts = np.zeros(4)
+    for step in range(6):
+        counts += obs[0, 2:6]
+        expected = np.exp(weight * counts) / np.exp(weight * counts).sum()
+        np.testing.assert_allclose(obs[0, 6:], expected, rtol=1e-5)
+        obs, _, _, _ = venv.step(np.array([step % 5]))
+    with pytest.raises(ValueError, match="defined on the goal task only, got 'cue'"):
+        bench.make_task("cue", exact=True)
