@@ -29,6 +29,7 @@ import torch as th
 from sb3_emmarl.common.centralized import ENV_ID
 from sb3_emmarl.common.env_ids import ENV_MODULES, parallel_env_fn
 from sb3_emmarl.common.phases import PhaseTimes, machine_load, median_phase_table
+from sb3_emmarl.common.trust.arguments import json_object
 from sb3_emmarl.common.trust.validation import CONDITIONINGS
 from sb3_emmarl.common.vec_env import make_vec_env
 from sb3_emmarl.zoo.algos import STATE_ALGOS, ZOO_ALGOS
@@ -63,17 +64,6 @@ def build(algo: str, seed: int, env=None, vec_env_type: str | None = None, num_c
         return zoo_model(algo, env, seed, env_id)
     return zoo_model(algo, env, seed, env_id,
                      policy_kwargs=zoo_policy_kwargs(algo, env_id, belief_conditioning=belief_conditioning))
-
-
-def json_object(text: str) -> dict:
-    """``--env-kwargs``: a JSON object."""
-    try:
-        value = json.loads(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text!r}") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text!r}")
-    return value
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -685,6 +685,8 @@ def report(runs: list[dict], random_team: float | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from sb3_emmarl.common.trust.arguments import json_object
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run_parser = commands.add_parser("run", help="train and evaluate the runs missing from --folder")
@@ -698,7 +700,7 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("--folder", required=True)
     run_parser.add_argument("--task", choices=sorted(TASKS), default="zone_patrol",
                             help="ZonePatrol or the reserve with scenario='zone_raids'")
-    run_parser.add_argument("--env-kwargs", default="{}",
+    run_parser.add_argument("--env-kwargs", type=json_object, default={},
                             help="the task's arguments as JSON, e.g. '{\"zone_cue\": 0.2}' (ZonePatrol)")
     report_parser = commands.add_parser("report", help="the tables of the runs in --folder (several: their runs "
                                                        "together, e.g. a protocol's seeds and its confirmation's)")
@@ -723,12 +725,10 @@ def main(argv: list[str] | None = None) -> int:
             or len(set(args.seeds)) != len(args.seeds):
         parser.error(f"-n, --n-jobs and --checkpoint-every must be >= 1 (got {args.n}, {args.n_jobs}, "
                      f"{args.checkpoint_every}), --eval-episodes >= 2 (got {args.eval_episodes}) and --seeds distinct")
+    env_kwargs = args.env_kwargs
     try:
-        env_kwargs = json.loads(args.env_kwargs)
-        if not isinstance(env_kwargs, dict):
-            raise ValueError(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
         TASKS[args.task].check(env_kwargs)
-    except ValueError as error:  # (json's JSONDecodeError is one)
+    except ValueError as error:
         parser.error(f"--env-kwargs: {error}")
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [(str(folder), v, s, args.n, args.eval_episodes, env_kwargs, args.task, args.checkpoint_every)

@@ -354,3 +354,15 @@ def test_a_yaml_path_that_is_no_regular_file_is_refused_without_reading_it(tmp_p
     (tmp_path / "big.yml").write_text("a: " + "x" * (2 << 20))
     with pytest.raises(ValueError, match=r"big\.yml: refusing the run's config of more than"):
         load_yaml(tmp_path / "big.yml", "the run's config")
+
+
+def test_a_json_object_flag_gives_the_dict_and_refuses_anything_else_naming_it():
+    import argparse
+
+    from sb3_emmarl.common.trust.arguments import json_object
+
+    assert json_object('{"scenario": "zone_raids", "shaping": 0.5}') == {"scenario": "zone_raids", "shaping": 0.5}
+    with pytest.raises(argparse.ArgumentTypeError, match=r"must be a JSON object, got '\[1\]'"):
+        json_object("[1]")
+    with pytest.raises(argparse.ArgumentTypeError, match=r"not JSON \(.*\): \"{'a': 1}\""):
+        json_object("{'a': 1}")

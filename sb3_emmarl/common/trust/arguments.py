@@ -1,9 +1,10 @@
-"""argparse pieces the command lines share (``emmarl train|enjoy|compare|benchmark|patrol``): errors in one line, and
-rl-zoo's ``key:value`` pairs read as data."""
+"""argparse pieces the command lines share (``emmarl train|enjoy|compare|benchmark|patrol``, the benchmarks): errors in
+one line, rl-zoo's ``key:value`` pairs read as data, and JSON objects."""
 
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -25,6 +26,18 @@ def parse_key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
             raise ValueError(f"{flag} expects key:value pairs, got {item[:80]!r}")
         result[key] = parse_value(value, f"{flag} {key}")
     return result
+
+
+def json_object(text: str) -> dict[str, Any]:
+    """An argparse ``type`` for a flag that takes a JSON object (``--env-kwargs '{"shaping": 0.5}'``): the dict, or the
+    parser's error naming the value."""
+    try:
+        value = json.loads(text)
+    except ValueError as error:  # (json's JSONDecodeError is one)
+        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text!r}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text!r}")
+    return value
 
 
 class KeyValues(argparse.Action):
