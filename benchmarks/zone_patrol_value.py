@@ -435,6 +435,7 @@ def estimate(folder: Path, jobs: list[tuple], n_jobs: int) -> str:
     off) at its variant's median seconds per agent-step (training and evaluations) over the folder's finished runs
     (any variant's, for a variant with none), ``n_jobs`` at a time."""
     from sb3_emmarl.common.checkpoints import list_checkpoints
+    from sb3_emmarl.experiments.runner import time_at_medians
 
     rates: dict[str, list[float]] = {}
     for path in folder.glob("*.json"):
@@ -448,14 +449,13 @@ def estimate(folder: Path, jobs: list[tuple], n_jobs: int) -> str:
         return head
     if not rates:
         return f"{head}; no finished run in the folder yet to estimate their time from"
-    every_rate = [rate for values in rates.values() for rate in values]
-    seconds = 0.0
-    for variant, seed, budget in todo:
-        done = [steps for steps, _ in list_checkpoints(partial_folder(folder, variant, seed), PREFIX)]
-        seconds += float(np.median(rates.get(variant, every_rate))) * max(budget - max(done, default=0), 0)
+    def steps_left(variant: str, seed: int, budget: int) -> int:
+        saved = [steps for steps, _ in list_checkpoints(partial_folder(folder, variant, seed), PREFIX)]
+        return max(budget - max(saved, default=0), 0)
+
+    left = [(variant, steps_left(variant, seed, budget)) for variant, seed, budget in todo]
     per_run = ", ".join(f"{variant} {np.median(values) * 1e6:.0f}" for variant, values in sorted(rates.items()))
-    hours, minutes = divmod(round(seconds / n_jobs / 60), 60)
-    return (f"{head}: about {hours} h {minutes:02d} min at {n_jobs} at a time (microseconds per agent-step, "
+    return (f"{head}: about {time_at_medians(rates, left, n_jobs)} at {n_jobs} at a time (microseconds per agent-step, "
             f"training and evaluations, medians of the folder's finished runs, on the machine as loaded then: "
             f"{per_run})")
 

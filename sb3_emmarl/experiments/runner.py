@@ -414,6 +414,21 @@ def slots_hint(backend: str, n_jobs: int | None) -> int | None:
     return n_jobs or os.cpu_count() or 1
 
 
+def time_at_medians(rates: dict[str, list[float]], todo: Sequence[tuple[str, float]], slots: int) -> str:
+    """How long ``todo`` takes ``slots`` at a time, as ``"H h MM min"``: each ``(kind, amount)`` at the median of its
+    kind's ``rates`` (seconds per unit; every kind's, for a kind with none) times its amount (a protocol's runs, an
+    experiment's cells: :func:`time_to_go`, ``benchmarks/zone_patrol_value.py``'s estimate).
+
+    :param rates: seconds per unit of each kind, measured (at least one)
+    :param todo: what is left, ``(kind, units)``
+    :param slots: how many run at once
+    """
+    every = [rate for values in rates.values() for rate in values]
+    seconds = sum(float(np.median(rates.get(kind, every))) * amount for kind, amount in todo)
+    hours, minutes = divmod(round(seconds / slots / 60), 60)
+    return f"{hours} h {minutes:02d} min"
+
+
 def time_to_go(rows: list[dict[str, Any]], todo: list[tuple[str, str, int]], slots: int | None) -> str:
     """The cells still to run and their time, before they start: each at the median training seconds of the stored
     cells of its algorithm (any algorithm's, for one with none), ``slots`` at a time (the evaluations not counted).
@@ -428,10 +443,8 @@ def time_to_go(rows: list[dict[str, Any]], todo: list[tuple[str, str, int]], slo
             seconds.setdefault(row["algorithm"], []).append(float(row["metrics"]["train_seconds"]))
     if not seconds:
         return f"{len(todo)} cells to run; no stored cell yet to estimate their time from"
-    every = [value for values in seconds.values() for value in values]
-    total = sum(float(np.median(seconds.get(algorithm, every))) for algorithm, _, _ in todo)
-    hours, minutes = divmod(round(total / (slots or 1) / 60), 60)
-    return (f"{len(todo)} cells to run: about {hours} h {minutes:02d} min of training at {slots or 1} at a time (each "
+    duration = time_at_medians(seconds, [(algorithm, 1.0) for algorithm, _, _ in todo], slots or 1)
+    return (f"{len(todo)} cells to run: about {duration} of training at {slots or 1} at a time (each "
             f"at its algorithm's median training seconds over the {len(rows)} stored cells, on the machines and loads "
             "they ran on)")
 
