@@ -306,8 +306,9 @@ def train(variant: str, seed: int, budget: int, env_kwargs: dict, task: str, par
     so_far = {"seconds": 0.0, "phase_seconds": dict.fromkeys(PHASES, 0.0), "load": {"start": machine_load()},
               "resumed_at": []}
     found = list_checkpoints(partial, PREFIX) if partial is not None else []
-    model = build(variant, seed, env_kwargs, task) if not found else None
-    if found:
+    if not found:
+        model = build(variant, seed, env_kwargs, task)
+    else:
         from sb3_emmarl.common.training_state import load_training_state, restore_environment_state, restore_random_generators
         from sb3_emmarl.common.trust.safe_zip import safe_data_objects
         from sb3_emmarl.zoo.algos import ZOO_ALGOS
@@ -325,14 +326,17 @@ def train(variant: str, seed: int, budget: int, env_kwargs: dict, task: str, par
         so_far["resumed_at"].append(steps)
         restore_random_generators(state)  # (last: loading draws from them)
 
+    def progress(seconds: float) -> dict:
+        """The training's record so far: the earlier segments' seconds and phases and this one's (``seconds``)."""
+        return {**so_far, "seconds": so_far["seconds"] + seconds,
+                "phase_seconds": {name: so_far["phase_seconds"][name] + value for name, value in times.seconds.items()}}
+
     class Checkpoints(ResumableCheckpointCallback):
         """The run's checkpoints: its seconds so far written first, the zip last; older ones removed."""
 
         def save_checkpoint(self) -> Path:
             steps = self.model.num_timesteps
-            seconds = {name: so_far["phase_seconds"][name] + value for name, value in times.seconds.items()}
-            write_text(checkpoint_files(partial, steps)[2], json.dumps(
-                {**so_far, "seconds": so_far["seconds"] + time.perf_counter() - start, "phase_seconds": seconds}))
+            write_text(checkpoint_files(partial, steps)[2], json.dumps(progress(time.perf_counter() - start)))
             path = super().save_checkpoint()
             for older, _ in list_checkpoints(partial, PREFIX)[:-1]:
                 for file in checkpoint_files(partial, older):
@@ -350,9 +354,8 @@ def train(variant: str, seed: int, budget: int, env_kwargs: dict, task: str, par
         model.learn(budget - model.num_timesteps, callback=times, reset_num_timesteps=not found)
     if partial is not None and not (found and found[-1][0] >= budget):
         checkpoints.save_checkpoint()  # (the trained model: a kill during the evaluations does not train it again)
-    seconds = {name: so_far["phase_seconds"][name] + value for name, value in times.seconds.items()}
-    return model, {"seconds": so_far["seconds"] + times.wall, "phase_seconds": seconds,
-                   "load": {"start": so_far["load"]["start"], "end": machine_load()}, "resumed_at": so_far["resumed_at"]}
+    record = progress(times.wall)
+    return model, {**record, "load": {"start": record["load"]["start"], "end": machine_load()}}
 
 
 def run(variant: str, seed: int, budget: int, episodes: int, env_kwargs: dict | None = None,
@@ -563,8 +566,8 @@ def settings(variant: str, task: str = "zone_patrol", conditioning: str | None =
     from sb3_emmarl.zoo.exp_manager import zoo_hyperparams, zoo_policy_kwargs
 
     algo, overrides = variant_overrides(variant, task)
-    if conditioning is not None and algo in ("em_ppo", "oracle_ppo"):
-        kwargs = zoo_policy_kwargs(algo, TASKS[task].env_id, **overrides.get("policy_kwargs", {}))
+    if conditioning is not None and algo in ("em_ppo", "oracle_ppo"):  # (a variant's own policy_kwargs: the YAML's too)
+        kwargs = overrides.get("policy_kwargs") or zoo_policy_kwargs(algo, TASKS[task].env_id)
         overrides = {**overrides, "policy_kwargs": {**kwargs, "belief_conditioning": conditioning}}
     section = merge_hyperparams(zoo_hyperparams(algo, TASKS[task].env_id), overrides)
     section = {**section, **section.pop("latent_kwargs", {})}  # (EM's settings named one by one)
